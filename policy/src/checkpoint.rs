@@ -1,0 +1,177 @@
+//! Checkpoints: a directory with `model.safetensors` (the weights) and `policy.json` (policy kind, network
+//! config, normalisation statistics, training log). Loading checks everything before a model exists: a
+//! corrupt, truncated or wrong-shape checkpoint is an error that names the file or tensor, never a panic.
+
+use crate::config::{ModelConfig, PolicyKind, TrainConfig};
+use crate::model::MarsModel;
+use crate::normalize::Normalizer;
+use crate::train::{EpochLog, Trained};
+use candle_core::{DType, Device, Shape, Tensor};
+use candle_nn::{Init, VarBuilder};
+use serde::{Deserialize, Serialize};
+use std::collections::{BTreeSet, HashMap};
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex};
+
+pub const WEIGHTS_FILE: &str = "model.safetensors";
+pub const META_FILE: &str = "policy.json";
+const FORMAT: &str = "mars-policy-checkpoint";
+const VERSION: u32 = 1;
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CheckpointMeta {
+    pub format: String,
+    pub version: u32,
+    pub kind: PolicyKind,
+    pub model: ModelConfig,
+    pub train: TrainConfig,
+    pub normalizer: Normalizer,
+    pub log: Vec<EpochLog>,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum CheckpointError {
+    #[error("checkpoint {path}: cannot read: {source}")]
+    Io { path: PathBuf, source: std::io::Error },
+    #[error("checkpoint {path}: not a valid {META_FILE}: {problem}")]
+    Meta { path: PathBuf, problem: String },
+    #[error("checkpoint {path}: corrupt or truncated safetensors file: {problem}")]
+    Corrupt { path: PathBuf, problem: String },
+    #[error("checkpoint {path}: tensor `{name}`: {problem}")]
+    Tensor { path: PathBuf, name: String, problem: String },
+    #[error("checkpoint {path}: {problem}")]
+    Model { path: PathBuf, problem: String },
+}
+
+pub struct Loaded {
+    pub model: MarsModel,
+    pub meta: CheckpointMeta,
+}
+
+/// Writes both files through temporary names and renames, so a crash never leaves a half-written checkpoint
+/// under the real names.
+pub fn save(dir: &Path, trained: &Trained) -> Result<(), CheckpointError> {
+    let io = |source| CheckpointError::Io { path: dir.to_path_buf(), source };
+    std::fs::create_dir_all(dir).map_err(io)?;
+    let meta = CheckpointMeta {
+        format: FORMAT.into(),
+        version: VERSION,
+        kind: trained.cfg.kind,
+        model: trained.cfg.model.clone(),
+        train: trained.cfg.train.clone(),
+        normalizer: trained.normalizer.clone(),
+        log: trained.log.clone(),
+    };
+    let tmp_weights = dir.join(format!(".{WEIGHTS_FILE}.tmp"));
+    trained
+        .varmap
+        .save(&tmp_weights)
+        .map_err(|e| CheckpointError::Model { path: tmp_weights.clone(), problem: e.to_string() })?;
+    let json = serde_json::to_string_pretty(&meta)
+        .map_err(|e| CheckpointError::Meta { path: dir.join(META_FILE), problem: e.to_string() })?;
+    let tmp_meta = dir.join(format!(".{META_FILE}.tmp"));
+    std::fs::write(&tmp_meta, json).map_err(io)?;
+    std::fs::rename(&tmp_weights, dir.join(WEIGHTS_FILE)).map_err(io)?;
+    std::fs::rename(&tmp_meta, dir.join(META_FILE)).map_err(io)?;
+    Ok(())
+}
+
+pub fn load_meta(dir: &Path) -> Result<CheckpointMeta, CheckpointError> {
+    let path = dir.join(META_FILE);
+    let text = std::fs::read_to_string(&path).map_err(|source| CheckpointError::Io { path: path.clone(), source })?;
+    let meta_err = |problem: String| CheckpointError::Meta { path: path.clone(), problem };
+    let meta: CheckpointMeta = serde_json::from_str(&text).map_err(|e| meta_err(e.to_string()))?;
+    if meta.format != FORMAT || meta.version != VERSION {
+        return Err(meta_err(format!(
+            "format {} v{}, this build reads {FORMAT} v{VERSION}",
+            meta.format, meta.version
+        )));
+    }
+    meta.model.validate().map_err(|e| meta_err(e.to_string()))?;
+    let n = &meta.normalizer;
+    if !n.obs.is_valid() || n.obs.dim() != meta.model.obs_dim {
+        return Err(meta_err(format!(
+            "observation statistics must be {} finite values with std > 0",
+            meta.model.obs_dim
+        )));
+    }
+    if !n.action.is_valid() || n.action.dim() != meta.model.action_dim {
+        return Err(meta_err(format!(
+            "action statistics must be {} finite values with std > 0",
+            meta.model.action_dim
+        )));
+    }
+    Ok(meta)
+}
+
+pub fn load(dir: &Path, device: &Device) -> Result<Loaded, CheckpointError> {
+    let meta = load_meta(dir)?;
+    let path = dir.join(WEIGHTS_FILE);
+    let bytes = std::fs::read(&path).map_err(|source| CheckpointError::Io { path: path.clone(), source })?;
+    let st = safetensors::SafeTensors::deserialize(&bytes)
+        .map_err(|e| CheckpointError::Corrupt { path: path.clone(), problem: e.to_string() })?;
+    let mut tensors = HashMap::new();
+    for (name, view) in st.tensors() {
+        let tensor_err = |problem: String| CheckpointError::Tensor { path: path.clone(), name: name.clone(), problem };
+        if view.dtype() != safetensors::Dtype::F32 {
+            return Err(tensor_err(format!("dtype {:?}, expected F32", view.dtype())));
+        }
+        let t = candle_core::safetensors::Load::load(&view, device).map_err(|e| tensor_err(e.to_string()))?;
+        let finite = t.flatten_all().and_then(|f| f.to_vec1::<f32>()).map_err(|e| tensor_err(e.to_string()))?;
+        if finite.iter().any(|v| !v.is_finite()) {
+            return Err(tensor_err("contains NaN or infinite values".into()));
+        }
+        tensors.insert(name, t);
+    }
+    let used: Arc<Mutex<BTreeSet<String>>> = Arc::default();
+    let backend = CheckedTensors { tensors, used: used.clone() };
+    let vb = VarBuilder::from_backend(Box::new(backend), DType::F32, device.clone());
+    let model = MarsModel::new(&meta.model, meta.kind, vb)
+        .map_err(|e| CheckpointError::Model { path: path.clone(), problem: e.to_string() })?;
+    let used = used.lock().unwrap_or_else(|e| e.into_inner());
+    if let Some(extra) = st.names().into_iter().find(|n| !used.contains(*n)) {
+        return Err(CheckpointError::Tensor {
+            path,
+            name: extra.to_string(),
+            problem: format!("not part of a `{}` model with this config (wrong policy kind or config?)", meta.kind),
+        });
+    }
+    Ok(Loaded { model, meta })
+}
+
+/// A `VarBuilder` backend over loaded tensors that reports a missing or wrong-shape tensor by name and records
+/// which tensors the model used, so leftovers can be reported too.
+struct CheckedTensors {
+    tensors: HashMap<String, Tensor>,
+    /// Shared with `load`, which keeps a handle: the backend itself moves into the `VarBuilder`.
+    used: Arc<Mutex<BTreeSet<String>>>,
+}
+
+impl candle_nn::var_builder::SimpleBackend for CheckedTensors {
+    fn get(&self, s: Shape, name: &str, _h: Init, dtype: DType, dev: &Device) -> candle_core::Result<Tensor> {
+        let Some(t) = self.tensors.get(name) else {
+            candle_core::bail!("tensor `{name}` (shape {:?}) is missing from the checkpoint", s.dims());
+        };
+        if t.shape() != &s {
+            candle_core::bail!(
+                "tensor `{name}` has shape {:?} in the checkpoint, the config needs {:?}",
+                t.dims(),
+                s.dims()
+            );
+        }
+        self.used.lock().unwrap_or_else(|e| e.into_inner()).insert(name.to_string());
+        t.to_dtype(dtype)?.to_device(dev)
+    }
+
+    fn get_unchecked(&self, name: &str, dtype: DType, dev: &Device) -> candle_core::Result<Tensor> {
+        match self.tensors.get(name) {
+            Some(t) => t.to_dtype(dtype)?.to_device(dev),
+            None => candle_core::bail!("tensor `{name}` is missing from the checkpoint"),
+        }
+    }
+
+    fn contains_tensor(&self, name: &str) -> bool {
+        self.tensors.contains_key(name)
+    }
+}

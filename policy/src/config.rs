@@ -1,0 +1,220 @@
+//! Policy configuration: which policy (MARS or a baseline), the network sizes, and the training settings.
+//! Read from TOML (`configs/policy.toml`); every field is checked before anything is built.
+
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    #[error("cannot read config {path}: {source}")]
+    Read { path: String, source: std::io::Error },
+    #[error("config {path} is not valid TOML for a policy config: {source}")]
+    Parse { path: String, source: toml::de::Error },
+    #[error("config field `{field}` {problem}")]
+    Invalid { field: &'static str, problem: String },
+}
+
+fn invalid(field: &'static str, problem: impl Into<String>) -> ConfigError {
+    ConfigError::Invalid { field, problem: problem.into() }
+}
+
+/// MARS and the baselines it is compared with; all share one network and differ in source, losses and K.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "kebab-case")]
+pub enum PolicyKind {
+    /// Learned per-dimension w; L_fm + L_rec + L_div; K = K(w).
+    Mars,
+    /// Flow matching: Gaussian source (w ≡ 1), L_fm only, K = K_max.
+    Fm,
+    /// Action-to-action: history source (w ≡ 0), L_fm + L_rec, K = 1.
+    A2a,
+    /// A2A with a small constant noise weight (`model.noise_a2a_w`).
+    NoiseA2a,
+}
+
+impl PolicyKind {
+    pub const ALL: [PolicyKind; 4] = [PolicyKind::Mars, PolicyKind::Fm, PolicyKind::A2a, PolicyKind::NoiseA2a];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            PolicyKind::Mars => "mars",
+            PolicyKind::Fm => "fm",
+            PolicyKind::A2a => "a2a",
+            PolicyKind::NoiseA2a => "noise-a2a",
+        }
+    }
+
+    /// The fixed modality weight of a baseline, or `None` when a scheduler network learns it.
+    pub fn fixed_w(self, model: &ModelConfig) -> Option<f32> {
+        match self {
+            PolicyKind::Mars => None,
+            PolicyKind::Fm => Some(1.0),
+            PolicyKind::A2a => Some(0.0),
+            PolicyKind::NoiseA2a => Some(model.noise_a2a_w),
+        }
+    }
+
+    pub fn uses_rec_loss(self) -> bool {
+        self != PolicyKind::Fm
+    }
+
+    pub fn uses_div_loss(self) -> bool {
+        self == PolicyKind::Mars
+    }
+}
+
+impl std::fmt::Display for PolicyKind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// Observation encoder choice. Images (ResNet-18) will be another variant; the model only sees the trait.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "type", rename_all = "kebab-case", deny_unknown_fields)]
+pub enum EncoderConfig {
+    /// A state vector through an MLP.
+    StateMlp { hidden: usize },
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ModelConfig {
+    pub obs_dim: usize,
+    pub action_dim: usize,
+    /// C: future actions per chunk.
+    pub chunk_len: usize,
+    /// H: executed actions in the history. Must equal C: the history chunk is the flow source.
+    pub history_len: usize,
+    pub encoder: EncoderConfig,
+    /// Width of the observation embedding that conditions the scheduler and the DiT.
+    pub obs_embed_dim: usize,
+    pub scheduler_hidden: usize,
+    /// Also feed the (flattened) history to the modal scheduler.
+    pub scheduler_uses_history: bool,
+    pub dit_width: usize,
+    pub dit_depth: usize,
+    pub dit_heads: usize,
+    pub dit_mlp_ratio: usize,
+    pub k_max: usize,
+    pub noise_a2a_w: f32,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TrainConfig {
+    pub epochs: usize,
+    pub batch_size: usize,
+    pub lr: f64,
+    pub weight_decay: f64,
+    pub lambda_rec: f64,
+    pub lambda_div: f64,
+    /// m: nearest neighbours in history space for the diversity loss.
+    pub knn_m: usize,
+    pub seed: u64,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PolicyConfig {
+    pub kind: PolicyKind,
+    pub model: ModelConfig,
+    pub train: TrainConfig,
+}
+
+impl PolicyConfig {
+    pub fn load(path: &Path) -> Result<Self, ConfigError> {
+        let text = std::fs::read_to_string(path)
+            .map_err(|source| ConfigError::Read { path: path.display().to_string(), source })?;
+        Self::from_toml(&text).map_err(|e| match e {
+            ConfigError::Parse { source, .. } => ConfigError::Parse { path: path.display().to_string(), source },
+            other => other,
+        })
+    }
+
+    pub fn from_toml(text: &str) -> Result<Self, ConfigError> {
+        let cfg: PolicyConfig =
+            toml::from_str(text).map_err(|source| ConfigError::Parse { path: "<string>".into(), source })?;
+        cfg.validate()?;
+        Ok(cfg)
+    }
+
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        self.model.validate()?;
+        self.train.validate()
+    }
+}
+
+impl ModelConfig {
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        let positive = [
+            ("model.obs_dim", self.obs_dim),
+            ("model.action_dim", self.action_dim),
+            ("model.chunk_len", self.chunk_len),
+            ("model.history_len", self.history_len),
+            ("model.obs_embed_dim", self.obs_embed_dim),
+            ("model.scheduler_hidden", self.scheduler_hidden),
+            ("model.dit_width", self.dit_width),
+            ("model.dit_depth", self.dit_depth),
+            ("model.dit_heads", self.dit_heads),
+            ("model.dit_mlp_ratio", self.dit_mlp_ratio),
+            ("model.k_max", self.k_max),
+        ];
+        for (field, v) in positive {
+            if v == 0 {
+                return Err(invalid(field, "must be at least 1"));
+            }
+        }
+        let EncoderConfig::StateMlp { hidden } = self.encoder;
+        if hidden == 0 {
+            return Err(invalid("model.encoder.hidden", "must be at least 1"));
+        }
+        if self.history_len != self.chunk_len {
+            return Err(invalid(
+                "model.history_len",
+                format!(
+                    "is {} but chunk_len is {}: the history chunk is the flow source, so they must match",
+                    self.history_len, self.chunk_len
+                ),
+            ));
+        }
+        if self.dit_width % self.dit_heads != 0 {
+            return Err(invalid(
+                "model.dit_heads",
+                format!("({}) must divide model.dit_width ({})", self.dit_heads, self.dit_width),
+            ));
+        }
+        if !(0.0..=1.0).contains(&self.noise_a2a_w) {
+            return Err(invalid("model.noise_a2a_w", format!("is {}, must lie in [0, 1]", self.noise_a2a_w)));
+        }
+        Ok(())
+    }
+}
+
+impl TrainConfig {
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        if self.epochs == 0 {
+            return Err(invalid("train.epochs", "must be at least 1"));
+        }
+        if self.batch_size < 2 {
+            return Err(invalid("train.batch_size", "must be at least 2"));
+        }
+        if self.knn_m == 0 {
+            return Err(invalid("train.knn_m", "must be at least 1"));
+        }
+        for (field, v) in [
+            ("train.lr", self.lr),
+            ("train.weight_decay", self.weight_decay),
+            ("train.lambda_rec", self.lambda_rec),
+            ("train.lambda_div", self.lambda_div),
+        ] {
+            if !v.is_finite() || v < 0.0 {
+                return Err(invalid(field, format!("is {v}, must be a finite number ≥ 0")));
+            }
+        }
+        if self.lr == 0.0 {
+            return Err(invalid("train.lr", "must be > 0"));
+        }
+        Ok(())
+    }
+}

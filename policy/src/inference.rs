@@ -1,0 +1,95 @@
+//! A trained policy behind the `ChunkPolicy` interface: checks and normalises the inputs, samples a chunk with
+//! K(w) Euler steps, and returns it in the task's units. Noise comes from the policy's own seeded generator.
+//!
+//! This path uses candle and allocates on every call; the real-time runtime uses the preallocated engine.
+
+use crate::checkpoint::{self, CheckpointMeta};
+use crate::model::MarsModel;
+use crate::normalize::Normalizer;
+use crate::rollout::{ChunkPolicy, Prediction};
+use crate::train::{Trained, randn};
+use candle_core::{Device, Tensor};
+use rand::SeedableRng;
+use rand::rngs::StdRng;
+use std::path::Path;
+
+pub struct MarsPolicy {
+    model: MarsModel,
+    normalizer: Normalizer,
+    rng: StdRng,
+}
+
+impl MarsPolicy {
+    pub fn new(model: MarsModel, normalizer: Normalizer, seed: u64) -> Self {
+        Self { model, normalizer, rng: StdRng::seed_from_u64(seed) }
+    }
+
+    pub fn load(dir: &Path, seed: u64) -> anyhow::Result<(Self, CheckpointMeta)> {
+        let loaded = checkpoint::load(dir, &Device::Cpu)?;
+        let normalizer = loaded.meta.normalizer.clone();
+        Ok((Self::new(loaded.model, normalizer, seed), loaded.meta))
+    }
+
+    pub fn from_trained(trained: Trained, seed: u64) -> Self {
+        Self::new(trained.model, trained.normalizer, seed)
+    }
+
+    /// Re-seed the noise generator (one seed per rollout makes each rollout reproducible on its own).
+    pub fn reseed(&mut self, seed: u64) {
+        self.rng = StdRng::seed_from_u64(seed);
+    }
+
+    pub fn model(&self) -> &MarsModel {
+        &self.model
+    }
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum InputError {
+    #[error("{what} has {got} values, the policy expects {want}")]
+    Length { what: &'static str, got: usize, want: usize },
+    #[error("{what}[{index}] is {value}: inputs must be finite")]
+    NonFinite { what: &'static str, index: usize, value: f32 },
+}
+
+fn check(what: &'static str, x: &[f32], want: usize) -> Result<(), InputError> {
+    if x.len() != want {
+        return Err(InputError::Length { what, got: x.len(), want });
+    }
+    match x.iter().position(|v| !v.is_finite()) {
+        Some(index) => Err(InputError::NonFinite { what, index, value: x[index] }),
+        None => Ok(()),
+    }
+}
+
+impl ChunkPolicy for MarsPolicy {
+    fn action_dim(&self) -> usize {
+        self.model.cfg.action_dim
+    }
+
+    fn chunk_len(&self) -> usize {
+        self.model.cfg.chunk_len
+    }
+
+    fn history_len(&self) -> usize {
+        self.model.cfg.history_len
+    }
+
+    fn predict(&mut self, observation: &[f32], history: &[f32]) -> anyhow::Result<Prediction> {
+        let cfg = &self.model.cfg;
+        let (c, d, h) = (cfg.chunk_len, cfg.action_dim, cfg.history_len);
+        check("observation", observation, cfg.obs_dim)?;
+        check("history", history, h * d)?;
+        let (mut obs, mut hist) = (observation.to_vec(), history.to_vec());
+        self.normalizer.obs.normalize(&mut obs);
+        self.normalizer.action.normalize(&mut hist);
+        let dev = self.model.device().clone();
+        let obs = Tensor::from_vec(obs, (1, cfg.obs_dim), &dev)?;
+        let hist = Tensor::from_vec(hist, (1, h, d), &dev)?;
+        let eps = randn(&mut self.rng, &[1, c, d], &dev)?;
+        let (chunk, w, k) = self.model.sample(&obs, &hist, &eps)?;
+        let mut chunk = chunk.flatten_all()?.to_vec1::<f32>()?;
+        self.normalizer.action.denormalize(&mut chunk);
+        Ok(Prediction { chunk, w: w.flatten_all()?.to_vec1::<f32>()?, k })
+    }
+}

@@ -1,0 +1,102 @@
+//! The MARS model: observation encoder → modal scheduler w → flow source a0 = (1−w)⊙a≤t + w⊙ε → DiT velocity
+//! field, integrated with K(w) Euler steps. The baselines are the same model with w fixed.
+
+use crate::config::{ModelConfig, PolicyKind};
+use crate::encoder::{self, ObsEncoder};
+use crate::nn::dit::{Dit, DitDims};
+use crate::scheduler::ModalScheduler;
+use candle_core::{Device, Result, Tensor};
+use candle_nn::VarBuilder;
+
+pub struct MarsModel {
+    pub cfg: ModelConfig,
+    pub kind: PolicyKind,
+    encoder: Box<dyn ObsEncoder>,
+    /// `None` for the baselines, whose w is a constant.
+    scheduler: Option<ModalScheduler>,
+    velocity: Dit,
+}
+
+/// K(w) = ⌈K_max·‖w‖∞⌉ clamped to [1, K_max]. The small slack keeps float noise (0.1·10 = 1.0000001) from
+/// costing a whole extra step.
+pub fn steps_for(w_inf: f32, k_max: usize) -> usize {
+    let k = (k_max as f32 * w_inf - 1e-5).ceil();
+    if k.is_nan() { k_max } else { (k as i64).clamp(1, k_max as i64) as usize }
+}
+
+impl MarsModel {
+    pub fn new(cfg: &ModelConfig, kind: PolicyKind, vb: VarBuilder) -> Result<Self> {
+        let encoder = encoder::build(&cfg.encoder, cfg.obs_dim, cfg.obs_embed_dim, vb.pp("encoder"))?;
+        let scheduler = match kind.fixed_w(cfg) {
+            Some(_) => None,
+            None => Some(ModalScheduler::new(
+                cfg.obs_embed_dim,
+                cfg.scheduler_uses_history.then_some(cfg.history_len * cfg.action_dim),
+                cfg.scheduler_hidden,
+                cfg.action_dim,
+                vb.pp("scheduler"),
+            )?),
+        };
+        let dims = DitDims {
+            action_dim: cfg.action_dim,
+            chunk_len: cfg.chunk_len,
+            cond_dim: cfg.obs_embed_dim,
+            width: cfg.dit_width,
+            depth: cfg.dit_depth,
+            heads: cfg.dit_heads,
+            mlp_ratio: cfg.dit_mlp_ratio,
+        };
+        Ok(Self { cfg: cfg.clone(), kind, encoder, scheduler, velocity: Dit::new(&dims, vb.pp("velocity"))? })
+    }
+
+    pub fn encode(&self, obs: &Tensor) -> Result<Tensor> {
+        self.encoder.forward(obs)
+    }
+
+    /// The modality weight w: [B, D]. Learned for MARS, a constant for the baselines.
+    pub fn weights(&self, obs_emb: &Tensor, history: &Tensor) -> Result<Tensor> {
+        match (&self.scheduler, self.kind.fixed_w(&self.cfg)) {
+            (Some(s), _) => s.forward(obs_emb, history),
+            (None, Some(w)) => Tensor::full(w, (obs_emb.dim(0)?, self.cfg.action_dim), obs_emb.device()),
+            (None, None) => candle_core::bail!("policy {} has neither a scheduler nor a fixed w", self.kind),
+        }
+    }
+
+    /// The flow source a0 = (1 − w) ⊙ history + w ⊙ ε, with w: [B, D] broadcast over the chunk's steps.
+    pub fn source(history: &Tensor, w: &Tensor, eps: &Tensor) -> Result<Tensor> {
+        let w = w.unsqueeze(1)?;
+        let keep = w.affine(-1.0, 1.0)?;
+        history.broadcast_mul(&keep)? + eps.broadcast_mul(&w)?
+    }
+
+    pub fn velocity(&self, a: &Tensor, tau: &Tensor, obs_emb: &Tensor) -> Result<Tensor> {
+        self.velocity.forward(a, tau, obs_emb)
+    }
+
+    /// Euler integration of the learned ODE from τ = 0 to 1 in `k` equal steps. `a0`: [B, C, D].
+    pub fn integrate(&self, a0: &Tensor, obs_emb: &Tensor, k: usize) -> Result<Tensor> {
+        let b = a0.dim(0)?;
+        let dt = 1.0 / k as f64;
+        let mut a = a0.clone();
+        for step in 0..k {
+            let tau = Tensor::full((step as f64 * dt) as f32, b, a0.device())?;
+            a = (&a + (self.velocity(&a, &tau, obs_emb)? * dt)?)?;
+        }
+        Ok(a)
+    }
+
+    /// One inference on normalised inputs: returns (chunk [B, C, D], w [B, D], K). `eps`: [B, C, D] ~ N(0, I).
+    /// K follows the most multimodal sample in the batch (batch 1 at run time).
+    pub fn sample(&self, obs: &Tensor, history: &Tensor, eps: &Tensor) -> Result<(Tensor, Tensor, usize)> {
+        let emb = self.encode(obs)?;
+        let w = self.weights(&emb, history)?;
+        let w_inf = w.flatten_all()?.max(0)?.to_scalar::<f32>()?;
+        let k = steps_for(w_inf, self.cfg.k_max);
+        let a0 = Self::source(history, &w, eps)?;
+        Ok((self.integrate(&a0, &emb, k)?, w, k))
+    }
+
+    pub fn device(&self) -> &Device {
+        self.velocity.device()
+    }
+}

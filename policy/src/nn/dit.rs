@@ -1,0 +1,112 @@
+//! The velocity field v(a_τ, τ | obs): a DiT whose tokens are the chunk's time steps, conditioned through
+//! adaLN-Zero on the flow time and the observation embedding.
+
+use super::attention::SelfAttention;
+use super::mlp::{Activation, Mlp};
+use super::norm::{layer_norm_no_affine, modulate};
+use super::time_embed::TimeEmbedding;
+use candle_core::{Module, Result, Tensor};
+use candle_nn::{Linear, VarBuilder, init, linear};
+
+const LN_EPS: f64 = 1e-6;
+
+/// A linear layer that starts at zero: adaLN-Zero makes each block the identity at initialisation.
+fn zero_linear(input: usize, output: usize, vb: VarBuilder) -> Result<Linear> {
+    Ok(Linear::new(
+        vb.get_with_hints((output, input), "weight", init::ZERO)?,
+        Some(vb.get_with_hints(output, "bias", init::ZERO)?),
+    ))
+}
+
+#[derive(Debug, Clone)]
+struct DitBlock {
+    attn: SelfAttention,
+    mlp: Mlp,
+    /// c → (shift, scale, gate) for attention and for the MLP.
+    ada: Linear,
+}
+
+impl DitBlock {
+    fn new(width: usize, heads: usize, mlp_ratio: usize, vb: VarBuilder) -> Result<Self> {
+        Ok(Self {
+            attn: SelfAttention::new(width, heads, vb.pp("attn"))?,
+            mlp: Mlp::new(width, width * mlp_ratio, width, Activation::Gelu, vb.pp("mlp"))?,
+            ada: zero_linear(width, 6 * width, vb.pp("ada"))?,
+        })
+    }
+
+    /// `x`: [B, T, W]; `c`: [B, W] (already passed through SiLU).
+    fn forward(&self, x: &Tensor, c: &Tensor) -> Result<Tensor> {
+        let m = self.ada.forward(c)?.chunk(6, 1)?;
+        let h = modulate(&layer_norm_no_affine(x, LN_EPS)?, &m[0], &m[1])?;
+        let x = (x + self.attn.forward(&h)?.broadcast_mul(&m[2].unsqueeze(1)?)?)?;
+        let h = modulate(&layer_norm_no_affine(&x, LN_EPS)?, &m[3], &m[4])?;
+        x + self.mlp.forward(&h)?.broadcast_mul(&m[5].unsqueeze(1)?)?
+    }
+}
+
+#[derive(Debug, Clone)]
+pub struct Dit {
+    action_in: Linear,
+    pos: Tensor,
+    time: TimeEmbedding,
+    cond_in: Linear,
+    blocks: Vec<DitBlock>,
+    final_ada: Linear,
+    action_out: Linear,
+}
+
+pub struct DitDims {
+    pub action_dim: usize,
+    pub chunk_len: usize,
+    pub cond_dim: usize,
+    pub width: usize,
+    pub depth: usize,
+    pub heads: usize,
+    pub mlp_ratio: usize,
+}
+
+impl Dit {
+    pub fn new(d: &DitDims, vb: VarBuilder) -> Result<Self> {
+        let blocks = (0..d.depth)
+            .map(|i| DitBlock::new(d.width, d.heads, d.mlp_ratio, vb.pp(format!("blocks.{i}"))))
+            .collect::<Result<Vec<_>>>()?;
+        Ok(Self {
+            action_in: linear(d.action_dim, d.width, vb.pp("action_in"))?,
+            pos: vb.get_with_hints(
+                (d.chunk_len, d.width),
+                "pos_embed",
+                init::Init::Randn { mean: 0.0, stdev: 0.02 },
+            )?,
+            time: TimeEmbedding::new(d.width.max(32), d.width, vb.pp("time"))?,
+            cond_in: linear(d.cond_dim, d.width, vb.pp("cond_in"))?,
+            blocks,
+            final_ada: zero_linear(d.width, 2 * d.width, vb.pp("final_ada"))?,
+            action_out: zero_linear(d.width, d.action_dim, vb.pp("action_out"))?,
+        })
+    }
+
+    /// The conditioning vector for a batch: it depends on τ and the observation only, so an ODE solver can
+    /// compute the observation part once. `tau`: [B]; `obs_emb`: [B, E] → [B, W] after SiLU.
+    pub fn condition(&self, tau: &Tensor, obs_emb: &Tensor) -> Result<Tensor> {
+        (self.time.forward(tau)? + self.cond_in.forward(obs_emb)?)?.silu()
+    }
+
+    /// `a`: [B, C, D] (normalised actions at flow time τ) → velocity [B, C, D].
+    pub fn forward(&self, a: &Tensor, tau: &Tensor, obs_emb: &Tensor) -> Result<Tensor> {
+        let c = self.condition(tau, obs_emb)?;
+        let mut x = self.action_in.forward(a)?.broadcast_add(&self.pos)?;
+        for block in &self.blocks {
+            x = block.forward(&x, &c)?;
+        }
+        let m = self.final_ada.forward(&c)?.chunk(2, 1)?;
+        let x = modulate(&layer_norm_no_affine(&x, LN_EPS)?, &m[0], &m[1])?;
+        self.action_out.forward(&x)
+    }
+}
+
+impl Dit {
+    pub fn device(&self) -> &candle_core::Device {
+        self.pos.device()
+    }
+}

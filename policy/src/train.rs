@@ -1,0 +1,217 @@
+//! Training: seeded batches, the losses each policy kind uses, AdamW, a progress bar and a per-epoch log.
+
+use crate::config::{PolicyConfig, PolicyKind};
+use crate::dataset::{Dataset, DatasetTensors};
+use crate::demo::Demo;
+use crate::losses;
+use crate::model::MarsModel;
+use crate::nn::seeded_init::SeededInit;
+use crate::normalize::Normalizer;
+use candle_core::{Device, Tensor, Var};
+use candle_nn::{AdamW, Optimizer, ParamsAdamW, VarMap};
+use rand::rngs::StdRng;
+use rand::seq::SliceRandom;
+use rand::{Rng, SeedableRng};
+use rand_distr::StandardNormal;
+use serde::{Deserialize, Serialize};
+
+/// Mean loss terms over one epoch (terms a policy kind does not use stay 0).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct EpochLog {
+    pub epoch: usize,
+    pub total: f32,
+    pub fm: f32,
+    pub rec: f32,
+    pub div: f32,
+    /// Mean ‖w‖∞ over the epoch's samples.
+    pub w_inf: f32,
+}
+
+pub struct Trained {
+    pub cfg: PolicyConfig,
+    pub model: MarsModel,
+    pub varmap: VarMap,
+    pub normalizer: Normalizer,
+    pub log: Vec<EpochLog>,
+}
+
+/// One batch, gathered from the dataset tensors.
+pub struct Batch {
+    pub obs: Tensor,
+    pub history: Tensor,
+    pub next: Tensor,
+    /// [B, m, H, D]
+    pub neighbour_history: Tensor,
+    pub s_next: Tensor,
+}
+
+impl Batch {
+    pub fn gather(data: &DatasetTensors, idx: &[u32]) -> candle_core::Result<Self> {
+        let dev = data.obs.device();
+        let idx_t = Tensor::from_slice(idx, idx.len(), dev)?;
+        let nbrs = data.neighbours.index_select(&idx_t, 0)?; // [B, m]
+        let (b, m) = nbrs.dims2()?;
+        let (_, h, d) = data.history.dims3()?;
+        let neighbour_history = data.history.index_select(&nbrs.flatten_all()?, 0)?.reshape((b, m, h, d))?;
+        Ok(Self {
+            obs: data.obs.index_select(&idx_t, 0)?,
+            history: data.history.index_select(&idx_t, 0)?,
+            next: data.next.index_select(&idx_t, 0)?,
+            neighbour_history,
+            s_next: data.s_next.index_select(&idx_t, 0)?,
+        })
+    }
+}
+
+/// Standard normal noise from the seeded generator (candle's CPU RNG cannot be seeded).
+pub fn randn(rng: &mut StdRng, shape: &[usize], dev: &Device) -> candle_core::Result<Tensor> {
+    let n: usize = shape.iter().product();
+    let v: Vec<f32> = (0..n).map(|_| rng.sample(StandardNormal)).collect();
+    Tensor::from_vec(v, shape, dev)
+}
+
+pub struct LossTerms {
+    pub total: Tensor,
+    pub fm: Tensor,
+    pub rec: Option<Tensor>,
+    pub div: Option<Tensor>,
+    pub w: Tensor,
+}
+
+/// The training objective of `kind` on one batch: L_fm (+ λ_rec L_rec) (+ λ_div L_div).
+pub fn batch_losses(
+    model: &MarsModel,
+    batch: &Batch,
+    cfg: &PolicyConfig,
+    rng: &mut StdRng,
+) -> candle_core::Result<LossTerms> {
+    let dev = batch.obs.device();
+    let (b, c, d) = batch.next.dims3()?;
+    let emb = model.encode(&batch.obs)?;
+    let w = model.weights(&emb, &batch.history)?;
+    let eps = randn(rng, &[b, c, d], dev)?;
+    let a0 = MarsModel::source(&batch.history, &w, &eps)?;
+    let a1 = &batch.next;
+
+    let tau_v: Vec<f32> = (0..b).map(|_| rng.random::<f32>()).collect();
+    let tau = Tensor::from_vec(tau_v, b, dev)?;
+    let tau_b = tau.reshape((b, 1, 1))?;
+    let a_tau = (a0.broadcast_mul(&tau_b.affine(-1.0, 1.0)?)? + a1.broadcast_mul(&tau_b)?)?;
+    let fm = losses::flow_matching(&model.velocity(&a_tau, &tau, &emb)?, &a0, a1)?;
+    let mut total = fm.clone();
+
+    let rec = if cfg.kind.uses_rec_loss() {
+        // The source is rebuilt from the detached w: L_rec trains the velocity field, never the scheduler.
+        let a0_d = MarsModel::source(&batch.history, &w.detach(), &eps)?;
+        let a1_hat = (&a0_d + model.velocity(&a0_d, &Tensor::zeros(b, candle_core::DType::F32, dev)?, &emb)?)?;
+        let rec = losses::reconstruction(&a1_hat, a1, &w)?;
+        total = (total + (&rec * cfg.train.lambda_rec)?)?;
+        Some(rec)
+    } else {
+        None
+    };
+
+    let div = if cfg.kind.uses_div_loss() {
+        let m = batch.neighbour_history.dim(1)?;
+        let own = MarsModel::source(&batch.history, &w, &randn(rng, &[b, c, d], dev)?)?;
+        let others = losses::neighbour_sources(&batch.neighbour_history, &w, &randn(rng, &[b, m, c, d], dev)?)?;
+        let div = losses::diversity(&batch.s_next, &losses::dispersion(&own, &others)?)?;
+        total = (total + (&div * cfg.train.lambda_div)?)?;
+        Some(div)
+    } else {
+        None
+    };
+    Ok(LossTerms { total, fm, rec, div, w })
+}
+
+/// AdamW decays weight matrices only: decaying biases and embeddings toward zero is not regularisation.
+fn optimizers(varmap: &VarMap, cfg: &PolicyConfig) -> candle_core::Result<Vec<AdamW>> {
+    let data = varmap.data().lock().unwrap_or_else(|e| e.into_inner());
+    let mut names: Vec<&String> = data.keys().collect();
+    names.sort(); // HashMap order is random; the optimiser's variable order must not be.
+    let (mut decay, mut no_decay): (Vec<Var>, Vec<Var>) = (Vec::new(), Vec::new());
+    for name in names {
+        let var = data[name].clone();
+        if var.rank() >= 2 && !name.ends_with("pos_embed") { decay.push(var) } else { no_decay.push(var) }
+    }
+    let params = |wd| ParamsAdamW { lr: cfg.train.lr, weight_decay: wd, ..Default::default() };
+    Ok(vec![AdamW::new(decay, params(cfg.train.weight_decay))?, AdamW::new(no_decay, params(0.0))?])
+}
+
+pub fn scalar(t: &Tensor) -> candle_core::Result<f32> {
+    t.to_scalar::<f32>()
+}
+
+/// A fresh model with seeded initial weights.
+pub fn init_model(cfg: &PolicyConfig, device: &Device) -> candle_core::Result<(MarsModel, VarMap)> {
+    let (varmap, vb) = SeededInit::var_builder(cfg.train.seed, device);
+    Ok((MarsModel::new(&cfg.model, cfg.kind, vb)?, varmap))
+}
+
+/// Trains `cfg.kind` on `demos`. Same config, demos and machine → same weights.
+pub fn train(cfg: &PolicyConfig, demos: &[Demo], show_progress: bool) -> anyhow::Result<Trained> {
+    cfg.validate()?;
+    let device = Device::Cpu;
+    let data = Dataset::from_demos(demos, &cfg.model, cfg.train.knn_m)?;
+    let tensors = data.tensors(&cfg.model, &device)?;
+    let (model, varmap) = init_model(cfg, &device)?;
+    let mut opts = optimizers(&varmap, cfg)?;
+    let mut rng = StdRng::seed_from_u64(cfg.train.seed ^ 0x4d41_5253); // "MARS": batches ≠ init stream
+    let mut order: Vec<u32> = (0..data.len as u32).collect();
+    let batches_per_epoch = data.len.div_ceil(cfg.train.batch_size);
+
+    let bar = progress_bar(show_progress, (cfg.train.epochs * batches_per_epoch) as u64, cfg.kind);
+    let mut log = Vec::with_capacity(cfg.train.epochs);
+    for epoch in 0..cfg.train.epochs {
+        order.shuffle(&mut rng);
+        let mut sums = EpochLog { epoch, ..Default::default() };
+        for idx in order.chunks(cfg.train.batch_size) {
+            if idx.len() < 2 {
+                continue; // a batch of one has no spread to learn from
+            }
+            let batch = Batch::gather(&tensors, idx)?;
+            let terms = batch_losses(&model, &batch, cfg, &mut rng)?;
+            let total = scalar(&terms.total)?;
+            if !total.is_finite() {
+                anyhow::bail!("{} training diverged at epoch {epoch}: loss is {total}", cfg.kind);
+            }
+            let grads = terms.total.backward()?;
+            for opt in &mut opts {
+                opt.step(&grads)?;
+            }
+            sums.total += total;
+            sums.fm += scalar(&terms.fm)?;
+            sums.rec += terms.rec.as_ref().map(scalar).transpose()?.unwrap_or(0.0);
+            sums.div += terms.div.as_ref().map(scalar).transpose()?.unwrap_or(0.0);
+            sums.w_inf += scalar(&terms.w.max(1)?.mean_all()?)?;
+            bar.inc(1);
+        }
+        let n = batches_per_epoch as f32;
+        let e = EpochLog {
+            epoch,
+            total: sums.total / n,
+            fm: sums.fm / n,
+            rec: sums.rec / n,
+            div: sums.div / n,
+            w_inf: sums.w_inf / n,
+        };
+        bar.set_message(format!("epoch {} loss {:.4}", epoch + 1, e.total));
+        tracing::debug!(policy = %cfg.kind, epoch, loss = e.total, fm = e.fm, rec = e.rec, div = e.div, w_inf = e.w_inf, "epoch");
+        log.push(e);
+    }
+    bar.finish_and_clear();
+    Ok(Trained { cfg: cfg.clone(), model, varmap, normalizer: data.normalizer, log })
+}
+
+fn progress_bar(show: bool, len: u64, kind: PolicyKind) -> indicatif::ProgressBar {
+    if !show {
+        return indicatif::ProgressBar::hidden();
+    }
+    let bar = indicatif::ProgressBar::new(len);
+    let style = indicatif::ProgressStyle::with_template("{prefix:>10} [{bar:30}] {pos}/{len} batches {msg} ({eta})")
+        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar())
+        .progress_chars("=> ");
+    bar.set_style(style);
+    bar.set_prefix(kind.name());
+    bar
+}
