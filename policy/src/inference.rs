@@ -93,3 +93,9 @@ impl ChunkPolicy for MarsPolicy {
         Ok(Prediction { chunk, w: w.flatten_all()?.to_vec1::<f32>()?, k })
     }
 }
+
+impl MarsPolicy {
+    pub fn normalizer(&self) -> &Normalizer {
+        &self.normalizer
+    }
+}

@@ -5,6 +5,7 @@
 //! writes safetensors + config → a task's evaluation calls the model through [`rollout::ChunkPolicy`].
 
 pub mod checkpoint;
+pub mod cli;
 pub mod config;
 pub mod dataset;
 pub mod demo;
@@ -17,6 +18,7 @@ pub mod nav2d;
 pub mod nn;
 pub mod normalize;
 pub mod plots;
+pub mod report;
 pub mod rollout;
 pub mod scheduler;
 pub mod train;

@@ -97,18 +97,31 @@ pub fn batch_losses(
     let tau = Tensor::from_vec(tau_v, b, dev)?;
     let tau_b = tau.reshape((b, 1, 1))?;
     let a_tau = (a0.broadcast_mul(&tau_b.affine(-1.0, 1.0)?)? + a1.broadcast_mul(&tau_b)?)?;
-    let fm = losses::flow_matching(&model.velocity(&a_tau, &tau, &emb)?, &a0, a1)?;
+
+    // L_fm needs v(a_τ, τ); L_rec needs v(a0, 0) from a source rebuilt with the detached w (so L_rec trains the
+    // velocity field, never the scheduler). Both go through the DiT as one batch of 2B: half the op count.
+    let (v_tau, v_zero) = if cfg.kind.uses_rec_loss() {
+        let a0_d = MarsModel::source(&batch.history, &w.detach(), &eps)?;
+        let zeros = Tensor::zeros(b, candle_core::DType::F32, dev)?;
+        let v = model.velocity(
+            &Tensor::cat(&[&a_tau, &a0_d], 0)?,
+            &Tensor::cat(&[&tau, &zeros], 0)?,
+            &Tensor::cat(&[&emb, &emb], 0)?,
+        )?;
+        (v.narrow(0, 0, b)?, Some((a0_d, v.narrow(0, b, b)?)))
+    } else {
+        (model.velocity(&a_tau, &tau, &emb)?, None)
+    };
+    let fm = losses::flow_matching(&v_tau, &a0, a1)?;
     let mut total = fm.clone();
 
-    let rec = if cfg.kind.uses_rec_loss() {
-        // The source is rebuilt from the detached w: L_rec trains the velocity field, never the scheduler.
-        let a0_d = MarsModel::source(&batch.history, &w.detach(), &eps)?;
-        let a1_hat = (&a0_d + model.velocity(&a0_d, &Tensor::zeros(b, candle_core::DType::F32, dev)?, &emb)?)?;
-        let rec = losses::reconstruction(&a1_hat, a1, &w)?;
-        total = (total + (&rec * cfg.train.lambda_rec)?)?;
-        Some(rec)
-    } else {
-        None
+    let rec = match v_zero {
+        Some((a0_d, v0)) => {
+            let rec = losses::reconstruction(&(a0_d + v0)?, a1, &w)?;
+            total = (total + (&rec * cfg.train.lambda_rec)?)?;
+            Some(rec)
+        }
+        None => None,
     };
 
     let div = if cfg.kind.uses_div_loss() {
@@ -150,6 +163,12 @@ pub fn init_model(cfg: &PolicyConfig, device: &Device) -> candle_core::Result<(M
 
 /// Trains `cfg.kind` on `demos`. Same config, demos and machine → same weights.
 pub fn train(cfg: &PolicyConfig, demos: &[Demo], show_progress: bool) -> anyhow::Result<Trained> {
+    let bar = if show_progress { progress_bar(cfg.kind) } else { indicatif::ProgressBar::hidden() };
+    train_with_progress(cfg, demos, bar)
+}
+
+/// `train`, reporting to the given bar (the benchmark shows one bar per policy trained in parallel).
+pub fn train_with_progress(cfg: &PolicyConfig, demos: &[Demo], bar: indicatif::ProgressBar) -> anyhow::Result<Trained> {
     cfg.validate()?;
     let device = Device::Cpu;
     let data = Dataset::from_demos(demos, &cfg.model, cfg.train.knn_m)?;
@@ -160,7 +179,7 @@ pub fn train(cfg: &PolicyConfig, demos: &[Demo], show_progress: bool) -> anyhow:
     let mut order: Vec<u32> = (0..data.len as u32).collect();
     let batches_per_epoch = data.len.div_ceil(cfg.train.batch_size);
 
-    let bar = progress_bar(show_progress, (cfg.train.epochs * batches_per_epoch) as u64, cfg.kind);
+    bar.set_length((cfg.train.epochs * batches_per_epoch) as u64);
     let mut log = Vec::with_capacity(cfg.train.epochs);
     for epoch in 0..cfg.train.epochs {
         order.shuffle(&mut rng);
@@ -203,11 +222,8 @@ pub fn train(cfg: &PolicyConfig, demos: &[Demo], show_progress: bool) -> anyhow:
     Ok(Trained { cfg: cfg.clone(), model, varmap, normalizer: data.normalizer, log })
 }
 
-fn progress_bar(show: bool, len: u64, kind: PolicyKind) -> indicatif::ProgressBar {
-    if !show {
-        return indicatif::ProgressBar::hidden();
-    }
-    let bar = indicatif::ProgressBar::new(len);
+pub fn progress_bar(kind: PolicyKind) -> indicatif::ProgressBar {
+    let bar = indicatif::ProgressBar::new(0);
     let style = indicatif::ProgressStyle::with_template("{prefix:>10} [{bar:30}] {pos}/{len} batches {msg} ({eta})")
         .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar())
         .progress_chars("=> ");

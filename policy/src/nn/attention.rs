@@ -1,7 +1,8 @@
 //! Multi-head self-attention over the chunk's time steps, with the differentiable `ops::softmax`.
 
+use super::linear::Linear;
 use candle_core::{D, Module, Result, Tensor};
-use candle_nn::{Linear, VarBuilder, linear};
+use candle_nn::VarBuilder;
 
 #[derive(Debug, Clone)]
 pub struct SelfAttention {
@@ -12,7 +13,11 @@ pub struct SelfAttention {
 
 impl SelfAttention {
     pub fn new(width: usize, heads: usize, vb: VarBuilder) -> Result<Self> {
-        Ok(Self { qkv: linear(width, 3 * width, vb.pp("qkv"))?, out: linear(width, width, vb.pp("out"))?, heads })
+        Ok(Self {
+            qkv: Linear::new(width, 3 * width, vb.pp("qkv"))?,
+            out: Linear::new(width, width, vb.pp("out"))?,
+            heads,
+        })
     }
 }
 

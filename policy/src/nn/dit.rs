@@ -2,21 +2,14 @@
 //! adaLN-Zero on the flow time and the observation embedding.
 
 use super::attention::SelfAttention;
+use super::linear::Linear;
 use super::mlp::{Activation, Mlp};
-use super::norm::{layer_norm_no_affine, modulate};
+use super::norm::{layer_norm_no_affine, modulate, per_token};
 use super::time_embed::TimeEmbedding;
 use candle_core::{Module, Result, Tensor};
-use candle_nn::{Linear, VarBuilder, init, linear};
+use candle_nn::{VarBuilder, init};
 
 const LN_EPS: f64 = 1e-6;
-
-/// A linear layer that starts at zero: adaLN-Zero makes each block the identity at initialisation.
-fn zero_linear(input: usize, output: usize, vb: VarBuilder) -> Result<Linear> {
-    Ok(Linear::new(
-        vb.get_with_hints((output, input), "weight", init::ZERO)?,
-        Some(vb.get_with_hints(output, "bias", init::ZERO)?),
-    ))
-}
 
 #[derive(Debug, Clone)]
 struct DitBlock {
@@ -30,8 +23,8 @@ impl DitBlock {
     fn new(width: usize, heads: usize, mlp_ratio: usize, vb: VarBuilder) -> Result<Self> {
         Ok(Self {
             attn: SelfAttention::new(width, heads, vb.pp("attn"))?,
-            mlp: Mlp::new(width, width * mlp_ratio, width, Activation::Gelu, vb.pp("mlp"))?,
-            ada: zero_linear(width, 6 * width, vb.pp("ada"))?,
+            mlp: Mlp::new(width, width * mlp_ratio, width, Activation::Silu, vb.pp("mlp"))?,
+            ada: Linear::zeros(width, 6 * width, vb.pp("ada"))?,
         })
     }
 
@@ -39,9 +32,10 @@ impl DitBlock {
     fn forward(&self, x: &Tensor, c: &Tensor) -> Result<Tensor> {
         let m = self.ada.forward(c)?.chunk(6, 1)?;
         let h = modulate(&layer_norm_no_affine(x, LN_EPS)?, &m[0], &m[1])?;
-        let x = (x + self.attn.forward(&h)?.broadcast_mul(&m[2].unsqueeze(1)?)?)?;
+        let t = x.dim(1)?;
+        let x = (x + (self.attn.forward(&h)? * per_token(&m[2], t)?)?)?;
         let h = modulate(&layer_norm_no_affine(&x, LN_EPS)?, &m[3], &m[4])?;
-        x + self.mlp.forward(&h)?.broadcast_mul(&m[5].unsqueeze(1)?)?
+        x.clone() + (self.mlp.forward(&h)? * per_token(&m[5], t)?)?
     }
 }
 
@@ -72,17 +66,17 @@ impl Dit {
             .map(|i| DitBlock::new(d.width, d.heads, d.mlp_ratio, vb.pp(format!("blocks.{i}"))))
             .collect::<Result<Vec<_>>>()?;
         Ok(Self {
-            action_in: linear(d.action_dim, d.width, vb.pp("action_in"))?,
+            action_in: Linear::new(d.action_dim, d.width, vb.pp("action_in"))?,
             pos: vb.get_with_hints(
                 (d.chunk_len, d.width),
                 "pos_embed",
                 init::Init::Randn { mean: 0.0, stdev: 0.02 },
             )?,
             time: TimeEmbedding::new(d.width.max(32), d.width, vb.pp("time"))?,
-            cond_in: linear(d.cond_dim, d.width, vb.pp("cond_in"))?,
+            cond_in: Linear::new(d.cond_dim, d.width, vb.pp("cond_in"))?,
             blocks,
-            final_ada: zero_linear(d.width, 2 * d.width, vb.pp("final_ada"))?,
-            action_out: zero_linear(d.width, d.action_dim, vb.pp("action_out"))?,
+            final_ada: Linear::zeros(d.width, 2 * d.width, vb.pp("final_ada"))?,
+            action_out: Linear::zeros(d.width, d.action_dim, vb.pp("action_out"))?,
         })
     }
 

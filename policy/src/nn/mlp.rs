@@ -1,13 +1,12 @@
 //! Two linear layers with a non-linearity between them: the encoder, the scheduler and the DiT feed-forward.
 
+use super::linear::Linear;
 use candle_core::{Module, Result, Tensor};
-use candle_nn::{Linear, VarBuilder, linear};
+use candle_nn::VarBuilder;
 
 #[derive(Debug, Clone, Copy)]
 pub enum Activation {
     Silu,
-    /// tanh-approximated GELU, as in DiT.
-    Gelu,
 }
 
 #[derive(Debug, Clone)]
@@ -19,17 +18,11 @@ pub struct Mlp {
 
 impl Mlp {
     pub fn new(input: usize, hidden: usize, output: usize, act: Activation, vb: VarBuilder) -> Result<Self> {
-        Ok(Self { fc1: linear(input, hidden, vb.pp("fc1"))?, fc2: linear(hidden, output, vb.pp("fc2"))?, act })
-    }
-
-    /// Like `new`, but the output layer starts at zero weights and bias (used where the output is a residual
-    /// or a logit that should start neutral).
-    pub fn new_zero_out(input: usize, hidden: usize, output: usize, act: Activation, vb: VarBuilder) -> Result<Self> {
-        let fc2 = Linear::new(
-            vb.pp("fc2").get_with_hints((output, hidden), "weight", candle_nn::init::ZERO)?,
-            Some(vb.pp("fc2").get_with_hints(output, "bias", candle_nn::init::ZERO)?),
-        );
-        Ok(Self { fc1: linear(input, hidden, vb.pp("fc1"))?, fc2, act })
+        Ok(Self {
+            fc1: Linear::new(input, hidden, vb.pp("fc1"))?,
+            fc2: Linear::new(hidden, output, vb.pp("fc2"))?,
+            act,
+        })
     }
 }
 
@@ -38,7 +31,6 @@ impl Module for Mlp {
         let h = self.fc1.forward(xs)?;
         let h = match self.act {
             Activation::Silu => h.silu()?,
-            Activation::Gelu => h.gelu()?,
         };
         self.fc2.forward(&h)
     }

@@ -3,6 +3,7 @@
 
 pub mod attention;
 pub mod dit;
+pub mod linear;
 pub mod mlp;
 pub mod norm;
 pub mod seeded_init;

@@ -1,0 +1,129 @@
+//! `mars`: generate nav2d demos, train MARS or a baseline, evaluate, plot, and run the whole benchmark.
+
+use clap::{Parser, Subcommand};
+use mars_policy::cli;
+use mars_policy::config::PolicyKind;
+use std::path::PathBuf;
+
+// candle allocates a fresh buffer for every op; mimalloc made backward passes 3–4× faster than glibc here.
+#[global_allocator]
+static GLOBAL: mimalloc::MiMalloc = mimalloc::MiMalloc;
+
+#[derive(Parser)]
+#[command(name = "mars", version, about = "MARS policy: train, evaluate and benchmark on 2-D navigation")]
+struct Args {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Generate expert demos on a nav2d layout (balanced across the passages).
+    Demos {
+        #[arg(long, default_value = "configs/nav2d.toml")]
+        layout: PathBuf,
+        #[arg(long, default_value_t = 200)]
+        n: usize,
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        #[arg(long, default_value = "runs/nav2d/demos.json")]
+        out: PathBuf,
+    },
+    /// Train one policy on a demo file and write a checkpoint directory.
+    Train {
+        #[arg(long, value_enum, default_value_t = PolicyKind::Mars)]
+        policy: PolicyKind,
+        #[arg(long, default_value = "configs/policy.toml")]
+        config: PathBuf,
+        #[arg(long, default_value = "runs/nav2d/demos.json")]
+        demos: PathBuf,
+        /// Checkpoint directory (default: runs/nav2d/<policy>).
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Override `train.epochs`.
+        #[arg(long)]
+        epochs: Option<usize>,
+        /// Override `train.seed`.
+        #[arg(long)]
+        seed: Option<u64>,
+    },
+    /// Roll a checkpoint out N times (distinct seeds) and print success, passage counts, γ, K and latency.
+    Eval {
+        #[arg(long)]
+        checkpoint: PathBuf,
+        #[arg(long, default_value = "configs/nav2d.toml")]
+        layout: PathBuf,
+        #[arg(long, default_value_t = 100)]
+        rollouts: usize,
+        #[arg(long, default_value_t = 1000)]
+        seed: u64,
+        /// Actions executed from each chunk before re-planning.
+        #[arg(long, default_value_t = cli::DEFAULT_EXEC_HORIZON)]
+        exec_horizon: usize,
+    },
+    /// Draw the PNG plots of a run directory (demos, rollouts coloured by ‖w‖∞, K per step, losses).
+    Plot {
+        #[arg(long, default_value = "runs/nav2d")]
+        run: PathBuf,
+        #[arg(long, default_value = "configs/nav2d.toml")]
+        layout: PathBuf,
+    },
+    /// Train and evaluate MARS, FM, A2A and Noise-A2A with the paper's settings; write results.md and plots.
+    Benchmark {
+        #[arg(long, default_value = "runs/nav2d")]
+        out: PathBuf,
+        #[arg(long, default_value = "configs/policy.toml")]
+        config: PathBuf,
+        #[arg(long, default_value = "configs/nav2d.toml")]
+        layout: PathBuf,
+        #[arg(long, default_value_t = 200)]
+        demos: usize,
+        #[arg(long)]
+        epochs: Option<usize>,
+        #[arg(long, default_value_t = 100)]
+        rollouts: usize,
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        #[arg(long, default_value_t = cli::DEFAULT_EXEC_HORIZON)]
+        exec_horizon: usize,
+        /// Only these policies (default: all four).
+        #[arg(long, value_enum, value_delimiter = ',')]
+        policies: Vec<PolicyKind>,
+        /// Policies trained at the same time (default: one per core). Evaluation is always one at a time.
+        #[arg(long)]
+        jobs: Option<usize>,
+    },
+}
+
+fn main() -> std::process::ExitCode {
+    let args = Args::parse();
+    let cores = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1);
+    let jobs = match &args.command {
+        Command::Benchmark { jobs, .. } => jobs.unwrap_or(cores).max(1),
+        _ => 1,
+    };
+    cli::init_runtime_env(jobs);
+    let result = match args.command {
+        Command::Demos { layout, n, seed, out } => cli::demos(&layout, n, seed, &out),
+        Command::Train { policy, config, demos, out, epochs, seed } => {
+            let out = out.unwrap_or_else(|| PathBuf::from("runs/nav2d").join(policy.name()));
+            cli::train(policy, &config, &demos, &out, epochs, seed).map(|_| ())
+        }
+        Command::Eval { checkpoint, layout, rollouts, seed, exec_horizon } => {
+            cli::eval(&checkpoint, &layout, rollouts, seed, exec_horizon).map(|_| ())
+        }
+        Command::Plot { run, layout } => cli::plot(&run, &layout),
+        Command::Benchmark { out, config, layout, demos, epochs, rollouts, seed, exec_horizon, policies, .. } => {
+            let policies = if policies.is_empty() { PolicyKind::ALL.to_vec() } else { policies };
+            let opts = cli::BenchmarkOptions { demos, epochs, rollouts, seed, exec_horizon, policies, jobs };
+            cli::benchmark(&out, &config, &layout, &opts)
+        }
+    };
+    match result {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}

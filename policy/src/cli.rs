@@ -1,0 +1,245 @@
+//! What the `mars` subcommands do, as library functions (so tests drive the same code the binary runs).
+
+use crate::checkpoint;
+use crate::config::{PolicyConfig, PolicyKind};
+use crate::dataset::history_window;
+use crate::demo::{Demo, DemoSet};
+use crate::inference::MarsPolicy;
+use crate::nav2d::eval::{EvalReport, evaluate};
+use crate::nav2d::expert::generate_demos;
+use crate::nav2d::layout::{Layout, Rect};
+use crate::plots;
+use crate::train::{Trained, train as train_policy};
+use anyhow::Context;
+use candle_core::{Device, Tensor};
+use std::path::Path;
+use std::time::Instant;
+
+/// The paper executes whole chunks; re-planning every chunk keeps one mode decision per chunk.
+pub const DEFAULT_EXEC_HORIZON: usize = 8;
+const TASK: &str = "nav2d";
+
+/// Logging to stderr, and the thread setting candle needs on CPU: with `RAYON_NUM_THREADS` unset, every matmul
+/// re-reads /proc/cpuinfo (~30 µs instead of ~4 µs). `jobs` trainings share the cores: for these small
+/// matrices two threads were barely faster than one, so parallel jobs use the cores better.
+///
+/// Must run before any other thread starts (it sets an environment variable).
+pub fn init_runtime_env(jobs: usize) {
+    if std::env::var_os("RAYON_NUM_THREADS").is_none() {
+        let n = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1);
+        let per_job = (n / jobs.max(1)).max(1);
+        // SAFETY: called from main before any thread exists.
+        unsafe { std::env::set_var("RAYON_NUM_THREADS", per_job.to_string()) };
+    }
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into());
+    let _ = tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).try_init();
+}
+
+pub fn load_demos(path: &Path) -> anyhow::Result<DemoSet> {
+    let text = std::fs::read_to_string(path)
+        .with_context(|| format!("cannot read demos {} (generate them with `mars demos`)", path.display()))?;
+    serde_json::from_str(&text).with_context(|| format!("{} is not a valid demo file", path.display()))
+}
+
+fn write_json(path: &Path, value: &impl serde::Serialize) -> anyhow::Result<()> {
+    if let Some(dir) = path.parent() {
+        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    }
+    let tmp = path.with_extension("json.tmp");
+    std::fs::write(&tmp, serde_json::to_string(value)?).with_context(|| format!("cannot write {}", tmp.display()))?;
+    std::fs::rename(&tmp, path).with_context(|| format!("cannot write {}", path.display()))
+}
+
+pub fn demos(layout: &Path, n: usize, seed: u64, out: &Path) -> anyhow::Result<()> {
+    let layout = Layout::load(layout)?;
+    let demos = generate_demos(&layout, n, seed)?;
+    let steps: usize = demos.iter().map(Demo::len).sum();
+    write_json(out, &DemoSet { task: TASK.into(), demos })?;
+    println!("wrote {n} demos ({steps} steps) to {}", out.display());
+    Ok(())
+}
+
+pub fn train(
+    kind: PolicyKind,
+    config: &Path,
+    demos: &Path,
+    out: &Path,
+    epochs: Option<usize>,
+    seed: Option<u64>,
+) -> anyhow::Result<Trained> {
+    let mut cfg = PolicyConfig::load(config)?;
+    cfg.kind = kind;
+    cfg.train.epochs = epochs.unwrap_or(cfg.train.epochs);
+    cfg.train.seed = seed.unwrap_or(cfg.train.seed);
+    cfg.validate()?;
+    let set = load_demos(demos)?;
+    let started = Instant::now();
+    let trained = train_policy(&cfg, &set.demos, true)?;
+    checkpoint::save(out, &trained)?;
+    let last = trained.log.last().context("training ran no epoch")?;
+    println!(
+        "{kind}: {} epochs in {:.1} s, final loss {:.4} (fm {:.4}, rec {:.4}, div {:.4}, mean ‖w‖∞ {:.3}) → {}",
+        cfg.train.epochs,
+        started.elapsed().as_secs_f32(),
+        last.total,
+        last.fm,
+        last.rec,
+        last.div,
+        last.w_inf,
+        out.display()
+    );
+    Ok(trained)
+}
+
+pub fn eval(
+    checkpoint_dir: &Path,
+    layout: &Path,
+    rollouts: usize,
+    seed: u64,
+    exec_horizon: usize,
+) -> anyhow::Result<EvalReport> {
+    let layout = Layout::load(layout)?;
+    let (mut policy, meta) = MarsPolicy::load(checkpoint_dir, seed)?;
+    let report = evaluate(&layout, &mut policy, rollouts, seed, exec_horizon)?;
+    println!("{}", EvalReport::table_header());
+    println!("{}", report.to_table_row(meta.kind.name()));
+    write_json(&checkpoint_dir.join("eval.json"), &report)?;
+    Ok(report)
+}
+
+/// Mean ‖w‖∞ of a policy over the demo samples whose observation lies in `region`: where does the scheduler
+/// think the task is multimodal? `None` if no sample lies there.
+pub fn mean_w_in_region(policy: &MarsPolicy, demos: &[Demo], region: &Rect) -> anyhow::Result<Option<f32>> {
+    let model = policy.model();
+    let cfg = &model.cfg;
+    let (mut obs, mut hist) = (Vec::new(), Vec::new());
+    for d in demos {
+        for (t, o) in d.observations.iter().enumerate() {
+            if region.contains([o[0], o[1]]) {
+                obs.extend_from_slice(o);
+                history_window(&d.actions, &d.rest_action, t, cfg.history_len, &mut hist);
+            }
+        }
+    }
+    let n = obs.len() / cfg.obs_dim;
+    if n == 0 {
+        return Ok(None);
+    }
+    policy.normalizer().obs.normalize(&mut obs);
+    policy.normalizer().action.normalize(&mut hist);
+    let obs = Tensor::from_vec(obs, (n, cfg.obs_dim), &Device::Cpu)?;
+    let hist = Tensor::from_vec(hist, (n, cfg.history_len, cfg.action_dim), &Device::Cpu)?;
+    let w = model.weights(&model.encode(&obs)?, &hist)?;
+    Ok(Some(w.max(1)?.mean_all()?.to_scalar::<f32>()?))
+}
+
+pub fn plot(run: &Path, layout: &Path) -> anyhow::Result<()> {
+    let layout = Layout::load(layout)?;
+    let set = load_demos(&run.join("demos.json"))?;
+    plots::plot_demos(&layout, &set.demos, &run.join("demos.png"))?;
+    let (mut losses, mut k_series) = (Vec::new(), Vec::new());
+    for kind in PolicyKind::ALL {
+        let dir = run.join(kind.name());
+        if !dir.join(checkpoint::META_FILE).exists() {
+            continue;
+        }
+        let meta = checkpoint::load_meta(&dir)?;
+        losses.push((kind.name().to_string(), meta.log.iter().map(|e| e.total).collect()));
+        let eval_path = dir.join("eval.json");
+        if let Ok(text) = std::fs::read_to_string(&eval_path) {
+            let report: EvalReport = serde_json::from_str(&text)
+                .with_context(|| format!("{} is not a valid eval file", eval_path.display()))?;
+            let title = format!("{kind}: {} rollouts, colour = ‖w‖∞", report.n);
+            plots::plot_rollouts(&layout, &report.episodes, &title, &run.join(format!("rollouts_{kind}.png")))?;
+            if let Some(e) = report.episodes.iter().find(|e| e.success()).or(report.episodes.first()) {
+                k_series.push((kind.name().to_string(), e.k_per_step()));
+            }
+        }
+    }
+    if !losses.is_empty() {
+        plots::plot_losses(&losses, &run.join("losses.png"))?;
+    }
+    if !k_series.is_empty() {
+        plots::plot_k_per_step(&k_series, &run.join("k_per_step.png"))?;
+    }
+    println!("plots written to {}", run.display());
+    Ok(())
+}
+
+pub struct BenchmarkOptions {
+    pub demos: usize,
+    pub epochs: Option<usize>,
+    pub rollouts: usize,
+    pub seed: u64,
+    pub exec_horizon: usize,
+    pub policies: Vec<PolicyKind>,
+    /// Policies trained at the same time.
+    pub jobs: usize,
+}
+
+/// Demos → train the policies (`jobs` at a time) → evaluate each, one after the other so that latencies are
+/// measured on an otherwise idle machine → `results.md` (the table and the paper's claims, checked) and the
+/// plots, all under `out`.
+pub fn benchmark(out: &Path, config: &Path, layout_path: &Path, o: &BenchmarkOptions) -> anyhow::Result<()> {
+    let demos_path = out.join("demos.json");
+    demos(layout_path, o.demos, o.seed, &demos_path)?;
+    let set = load_demos(&demos_path)?;
+    let layout = Layout::load(layout_path)?;
+    let mut base = PolicyConfig::load(config)?;
+    base.train.epochs = o.epochs.unwrap_or(base.train.epochs);
+    base.train.seed = o.seed;
+
+    // Workers pop from the back: reversed, the policies start in the order given.
+    let queue = std::sync::Mutex::new(o.policies.iter().rev().copied().collect::<Vec<_>>());
+    let bars = indicatif::MultiProgress::new();
+    let trained = std::sync::Mutex::new(Vec::new());
+    std::thread::scope(|scope| -> anyhow::Result<()> {
+        let workers: Vec<_> = (0..o.jobs.clamp(1, o.policies.len().max(1)))
+            .map(|_| {
+                scope.spawn(|| -> anyhow::Result<()> {
+                    while let Some(kind) = queue.lock().unwrap_or_else(|e| e.into_inner()).pop() {
+                        let mut cfg = base.clone();
+                        cfg.kind = kind;
+                        let started = Instant::now();
+                        let t = crate::train::train_with_progress(
+                            &cfg,
+                            &set.demos,
+                            bars.add(crate::train::progress_bar(kind)),
+                        )?;
+                        checkpoint::save(&out.join(kind.name()), &t)?;
+                        let secs = started.elapsed().as_secs_f32();
+                        trained.lock().unwrap_or_else(|e| e.into_inner()).push((kind, t, secs));
+                    }
+                    Ok(())
+                })
+            })
+            .collect();
+        for w in workers {
+            w.join().map_err(|_| anyhow::anyhow!("a training worker panicked"))??;
+        }
+        Ok(())
+    })?;
+    let mut trained = trained.into_inner().unwrap_or_else(|e| e.into_inner());
+    trained.sort_by_key(|(kind, ..)| o.policies.iter().position(|k| k == kind));
+
+    let mut rows = Vec::new();
+    for (kind, t, train_s) in trained {
+        let epochs = t.cfg.train.epochs;
+        let policy = MarsPolicy::from_trained(t, o.seed);
+        let w_regions = ["entry_gate", "junction", "exit_gate"]
+            .iter()
+            .map(|name| {
+                let r = layout.region(name).with_context(|| format!("layout has no region `{name}`"))?;
+                Ok((name.to_string(), mean_w_in_region(&policy, &set.demos, r)?))
+            })
+            .collect::<anyhow::Result<Vec<_>>>()?;
+        drop(policy);
+        let report = eval(&out.join(kind.name()), layout_path, o.rollouts, o.seed + 1000, o.exec_horizon)?;
+        rows.push(crate::report::Row { kind, epochs, train_s, report, w_regions });
+    }
+    let md = crate::report::render(&rows, o, &layout);
+    std::fs::write(out.join("results.md"), &md).with_context(|| format!("cannot write {}", out.display()))?;
+    plot(out, layout_path)?;
+    println!("\n{md}");
+    Ok(())
+}
