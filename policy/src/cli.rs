@@ -51,6 +51,7 @@ fn write_json(path: &Path, value: &impl serde::Serialize) -> anyhow::Result<()> 
 }
 
 pub fn demos(layout: &Path, n: usize, seed: u64, out: &Path) -> anyhow::Result<()> {
+    anyhow::ensure!(n > 0, "--n must be at least 1 demo");
     let layout = Layout::load(layout)?;
     let demos = generate_demos(&layout, n, seed)?;
     let steps: usize = demos.iter().map(Demo::len).sum();
@@ -98,6 +99,7 @@ pub fn eval(
     seed: u64,
     exec_horizon: usize,
 ) -> anyhow::Result<EvalReport> {
+    anyhow::ensure!(rollouts > 0, "--rollouts must be at least 1");
     let layout = Layout::load(layout)?;
     let (mut policy, meta) = MarsPolicy::load(checkpoint_dir, seed)?;
     let report = evaluate(&layout, &mut policy, rollouts, seed, exec_horizon)?;
@@ -197,7 +199,10 @@ pub fn benchmark(out: &Path, config: &Path, layout_path: &Path, o: &BenchmarkOpt
         let workers: Vec<_> = (0..o.jobs.clamp(1, o.policies.len().max(1)))
             .map(|_| {
                 scope.spawn(|| -> anyhow::Result<()> {
-                    while let Some(kind) = queue.lock().unwrap_or_else(|e| e.into_inner()).pop() {
+                    loop {
+                        // Bound first: in `while let` the guard would live through the body and serialise the workers.
+                        let next = queue.lock().unwrap_or_else(|e| e.into_inner()).pop();
+                        let Some(kind) = next else { break };
                         let mut cfg = base.clone();
                         cfg.kind = kind;
                         let started = Instant::now();

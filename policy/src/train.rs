@@ -215,7 +215,10 @@ pub fn train_with_progress(cfg: &PolicyConfig, demos: &[Demo], bar: indicatif::P
             w_inf: sums.w_inf / n,
         };
         bar.set_message(format!("epoch {} loss {:.4}", epoch + 1, e.total));
-        tracing::debug!(policy = %cfg.kind, epoch, loss = e.total, fm = e.fm, rec = e.rec, div = e.div, w_inf = e.w_inf, "epoch");
+        if bar.is_hidden() {
+            // No terminal to draw a bar on (a log file, CI): one line per epoch instead.
+            tracing::info!(policy = %cfg.kind, epoch = epoch + 1, loss = e.total, fm = e.fm, rec = e.rec, div = e.div, w_inf = e.w_inf, "epoch");
+        }
         log.push(e);
     }
     bar.finish_and_clear();

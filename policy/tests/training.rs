@@ -21,8 +21,9 @@ fn first_batch(kind: PolicyKind) -> (mars_policy::config::PolicyConfig, Batch) {
 
 #[test]
 fn every_trainable_tensor_gets_a_nonzero_gradient() {
-    for kind in [PolicyKind::Mars, PolicyKind::Fm] {
-        let (cfg, batch) = first_batch(kind);
+    for (kind, scheduler_sees_history) in [(PolicyKind::Mars, false), (PolicyKind::Mars, true), (PolicyKind::Fm, false)] {
+        let (mut cfg, batch) = first_batch(kind);
+        cfg.model.scheduler_uses_history = scheduler_sees_history;
         let (model, varmap) = init_model(&cfg, &Device::Cpu).unwrap();
         let mut opt = candle_nn::AdamW::new(varmap.all_vars(), ParamsAdamW { lr: 1e-3, ..Default::default() }).unwrap();
         let mut rng = StdRng::seed_from_u64(0);
