@@ -32,7 +32,8 @@ pub fn init_runtime_env(jobs: usize) {
         unsafe { std::env::set_var("RAYON_NUM_THREADS", per_job.to_string()) };
     }
     let filter = tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into());
-    let _ = tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).try_init();
+    let ansi = std::io::IsTerminal::is_terminal(&std::io::stderr());
+    let _ = tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).with_ansi(ansi).try_init();
 }
 
 pub fn load_demos(path: &Path) -> anyhow::Result<DemoSet> {

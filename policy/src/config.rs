@@ -178,7 +178,7 @@ impl ModelConfig {
                 ),
             ));
         }
-        if self.dit_width % self.dit_heads != 0 {
+        if !self.dit_width.is_multiple_of(self.dit_heads) {
             return Err(invalid(
                 "model.dit_heads",
                 format!("({}) must divide model.dit_width ({})", self.dit_heads, self.dit_width),

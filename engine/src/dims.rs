@@ -1,0 +1,103 @@
+//! Every size the engine needs, derived once from the checkpoint's `ModelConfig`, and the analytic FLOP
+//! count of a call (for the benchmark's achieved-FLOP/s figure).
+
+use mars_policy::config::{EncoderConfig, ModelConfig, PolicyKind};
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Dims {
+    pub obs: usize,
+    /// D: action dimensions.
+    pub action: usize,
+    /// C: actions per chunk = DiT tokens (= H, the history length).
+    pub chunk: usize,
+    pub enc_hidden: usize,
+    /// E: observation embedding width.
+    pub embed: usize,
+    /// `None` for the baselines, whose w is a constant.
+    pub scheduler: Option<SchedulerDims>,
+    /// W: DiT width.
+    pub width: usize,
+    pub depth: usize,
+    pub heads: usize,
+    pub mlp_hidden: usize,
+    /// Sinusoid features of the time embedding: max(W, 32).
+    pub freq: usize,
+    pub k_max: usize,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct SchedulerDims {
+    /// E, plus C·D when the scheduler also sees the history.
+    pub input: usize,
+    pub hidden: usize,
+    pub uses_history: bool,
+}
+
+impl Dims {
+    /// The sizes of `cfg`, or why the engine cannot run it. `cfg` has passed `ModelConfig::validate`.
+    pub fn new(cfg: &ModelConfig, kind: PolicyKind) -> Result<Self, String> {
+        // A new encoder type (e.g. images) added to mars-policy must be refused here, not mis-run: the match
+        // stays non-exhaustive on purpose.
+        #[allow(unreachable_patterns)]
+        let enc_hidden = match &cfg.encoder {
+            EncoderConfig::StateMlp { hidden } => *hidden,
+            other => return Err(format!("encoder {other:?} is not supported (only state-mlp)")),
+        };
+        let freq = cfg.dit_width.max(32);
+        if !freq.is_multiple_of(2) {
+            // The sinusoid gives 2·⌊freq/2⌋ features but the time MLP expects freq: the candle model cannot
+            // run such a checkpoint either.
+            return Err(format!("dit_width {} is odd: the time embedding needs an even width", cfg.dit_width));
+        }
+        let scheduler = kind.fixed_w(cfg).is_none().then(|| SchedulerDims {
+            input: cfg.obs_embed_dim + if cfg.scheduler_uses_history { cfg.history_len * cfg.action_dim } else { 0 },
+            hidden: cfg.scheduler_hidden,
+            uses_history: cfg.scheduler_uses_history,
+        });
+        Ok(Self {
+            obs: cfg.obs_dim,
+            action: cfg.action_dim,
+            chunk: cfg.chunk_len,
+            enc_hidden,
+            embed: cfg.obs_embed_dim,
+            scheduler,
+            width: cfg.dit_width,
+            depth: cfg.dit_depth,
+            heads: cfg.dit_heads,
+            mlp_hidden: cfg.dit_width * cfg.dit_mlp_ratio,
+            freq,
+            k_max: cfg.k_max,
+        })
+    }
+
+    /// C·D: values in a chunk (and in the history, since H = C).
+    pub fn chunk_values(&self) -> usize {
+        self.chunk * self.action
+    }
+
+    /// Rows of the stacked adaLN matrix: 6W per block, then 2W for the final layer.
+    pub fn ada_rows(&self) -> usize {
+        (6 * self.depth + 2) * self.width
+    }
+
+    /// Floating-point operations of one call with `k` Euler steps: 2 per multiply-add of every matrix
+    /// product (linear layers and attention). Element-wise work (norms, activations, softmax) is left out,
+    /// as FLOP/s figures usually do: it is a few percent here.
+    pub fn flops(&self, k: usize) -> u64 {
+        let mm = |m: usize, n: usize, kk: usize| 2 * (m * n * kk) as u64;
+        let (c, w) = (self.chunk, self.width);
+        let mut fixed = mm(1, self.enc_hidden, self.obs) + mm(1, self.embed, self.enc_hidden) + mm(1, w, self.embed);
+        if let Some(s) = self.scheduler {
+            fixed += mm(1, s.hidden, s.input) + mm(1, self.action, s.hidden);
+        }
+        let block =
+            mm(c, 3 * w, w) + 2 * mm(c, c, w) + mm(c, w, w) + mm(c, self.mlp_hidden, w) + mm(c, w, self.mlp_hidden);
+        let step = mm(1, w, self.freq)
+            + mm(1, w, w)
+            + mm(1, self.ada_rows(), w)
+            + mm(c, w, self.action)
+            + self.depth as u64 * block
+            + mm(c, self.action, w);
+        fixed + k as u64 * step
+    }
+}

@@ -1,0 +1,171 @@
+//! The network's weights, read once from `model.safetensors` and laid out for the kernels.
+//!
+//! Linear weights stay as stored, [out, in] row-major, which is what gemm's matrix-vector kernels read. Two
+//! changes of layout, both done here once:
+//! - the linears applied to several rows at once (the C tokens, or the K steps' conditioning) are also packed
+//!   into the panel layout of gemm's microkernels (see `matmul`), when the engine uses them;
+//! - the adaLN projections of all blocks and of the final layer take the same input c, so they are stacked
+//!   into one [(6·depth + 2)·W, W] matrix: one matrix-vector product per step instead of depth + 1.
+
+use crate::dims::Dims;
+use crate::error::LoadError;
+use crate::matmul::{MatMul, pack_panels};
+use safetensors::{Dtype, SafeTensors};
+use std::path::Path;
+
+/// y = x·Wᵀ + b.
+#[derive(Debug, Clone)]
+pub struct Linear {
+    /// [out, in], row-major.
+    pub weight: Box<[f32]>,
+    pub bias: Box<[f32]>,
+    pub input: usize,
+    pub output: usize,
+    /// `weight` in microkernel panel layout for token linears; empty otherwise.
+    pub panels: Box<[f32]>,
+}
+
+#[derive(Debug, Clone)]
+pub struct Block {
+    pub qkv: Linear,
+    pub attn_out: Linear,
+    pub fc1: Linear,
+    pub fc2: Linear,
+}
+
+/// Where the modality weight w comes from.
+#[derive(Debug, Clone)]
+pub enum Modality {
+    /// MARS: an MLP ending in a sigmoid.
+    Scheduler { fc1: Linear, fc2: Linear },
+    /// The baselines: a constant.
+    Fixed(f32),
+}
+
+#[derive(Debug, Clone)]
+pub struct Weights {
+    pub enc_fc1: Linear,
+    pub enc_fc2: Linear,
+    pub modality: Modality,
+    pub action_in: Linear,
+    /// [C, W]
+    pub pos: Box<[f32]>,
+    pub time_fc1: Linear,
+    pub time_fc2: Linear,
+    pub cond_in: Linear,
+    pub blocks: Vec<Block>,
+    /// Every block's `ada` then `final_ada`, stacked (see the module doc).
+    pub ada: Linear,
+    pub action_out: Linear,
+    /// The time embedding's sinusoid frequencies, computed as the candle model does (in f32).
+    pub freqs: Box<[f32]>,
+}
+
+struct Reader<'a> {
+    st: SafeTensors<'a>,
+    path: &'a Path,
+    mm: MatMul,
+}
+
+impl Reader<'_> {
+    fn tensor(&self, name: &str, shape: &[usize]) -> Result<Box<[f32]>, LoadError> {
+        let err = |problem: String| LoadError::Tensor { path: self.path.to_path_buf(), name: name.into(), problem };
+        let view = self.st.tensor(name).map_err(|e| err(e.to_string()))?;
+        if view.dtype() != Dtype::F32 {
+            return Err(err(format!("dtype {:?}, expected F32", view.dtype())));
+        }
+        if view.shape() != shape {
+            return Err(err(format!("shape {:?}, the config needs {shape:?}", view.shape())));
+        }
+        Ok(view.data().chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect())
+    }
+
+    /// A linear applied to one row (a matrix-vector product).
+    fn linear(&self, prefix: &str, input: usize, output: usize) -> Result<Linear, LoadError> {
+        Ok(Linear {
+            weight: self.tensor(&format!("{prefix}.weight"), &[output, input])?,
+            bias: self.tensor(&format!("{prefix}.bias"), &[output])?,
+            input,
+            output,
+            panels: Box::default(),
+        })
+    }
+
+    /// A linear applied to several rows at once (the C tokens, or the K steps' conditioning).
+    fn token_linear(&self, prefix: &str, input: usize, output: usize) -> Result<Linear, LoadError> {
+        Ok(self.panels(self.linear(prefix, input, output)?))
+    }
+
+    fn panels(&self, mut l: Linear) -> Linear {
+        if self.mm.uses_panels() {
+            l.panels = pack_panels(&l.weight, l.output, l.input);
+        }
+        l
+    }
+}
+
+/// Stacks linears with the same input along the output dimension.
+fn stack(parts: &[Linear]) -> Linear {
+    Linear {
+        weight: parts.iter().flat_map(|l| l.weight.iter().copied()).collect(),
+        bias: parts.iter().flat_map(|l| l.bias.iter().copied()).collect(),
+        input: parts[0].input,
+        output: parts.iter().map(|l| l.output).sum(),
+        panels: Box::default(),
+    }
+}
+
+impl Weights {
+    /// Reads the weights of a checkpoint that `mars_policy::checkpoint::load` has already validated; the
+    /// shapes are checked again here so that a mismatch can never reach a kernel. `fixed_w`:
+    /// `PolicyKind::fixed_w` (`Some` for a baseline, which has no scheduler; `d.scheduler` follows it too).
+    pub fn load(path: &Path, d: &Dims, fixed_w: Option<f32>, mm: MatMul) -> Result<Self, LoadError> {
+        let bytes = std::fs::read(path).map_err(|e| LoadError::Tensor {
+            path: path.into(),
+            name: "*".into(),
+            problem: e.to_string(),
+        })?;
+        let st = SafeTensors::deserialize(&bytes).map_err(|e| LoadError::Tensor {
+            path: path.into(),
+            name: "*".into(),
+            problem: e.to_string(),
+        })?;
+        let r = Reader { st, path, mm };
+        let w = d.width;
+        let modality = match (d.scheduler, fixed_w) {
+            (Some(s), None) => Modality::Scheduler {
+                fc1: r.linear("scheduler.mlp.fc1", s.input, s.hidden)?,
+                fc2: r.linear("scheduler.mlp.fc2", s.hidden, d.action)?,
+            },
+            (_, w) => Modality::Fixed(w.unwrap_or(1.0)),
+        };
+        let mut blocks = Vec::with_capacity(d.depth);
+        let mut ada = Vec::with_capacity(d.depth + 1);
+        for i in 0..d.depth {
+            let p = format!("velocity.blocks.{i}");
+            blocks.push(Block {
+                qkv: r.token_linear(&format!("{p}.attn.qkv"), w, 3 * w)?,
+                attn_out: r.token_linear(&format!("{p}.attn.out"), w, w)?,
+                fc1: r.token_linear(&format!("{p}.mlp.fc1"), w, d.mlp_hidden)?,
+                fc2: r.token_linear(&format!("{p}.mlp.fc2"), d.mlp_hidden, w)?,
+            });
+            ada.push(r.linear(&format!("{p}.ada"), w, 6 * w)?);
+        }
+        ada.push(r.linear("velocity.final_ada", w, 2 * w)?);
+        let half = d.freq / 2;
+        Ok(Self {
+            enc_fc1: r.linear("encoder.state_mlp.fc1", d.obs, d.enc_hidden)?,
+            enc_fc2: r.linear("encoder.state_mlp.fc2", d.enc_hidden, d.embed)?,
+            modality,
+            action_in: r.token_linear("velocity.action_in", d.action, w)?,
+            pos: r.tensor("velocity.pos_embed", &[d.chunk, w])?,
+            time_fc1: r.token_linear("velocity.time.mlp.fc1", d.freq, w)?,
+            time_fc2: r.token_linear("velocity.time.mlp.fc2", w, w)?,
+            cond_in: r.linear("velocity.cond_in", d.embed, w)?,
+            blocks,
+            ada: r.panels(stack(&ada)),
+            action_out: r.token_linear("velocity.action_out", w, d.action)?,
+            freqs: (0..half).map(|i| (-(10_000f32.ln()) * i as f32 / half as f32).exp()).collect(),
+        })
+    }
+}
