@@ -87,7 +87,10 @@ fn bad_input_fails_with_a_clear_message_and_nonzero_exit() {
         (vec!["train".into(), "--demos".into(), "/nonexistent/demos.json".into()], "/nonexistent/demos.json"),
         (vec!["eval".into(), "--checkpoint".into(), "/nonexistent/ckpt".into()], "/nonexistent/ckpt"),
         (vec!["demos".into(), "--layout".into(), "/nonexistent/layout.toml".into()], "/nonexistent/layout.toml"),
-        (vec!["demos".into(), "--n".into(), "0".into(), "--out".into(), dir.join("d.json").display().to_string()], "--n"),
+        (
+            vec!["demos".into(), "--n".into(), "0".into(), "--out".into(), dir.join("d.json").display().to_string()],
+            "--n",
+        ),
     ];
     for (args, needle) in cases {
         let args: Vec<&str> = args.iter().map(String::as_str).collect();

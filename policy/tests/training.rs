@@ -21,7 +21,8 @@ fn first_batch(kind: PolicyKind) -> (mars_policy::config::PolicyConfig, Batch) {
 
 #[test]
 fn every_trainable_tensor_gets_a_nonzero_gradient() {
-    for (kind, scheduler_sees_history) in [(PolicyKind::Mars, false), (PolicyKind::Mars, true), (PolicyKind::Fm, false)] {
+    for (kind, scheduler_sees_history) in [(PolicyKind::Mars, false), (PolicyKind::Mars, true), (PolicyKind::Fm, false)]
+    {
         let (mut cfg, batch) = first_batch(kind);
         cfg.model.scheduler_uses_history = scheduler_sees_history;
         let (model, varmap) = init_model(&cfg, &Device::Cpu).unwrap();
