@@ -1,7 +1,7 @@
 //! The three MARS losses as plain functions of tensors (all in normalised action units), so each can be
 //! checked on hand-computed cases. Shapes: B batch, C chunk steps, D action dims, m neighbours.
 
-use candle_core::{D, Result, Tensor};
+use candle_core::{Result, Tensor};
 
 /// L_fm: mean squared error between the predicted velocity and a1 − a0.
 pub fn flow_matching(v_pred: &Tensor, a0: &Tensor, a1: &Tensor) -> Result<Tensor> {
@@ -37,7 +37,3 @@ pub fn neighbour_sources(neighbour_history: &Tensor, w: &Tensor, eps: &Tensor) -
     neighbour_history.broadcast_mul(&w.affine(-1.0, 1.0)?)? + eps.broadcast_mul(&w)?
 }
 
-/// Mean over the last dim, used by callers that report per-dimension w.
-pub fn mean_last(t: &Tensor) -> Result<Tensor> {
-    t.mean(D::Minus1)
-}

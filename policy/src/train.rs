@@ -151,7 +151,7 @@ fn optimizers(varmap: &VarMap, cfg: &PolicyConfig) -> candle_core::Result<Vec<Ad
     Ok(vec![AdamW::new(decay, params(cfg.train.weight_decay))?, AdamW::new(no_decay, params(0.0))?])
 }
 
-pub fn scalar(t: &Tensor) -> candle_core::Result<f32> {
+fn scalar(t: &Tensor) -> candle_core::Result<f32> {
     t.to_scalar::<f32>()
 }
 
