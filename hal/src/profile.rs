@@ -1,0 +1,237 @@
+//! Robot profiles: joint count, rate, limits, safety policy and sim parameters, read from TOML and validated
+//! before anything moves.
+
+use std::path::Path;
+
+use mars_ipc::MAX_JOINTS;
+use serde::Deserialize;
+
+/// What the safety filter does with a command outside the limits.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum LimitPolicy {
+    /// Bring it inside the limits (libfranka's `limit_rate = true` behaviour) and count it.
+    Clamp,
+    /// Refuse it, keep following the last valid command, and count it.
+    Reject,
+}
+
+/// Parameters of the sim backend's plant.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SimParams {
+    /// Ticks between a setpoint being applied and the plant starting to follow it.
+    #[serde(default)]
+    pub latency_ticks: usize,
+    /// First-order tracking time constant of the joints (s); 0 follows the setpoint exactly.
+    #[serde(default)]
+    pub tracking_time_constant_s: f64,
+    /// Standard deviation of the Gaussian noise on measured positions (rad).
+    #[serde(default)]
+    pub position_noise_std: f64,
+    #[serde(default)]
+    pub seed: u64,
+}
+
+impl Default for SimParams {
+    fn default() -> Self {
+        Self { latency_ticks: 0, tracking_time_constant_s: 0.0, position_noise_std: 0.0, seed: 0 }
+    }
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Profile {
+    pub name: String,
+    pub joints: usize,
+    pub rate_hz: f64,
+    /// No valid command for this long → brake to rest and hold.
+    pub command_timeout_ms: f64,
+    pub limit_policy: LimitPolicy,
+    pub q_min: Vec<f64>,
+    pub q_max: Vec<f64>,
+    pub dq_max: Vec<f64>,
+    pub ddq_max: Vec<f64>,
+    pub jerk_max: Vec<f64>,
+    /// Where the sim backend starts; must lie inside the limits.
+    pub home: Vec<f64>,
+    pub gripper_min: f64,
+    pub gripper_max: f64,
+    #[serde(default)]
+    pub sim: SimParams,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum ProfileError {
+    #[error("reading profile {path}: {source}")]
+    Read { path: String, source: std::io::Error },
+    #[error("parsing profile {path}: {source}")]
+    Parse { path: String, source: Box<toml::de::Error> },
+    #[error("profile {name:?}: {msg}")]
+    Invalid { name: String, msg: String },
+}
+
+impl Profile {
+    pub fn load(path: &Path) -> Result<Self, ProfileError> {
+        let text = std::fs::read_to_string(path)
+            .map_err(|source| ProfileError::Read { path: path.display().to_string(), source })?;
+        Self::parse(&text, &path.display().to_string())
+    }
+
+    /// Parse and validate; `origin` names the source in errors.
+    pub fn parse(text: &str, origin: &str) -> Result<Self, ProfileError> {
+        let p: Profile =
+            toml::from_str(text).map_err(|e| ProfileError::Parse { path: origin.to_owned(), source: Box::new(e) })?;
+        p.validate()?;
+        Ok(p)
+    }
+
+    pub fn period_s(&self) -> f64 {
+        1.0 / self.rate_hz
+    }
+
+    /// Command timeout in whole ticks (at least one).
+    pub fn timeout_ns(&self) -> u64 {
+        (self.command_timeout_ms * 1e6) as u64
+    }
+
+    pub fn validate(&self) -> Result<(), ProfileError> {
+        let bad = |msg: String| Err(ProfileError::Invalid { name: self.name.clone(), msg });
+        if self.joints == 0 || self.joints > MAX_JOINTS {
+            return bad(format!("joints = {} but must be 1..={MAX_JOINTS}", self.joints));
+        }
+        if !(self.rate_hz.is_finite() && (1.0..=10_000.0).contains(&self.rate_hz)) {
+            return bad(format!("rate_hz = {} but must be in 1..=10000", self.rate_hz));
+        }
+        let period_ms = 1e3 / self.rate_hz;
+        if !(self.command_timeout_ms.is_finite() && self.command_timeout_ms >= 2.0 * period_ms) {
+            return bad(format!(
+                "command_timeout_ms = {} but must be at least two control periods ({:.3} ms)",
+                self.command_timeout_ms,
+                2.0 * period_ms
+            ));
+        }
+        for (field, v) in [
+            ("q_min", &self.q_min),
+            ("q_max", &self.q_max),
+            ("dq_max", &self.dq_max),
+            ("ddq_max", &self.ddq_max),
+            ("jerk_max", &self.jerk_max),
+            ("home", &self.home),
+        ] {
+            if v.len() != self.joints {
+                return bad(format!("{field} has {} values but the robot has {} joints", v.len(), self.joints));
+            }
+            if let Some(i) = v.iter().position(|x| !x.is_finite()) {
+                return bad(format!("{field}[{i}] is not a finite number"));
+            }
+        }
+        for i in 0..self.joints {
+            if self.q_min[i] >= self.q_max[i] {
+                return bad(format!("joint {i}: q_min {} must be below q_max {}", self.q_min[i], self.q_max[i]));
+            }
+            if !(self.q_min[i]..=self.q_max[i]).contains(&self.home[i]) {
+                return bad(format!(
+                    "joint {i}: home {} lies outside [{}, {}]",
+                    self.home[i], self.q_min[i], self.q_max[i]
+                ));
+            }
+            for (field, v) in [("dq_max", &self.dq_max), ("ddq_max", &self.ddq_max), ("jerk_max", &self.jerk_max)] {
+                if v[i] <= 0.0 {
+                    return bad(format!("{field}[{i}] = {} but must be positive", v[i]));
+                }
+            }
+            // The safety filter's velocity-dependent acceleration bound keeps velocity and jerk inside their
+            // limits only if one tick of maximal jerk does not exceed the acceleration limit.
+            if self.jerk_max[i] / self.rate_hz > self.ddq_max[i] {
+                return bad(format!(
+                    "joint {i}: jerk_max/rate_hz = {} exceeds ddq_max {}: raise the rate or lower jerk_max",
+                    self.jerk_max[i] / self.rate_hz,
+                    self.ddq_max[i]
+                ));
+            }
+        }
+        if !(self.gripper_min.is_finite() && self.gripper_max.is_finite() && self.gripper_min < self.gripper_max) {
+            return bad(format!(
+                "gripper range [{}, {}] is not a finite, non-empty interval",
+                self.gripper_min, self.gripper_max
+            ));
+        }
+        let s = &self.sim;
+        if !(s.tracking_time_constant_s.is_finite() && s.tracking_time_constant_s >= 0.0) {
+            return bad(format!("sim.tracking_time_constant_s = {} must be ≥ 0", s.tracking_time_constant_s));
+        }
+        if !(s.position_noise_std.is_finite() && s.position_noise_std >= 0.0) {
+            return bad(format!("sim.position_noise_std = {} must be ≥ 0", s.position_noise_std));
+        }
+        if s.latency_ticks > 1000 {
+            return bad(format!("sim.latency_ticks = {} is more than 1000", s.latency_ticks));
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn config(name: &str) -> std::path::PathBuf {
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs").join(name)
+    }
+
+    #[test]
+    fn fr3_profile_carries_the_datasheet_limits_exactly() {
+        let p = Profile::load(&config("fr3.toml")).unwrap();
+        assert_eq!((p.joints, p.rate_hz, p.limit_policy), (7, 1000.0, LimitPolicy::Clamp));
+        assert_eq!(p.q_max, [2.9007, 1.8361, 2.9007, -0.1169, 2.8763, 4.6216, 3.0508]);
+        assert_eq!(p.q_min, [-2.9007, -1.8361, -2.9007, -3.0770, -2.8763, 0.4398, -3.0508]);
+        assert_eq!(p.dq_max, [2.62, 2.62, 2.62, 2.62, 5.26, 4.18, 5.26]);
+        assert_eq!(p.ddq_max, [10.0; 7]);
+        assert_eq!(p.jerk_max, [5000.0; 7]);
+        assert_eq!(p.command_timeout_ms, 20.0);
+    }
+
+    #[test]
+    fn r1_lite_profile_is_valid() {
+        let p = Profile::load(&config("r1_lite.toml")).unwrap();
+        assert_eq!(p.joints, 6);
+    }
+
+    fn fr3_text() -> String {
+        std::fs::read_to_string(config("fr3.toml")).unwrap()
+    }
+
+    fn invalid(text: &str) -> String {
+        match Profile::parse(text, "test") {
+            Err(e @ ProfileError::Invalid { .. }) | Err(e @ ProfileError::Parse { .. }) => e.to_string(),
+            other => panic!("expected a refusal, got {other:?}"),
+        }
+    }
+
+    #[test]
+    fn wrong_length_limit_arrays_are_refused_naming_the_field() {
+        let t = fr3_text().replace("dq_max = [2.62, 2.62,", "dq_max = [2.62,");
+        assert!(invalid(&t).contains("dq_max has 6 values but the robot has 7 joints"));
+    }
+
+    #[test]
+    fn inverted_limits_home_outside_and_bad_rates_are_refused() {
+        let t = fr3_text().replace("q_min = [-2.9007,", "q_min = [3.5,");
+        assert!(invalid(&t).contains("joint 0: q_min 3.5 must be below q_max 2.9007"), "{}", invalid(&t));
+        let t = fr3_text().replace("rate_hz = 1000.0", "rate_hz = 0.0");
+        assert!(invalid(&t).contains("rate_hz = 0"));
+        let t = fr3_text().replace("command_timeout_ms = 20.0", "command_timeout_ms = 1.0");
+        assert!(invalid(&t).contains("at least two control periods"));
+        let t = fr3_text()
+            .replace("rate_hz = 1000.0", "rate_hz = 100.0")
+            .replace("command_timeout_ms = 20.0", "command_timeout_ms = 50.0");
+        assert!(invalid(&t).contains("jerk_max/rate_hz"), "{}", invalid(&t));
+    }
+
+    #[test]
+    fn unknown_keys_and_bad_policy_are_parse_errors() {
+        assert!(invalid(&format!("{}\nspeed = 3\n", fr3_text())).contains("speed"));
+        let t = fr3_text().replace("limit_policy = \"clamp\"", "limit_policy = \"ignore\"");
+        assert!(invalid(&t).contains("ignore"));
+    }
+}

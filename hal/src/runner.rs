@@ -1,0 +1,198 @@
+//! The `mars-hal` loop: once per period, take the controller's commands, filter them, step the backend and
+//! publish the state; brake and hold when commands stop.
+
+use std::time::{Duration, Instant};
+
+use anyhow::Context;
+use hdrhistogram::Histogram;
+use mars_ipc::node::create_node;
+use mars_ipc::wire::WireError;
+use mars_ipc::{CommandMode, CommandReader, HoldReason, MAX_JOINTS, RobotNamespace, RobotState, StateWriter, status};
+use tracing::{info, warn};
+
+use crate::backend::Backend;
+use crate::profile::Profile;
+use crate::safety::SafetyFilter;
+use crate::session::{Decision, Mode, Supervisor};
+
+pub struct RunOptions {
+    /// Robot id of the service namespace (defaults to the profile's name in the CLI).
+    pub robot: String,
+    /// Stop after this long; `None` runs until SIGINT/SIGTERM.
+    pub duration: Option<Duration>,
+    /// Pin the loop thread to this core.
+    pub core: Option<usize>,
+}
+
+/// Loop timing and safety counters, printed at exit.
+pub struct Report {
+    pub ticks: u64,
+    /// Wake-up lateness past each tick's deadline (µs).
+    pub wake_late_us: Histogram<u64>,
+    /// Work per tick: commands, filter, backend, publish (µs).
+    pub work_us: Histogram<u64>,
+    pub overruns: u64,
+    pub rejected: u64,
+    pub clamped: u64,
+    pub schema_refusals: u64,
+}
+
+impl std::fmt::Display for Report {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let q = |h: &Histogram<u64>, p: f64| h.value_at_quantile(p);
+        writeln!(f, "mars-hal: {} ticks, {} overruns", self.ticks, self.overruns)?;
+        writeln!(
+            f,
+            "  wake-up lateness µs: p50 {} p99 {} p99.9 {} max {}",
+            q(&self.wake_late_us, 0.5),
+            q(&self.wake_late_us, 0.99),
+            q(&self.wake_late_us, 0.999),
+            self.wake_late_us.max()
+        )?;
+        writeln!(
+            f,
+            "  work per tick µs:    p50 {} p99 {} p99.9 {} max {}",
+            q(&self.work_us, 0.5),
+            q(&self.work_us, 0.99),
+            q(&self.work_us, 0.999),
+            self.work_us.max()
+        )?;
+        write!(
+            f,
+            "  commands: {} rejected, {} clamped, {} wrong schema",
+            self.rejected, self.clamped, self.schema_refusals
+        )
+    }
+}
+
+pub fn run(profile: &Profile, backend: &mut dyn Backend, opts: &RunOptions) -> anyhow::Result<Report> {
+    if let Some(core) = opts.core {
+        let ok = core_affinity::set_for_current(core_affinity::CoreId { id: core });
+        anyhow::ensure!(ok, "could not pin the HAL loop to core {core}");
+    }
+    let ns = RobotNamespace::new(&opts.robot)?;
+    let (node, cleaned) = create_node(&format!("mars-hal-{}", opts.robot))?;
+    if cleaned > 0 {
+        info!("cleaned up {cleaned} dead iceoryx2 node(s)");
+    }
+    let state_out = StateWriter::new(&node, &ns)?;
+    let commands = CommandReader::new(&node, &ns)?;
+
+    let n = profile.joints;
+    let period = Duration::from_secs_f64(profile.period_s());
+    let mut filter = SafetyFilter::new(profile, &profile.home);
+    let mut supervisor = Supervisor::new(profile.timeout_ns());
+    let mut target: Option<[f64; MAX_JOINTS]> = None;
+    let mut gripper = profile.gripper_min;
+    let mut last_command_seq = 0;
+    let mut schema_refusals = 0u64;
+    let mut report = Report {
+        ticks: 0,
+        wake_late_us: Histogram::new_with_bounds(1, 10_000_000, 3)?,
+        work_us: Histogram::new_with_bounds(1, 10_000_000, 3)?,
+        overruns: 0,
+        rejected: 0,
+        clamped: 0,
+        schema_refusals: 0,
+    };
+    info!(robot = %opts.robot, rate_hz = profile.rate_hz, joints = n, "mars-hal running");
+
+    let start = Instant::now();
+    let mut deadline = start;
+    loop {
+        let woke = Instant::now();
+        report.wake_late_us.saturating_record(woke.saturating_duration_since(deadline).as_micros() as u64);
+        let now_ns = woke.duration_since(start).as_nanos() as u64;
+
+        // 1. Commands: every frame is judged (so every bad one is counted); the newest valid one wins.
+        loop {
+            match commands.receive() {
+                Ok(None) => break,
+                Ok(Some(cmd)) => match filter.admit(&cmd) {
+                    Err(refusal) => warn!(seq = cmd.seq, "refused command: {refusal}"),
+                    Ok(t) => {
+                        let hold = cmd.mode == CommandMode::Hold as u32;
+                        if cmd.session == 0 {
+                            filter.rejected += 1;
+                            warn!(seq = cmd.seq, "refused command: session id 0 is reserved");
+                        } else if supervisor.on_command(cmd.session, hold, now_ns) == Decision::Follow {
+                            target = if hold { None } else { Some(t.position) };
+                            gripper = t.gripper;
+                            last_command_seq = cmd.seq;
+                        }
+                    }
+                },
+                Err(WireError::Schema { mismatch, .. }) => {
+                    schema_refusals += 1;
+                    if schema_refusals == 1 {
+                        warn!("refusing commands: {mismatch}");
+                    }
+                }
+                Err(e) => return Err(e).context("receiving commands"),
+            }
+        }
+        if supervisor.on_tick(now_ns) {
+            warn!(
+                "no valid command for {} ms: braking to rest and holding; send a new session id to resume",
+                profile.command_timeout_ms
+            );
+            target = None;
+        }
+
+        // 2. Setpoint (filtered) → backend → measurement.
+        let follow = matches!(supervisor.mode(), Mode::Active { .. });
+        let setpoint = filter.step(if follow { target.as_ref() } else { None });
+        backend.apply(setpoint, gripper)?;
+        let m = backend.read()?;
+
+        // 3. State frame.
+        let (session, hold_reason) = match supervisor.mode() {
+            Mode::Idle => (0, HoldReason::NoSession),
+            Mode::Active { session } => (session, HoldReason::None),
+            Mode::Holding { session, reason } => (session, reason),
+        };
+        let mut st = RobotState {
+            seq: report.ticks + 1,
+            timestamp_ns: now_ns,
+            session,
+            last_command_seq,
+            position: m.position,
+            velocity: m.velocity,
+            effort: m.effort,
+            gripper: m.gripper,
+            rejected_commands: filter.rejected,
+            clamped_commands: filter.clamped,
+            status: if follow { status::ACTIVE } else { status::HOLDING },
+            fault: m.fault,
+            hold_reason: hold_reason as u32,
+            num_joints: n as u32,
+            ..Default::default()
+        };
+        st.applied_position[..n].copy_from_slice(filter.position());
+        if filter.at_rest() {
+            st.status |= status::AT_REST;
+        }
+        state_out.send(&st)?;
+        report.ticks += 1;
+        report.work_us.saturating_record(woke.elapsed().as_micros() as u64);
+
+        if opts.duration.is_some_and(|d| start.elapsed() >= d) {
+            break;
+        }
+        // 4. Sleep to the next deadline; if we are more than a period behind, skip ahead instead of bursting.
+        deadline += period;
+        let now = Instant::now();
+        if now > deadline + period {
+            report.overruns += 1;
+            deadline = now;
+        }
+        if node.wait(deadline.saturating_duration_since(now)).is_err() {
+            info!("termination requested");
+            break;
+        }
+    }
+    report.rejected = filter.rejected;
+    report.clamped = filter.clamped;
+    report.schema_refusals = schema_refusals;
+    Ok(report)
+}

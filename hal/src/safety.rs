@@ -1,0 +1,406 @@
+//! The HAL's safety filter: whatever the controller sends, the setpoint applied to the joints stays inside
+//! the profile's position, velocity, acceleration and jerk limits.
+//!
+//! Two stages:
+//! 1. [`SafetyFilter::admit`] judges a command: NaN/∞ anywhere, a wrong joint count or an unknown mode is
+//!    always refused; a target outside the position limits, an intent (velocity/acceleration field) outside
+//!    the limits, or a step from the current setpoint that would exceed velocity/acceleration/jerk is clamped
+//!    or refused per the profile's [`LimitPolicy`]. Every refusal and clamp is counted.
+//! 2. [`SafetyFilter::step`] moves the applied setpoint one tick toward the admitted target (or to rest when
+//!    braking) with a jerk-, acceleration- and velocity-bounded law, so even a clamped jump is reached smoothly.
+
+use mars_ipc::{CommandMode, JointCommand, MAX_JOINTS};
+
+use crate::profile::{LimitPolicy, Profile};
+
+/// Relative slack for floating-point rounding when comparing against a limit.
+const EPS: f64 = 1e-9;
+/// Velocity loop gain of the setpoint generator (1/s): settles a step in about 0.1 s.
+const KV: f64 = 100.0;
+
+/// Why a command was refused.
+#[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
+pub enum Refusal {
+    #[error("command has {found} joints, the robot has {expected}")]
+    JointCount { expected: usize, found: u32 },
+    #[error("command mode {0} is unknown")]
+    UnknownMode(u32),
+    #[error("joint {joint}: {field} is not a finite number")]
+    NotFinite { joint: usize, field: &'static str },
+    #[error("gripper target is not a finite number")]
+    GripperNotFinite,
+    #[error("joint {joint}: target position {value} outside [{min}, {max}]")]
+    Position { joint: usize, value: f64, min: f64, max: f64 },
+    #[error("joint {joint}: {quantity} {value} exceeds the limit {limit}")]
+    Rate { joint: usize, quantity: &'static str, value: f64, limit: f64 },
+    #[error("gripper target {value} outside [{min}, {max}]")]
+    Gripper { value: f64, min: f64, max: f64 },
+}
+
+/// A command that passed [`SafetyFilter::admit`]: the (possibly clamped) target.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Target {
+    pub position: [f64; MAX_JOINTS],
+    pub gripper: f64,
+    /// Whether anything had to be clamped.
+    pub clamped: bool,
+}
+
+/// Limits and the applied setpoint (position, velocity, acceleration) of every joint.
+pub struct SafetyFilter {
+    n: usize,
+    dt: f64,
+    policy: LimitPolicy,
+    q_min: [f64; MAX_JOINTS],
+    q_max: [f64; MAX_JOINTS],
+    v_max: [f64; MAX_JOINTS],
+    a_max: [f64; MAX_JOINTS],
+    j_max: [f64; MAX_JOINTS],
+    g_min: f64,
+    g_max: f64,
+    q: [f64; MAX_JOINTS],
+    v: [f64; MAX_JOINTS],
+    a: [f64; MAX_JOINTS],
+    /// Position and velocity loop gains of [`Self::step`] (1/s).
+    kp: f64,
+    kv: f64,
+    pub rejected: u64,
+    pub clamped: u64,
+    /// Ticks in which the position guard had to stop a joint at its limit (expected to stay zero).
+    pub position_guard_hits: u64,
+}
+
+fn arr(v: &[f64]) -> [f64; MAX_JOINTS] {
+    let mut a = [0.0; MAX_JOINTS];
+    a[..v.len()].copy_from_slice(v);
+    a
+}
+
+impl SafetyFilter {
+    /// A filter at rest at `start` (which must lie within the limits; the profile's `home` does).
+    pub fn new(p: &Profile, start: &[f64]) -> Self {
+        Self {
+            n: p.joints,
+            dt: p.period_s(),
+            policy: p.limit_policy,
+            q_min: arr(&p.q_min),
+            q_max: arr(&p.q_max),
+            v_max: arr(&p.dq_max),
+            a_max: arr(&p.ddq_max),
+            j_max: arr(&p.jerk_max),
+            g_min: p.gripper_min,
+            g_max: p.gripper_max,
+            q: arr(start),
+            v: [0.0; MAX_JOINTS],
+            a: [0.0; MAX_JOINTS],
+            // kv = 4·kp is critical damping; kv·dt ≤ 0.5 keeps the discrete loop well inside stability.
+            kp: KV.min(0.5 * p.rate_hz) / 4.0,
+            kv: KV.min(0.5 * p.rate_hz),
+            rejected: 0,
+            clamped: 0,
+            position_guard_hits: 0,
+        }
+    }
+
+    pub fn position(&self) -> &[f64] {
+        &self.q[..self.n]
+    }
+    pub fn velocity(&self) -> &[f64] {
+        &self.v[..self.n]
+    }
+    pub fn acceleration(&self) -> &[f64] {
+        &self.a[..self.n]
+    }
+
+    pub fn at_rest(&self) -> bool {
+        self.v[..self.n].iter().all(|v| v.abs() < 1e-3)
+    }
+
+    /// Judge a `Position` command against the limits and the current setpoint; counts refusals and clamps.
+    pub fn admit(&mut self, cmd: &JointCommand) -> Result<Target, Refusal> {
+        let r = self.judge(cmd);
+        match &r {
+            Err(_) => self.rejected += 1,
+            Ok(t) if t.clamped => self.clamped += 1,
+            Ok(_) => {}
+        }
+        r
+    }
+
+    fn judge(&self, cmd: &JointCommand) -> Result<Target, Refusal> {
+        let n = self.n;
+        if cmd.num_joints as usize != n {
+            return Err(Refusal::JointCount { expected: n, found: cmd.num_joints });
+        }
+        if CommandMode::from_u32(cmd.mode).is_none() {
+            return Err(Refusal::UnknownMode(cmd.mode));
+        }
+        // Non-finite values are refused under every policy: there is no sensible value to clamp NaN to.
+        for (field, v) in
+            [("position", &cmd.position), ("velocity", &cmd.velocity), ("acceleration", &cmd.acceleration)]
+        {
+            if let Some(joint) = v[..n].iter().position(|x| !x.is_finite()) {
+                return Err(Refusal::NotFinite { joint, field });
+            }
+        }
+        if !cmd.gripper.is_finite() {
+            return Err(Refusal::GripperNotFinite);
+        }
+        let reject = self.policy == LimitPolicy::Reject;
+        let mut t = Target { position: [0.0; MAX_JOINTS], gripper: cmd.gripper, clamped: false };
+        for i in 0..n {
+            let (lo, hi) = (self.q_min[i], self.q_max[i]);
+            let q = cmd.position[i];
+            if q < lo || q > hi {
+                if reject {
+                    return Err(Refusal::Position { joint: i, value: q, min: lo, max: hi });
+                }
+                t.clamped = true;
+            }
+            t.position[i] = q.clamp(lo, hi);
+            // The controller's stated intent must itself be possible.
+            for (quantity, value, limit) in
+                [("velocity", cmd.velocity[i], self.v_max[i]), ("acceleration", cmd.acceleration[i], self.a_max[i])]
+            {
+                if value.abs() > limit * (1.0 + EPS) {
+                    if reject {
+                        return Err(Refusal::Rate { joint: i, quantity, value, limit });
+                    }
+                    t.clamped = true;
+                }
+            }
+            // The step from the applied setpoint, differentiated like libfranka does, must be within limits.
+            let v = (t.position[i] - self.q[i]) / self.dt;
+            let a = (v - self.v[i]) / self.dt;
+            let j = (a - self.a[i]) / self.dt;
+            for (quantity, value, limit) in [
+                ("implied velocity", v, self.v_max[i]),
+                ("implied acceleration", a, self.a_max[i]),
+                ("implied jerk", j, self.j_max[i]),
+            ] {
+                if value.abs() > limit * (1.0 + EPS) {
+                    if reject {
+                        return Err(Refusal::Rate { joint: i, quantity, value, limit });
+                    }
+                    // Clamped by `step`, which never exceeds the limits on the way to the target.
+                    t.clamped = true;
+                }
+            }
+        }
+        if cmd.gripper < self.g_min || cmd.gripper > self.g_max {
+            if reject {
+                return Err(Refusal::Gripper { value: cmd.gripper, min: self.g_min, max: self.g_max });
+            }
+            t.clamped = true;
+            t.gripper = cmd.gripper.clamp(self.g_min, self.g_max);
+        }
+        Ok(t)
+    }
+
+    /// Advance the applied setpoint one tick toward `target`, or to rest (zero velocity where it is) when
+    /// `target` is `None`. Returns the new setpoint positions.
+    pub fn step(&mut self, target: Option<&[f64; MAX_JOINTS]>) -> &[f64] {
+        let dt = self.dt;
+        for i in 0..self.n {
+            let (q, v, a) = (self.q[i], self.v[i], self.a[i]);
+            let (vm, am, jm) = (self.v_max[i], self.a_max[i], self.j_max[i]);
+            // Cascade toward the target, critically damped near it (ω = 2·kp) and, far from it, braking
+            // along v = √(A·e), i.e. at half the acceleration limit, leaving room for the jerk-limited ramp.
+            let v_des = match target {
+                Some(t) => {
+                    let e = t[i] - q;
+                    e.signum() * (self.kp * e.abs()).min((am * e.abs()).sqrt()).min(vm)
+                }
+                None => 0.0,
+            };
+            // a = √(J·|Δv|) lets the acceleration ramp back to zero, at half the jerk limit, as v arrives.
+            let ev = v_des - v;
+            let a_des = ev.signum() * (self.kv * ev.abs()).min((jm * ev.abs()).sqrt()).min(am);
+            // Feasible accelerations this tick: jerk bound, acceleration bound, and libfranka's
+            // velocity-dependent bound a ≤ (J/A)(V − v), which keeps |v| ≤ V without a jerk spike.
+            let hi = (a + jm * dt).min(am).min(jm / am * (vm - v));
+            let lo = (a - jm * dt).max(-am).max(jm / am * (-vm - v));
+            let mut a_new = if lo <= hi { a_des.clamp(lo, hi) } else { 0.5 * (lo + hi) };
+            // Braking ends in an exact stop (not an endless exponential creep), once the last step to zero
+            // velocity, and the step back to zero acceleration after it, fit within the jerk limit.
+            if target.is_none() && v.abs() + a.abs() * dt <= 0.5 * jm * dt * dt && v.abs() <= 0.5 * am * dt {
+                a_new = -v / dt;
+            }
+            let mut v_new = v + a_new * dt;
+            let mut q_new = q + v_new * dt;
+            // Last line: a position limit is never crossed, even at the cost of an abrupt stop.
+            if q_new > self.q_max[i] || q_new < self.q_min[i] {
+                q_new = q_new.clamp(self.q_min[i], self.q_max[i]);
+                v_new = 0.0;
+                self.position_guard_hits += 1;
+                self.a[i] = 0.0;
+            } else {
+                self.a[i] = a_new;
+            }
+            self.q[i] = q_new;
+            self.v[i] = v_new;
+        }
+        &self.q[..self.n]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::path::Path;
+
+    fn fr3() -> Profile {
+        Profile::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/fr3.toml")).unwrap()
+    }
+
+    fn cmd(q: &[f64]) -> JointCommand {
+        JointCommand::position(1, 1, 0, q)
+    }
+
+    /// Tiny deterministic generator so the property tests need no extra dependency.
+    struct Lcg(u64);
+    impl Lcg {
+        fn unit(&mut self) -> f64 {
+            self.0 = self.0.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            (self.0 >> 11) as f64 / (1u64 << 53) as f64
+        }
+    }
+
+    #[test]
+    fn nan_and_infinite_values_are_refused_under_every_policy() {
+        for policy in [LimitPolicy::Clamp, LimitPolicy::Reject] {
+            let mut p = fr3();
+            p.limit_policy = policy;
+            let mut f = SafetyFilter::new(&p, &p.home);
+            let mut c = cmd(&p.home);
+            c.position[3] = f64::NAN;
+            assert_eq!(f.admit(&c), Err(Refusal::NotFinite { joint: 3, field: "position" }));
+            let mut c = cmd(&p.home);
+            c.velocity[0] = f64::INFINITY;
+            assert_eq!(f.admit(&c), Err(Refusal::NotFinite { joint: 0, field: "velocity" }));
+            let mut c = cmd(&p.home);
+            c.gripper = f64::NAN;
+            assert_eq!(f.admit(&c), Err(Refusal::GripperNotFinite));
+            assert_eq!(f.rejected, 3);
+        }
+    }
+
+    #[test]
+    fn wrong_joint_count_and_unknown_mode_are_refused() {
+        let p = fr3();
+        let mut f = SafetyFilter::new(&p, &p.home);
+        assert_eq!(f.admit(&cmd(&p.home[..6])), Err(Refusal::JointCount { expected: 7, found: 6 }));
+        let mut c = cmd(&p.home);
+        c.mode = 9;
+        assert_eq!(f.admit(&c), Err(Refusal::UnknownMode(9)));
+    }
+
+    #[test]
+    fn out_of_limit_position_is_rejected_or_clamped_per_policy() {
+        let mut p = fr3();
+        p.limit_policy = LimitPolicy::Reject;
+        let mut f = SafetyFilter::new(&p, &p.home);
+        let mut q = p.home.clone();
+        q[3] = 0.0; // joint 4 of the FR3 must stay below −0.1169
+        assert!(matches!(f.admit(&cmd(&q)), Err(Refusal::Position { joint: 3, .. })));
+        assert_eq!((f.rejected, f.clamped), (1, 0));
+
+        p.limit_policy = LimitPolicy::Clamp;
+        let mut f = SafetyFilter::new(&p, &p.home);
+        let t = f.admit(&cmd(&q)).unwrap();
+        assert!(t.clamped);
+        assert_eq!(t.position[3], -0.1169);
+        assert_eq!((f.rejected, f.clamped), (0, 1));
+    }
+
+    #[test]
+    fn a_jump_is_refused_under_reject_and_a_smooth_step_is_accepted() {
+        let mut p = fr3();
+        p.limit_policy = LimitPolicy::Reject;
+        let mut f = SafetyFilter::new(&p, &p.home);
+        let mut q = p.home.clone();
+        q[0] += 0.1; // 100 rad/s implied at 1 kHz
+        assert!(matches!(f.admit(&cmd(&q)), Err(Refusal::Rate { joint: 0, quantity: "implied velocity", .. })));
+        q[0] = p.home[0] + 1e-3 * 1e-3 * 1e-3 * 1000.0; // 1e-6 rad: jerk 1000 rad/s³ from rest
+        assert!(f.admit(&cmd(&q)).is_ok());
+        let mut c = cmd(&p.home);
+        c.velocity[1] = 3.0;
+        assert!(matches!(f.admit(&c), Err(Refusal::Rate { joint: 1, quantity: "velocity", .. })));
+        let mut c = cmd(&p.home);
+        c.gripper = 0.5;
+        assert!(matches!(f.admit(&c), Err(Refusal::Gripper { .. })));
+    }
+
+    /// Random, often wild targets (inside the position limits after admission): the applied setpoint never
+    /// leaves any limit and the position guard never has to intervene.
+    #[test]
+    fn applied_setpoint_respects_every_limit_for_random_targets() {
+        let r1 = Profile::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/r1_lite.toml")).unwrap();
+        for mut p in [fr3(), r1] {
+            p.limit_policy = LimitPolicy::Clamp;
+            random_targets_stay_within_limits(&p);
+        }
+    }
+
+    fn random_targets_stay_within_limits(p: &Profile) {
+        let mut f = SafetyFilter::new(p, &p.home);
+        let mut rng = Lcg(7);
+        let dt = p.period_s();
+        let mut target = [0.0; MAX_JOINTS];
+        let (mut v_prev, mut a_prev) = ([0.0; MAX_JOINTS], [0.0; MAX_JOINTS]);
+        let mut q_prev = arr(&p.home);
+        for tick in 0..20_000 {
+            if tick % 700 == 0 {
+                let mut q = vec![0.0; p.joints];
+                #[allow(clippy::needless_range_loop)]
+                for i in 0..p.joints {
+                    // Up to 20 % beyond the range on either side, so clamping is exercised.
+                    let span = p.q_max[i] - p.q_min[i];
+                    q[i] = p.q_min[i] - 0.2 * span + 1.4 * span * rng.unit();
+                }
+                target = f.admit(&cmd(&q)).unwrap().position;
+            }
+            let braking = tick % 2900 > 2500;
+            let q = arr(f.step(if braking { None } else { Some(&target) }));
+            for i in 0..p.joints {
+                let v = (q[i] - q_prev[i]) / dt;
+                let a = (v - v_prev[i]) / dt;
+                let j = (a - a_prev[i]) / dt;
+                assert!(q[i] >= p.q_min[i] && q[i] <= p.q_max[i], "tick {tick} joint {i}: q {}", q[i]);
+                assert!(v.abs() <= p.dq_max[i] * (1.0 + 1e-6), "tick {tick} joint {i}: v {v}");
+                assert!(a.abs() <= p.ddq_max[i] * (1.0 + 1e-6), "tick {tick} joint {i}: a {a}");
+                assert!(j.abs() <= p.jerk_max[i] * (1.0 + 1e-6), "tick {tick} joint {i}: j {j}");
+                v_prev[i] = v;
+                a_prev[i] = a;
+            }
+            q_prev = q;
+        }
+        assert_eq!(f.position_guard_hits, 0);
+    }
+
+    #[test]
+    fn the_setpoint_reaches_a_target_and_braking_brings_it_to_rest() {
+        let p = fr3();
+        let mut f = SafetyFilter::new(&p, &p.home);
+        let mut q = p.home.clone();
+        q[0] += 0.5;
+        let t = f.admit(&cmd(&q)).unwrap().position;
+        for _ in 0..2000 {
+            f.step(Some(&t));
+        }
+        assert!((f.position()[0] - q[0]).abs() < 1e-4, "{}", f.position()[0]);
+        assert!(f.at_rest());
+        // Start moving, then brake: at rest within a second at FR3's limits.
+        q[0] -= 1.0;
+        let t = f.admit(&cmd(&q)).unwrap().position;
+        for _ in 0..300 {
+            f.step(Some(&t));
+        }
+        assert!(!f.at_rest());
+        for _ in 0..1000 {
+            f.step(None);
+        }
+        assert!(f.at_rest(), "{:?}", f.velocity());
+        assert!(f.velocity().iter().all(|v| *v == 0.0), "braking ends in an exact stop: {:?}", f.velocity());
+    }
+}

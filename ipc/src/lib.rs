@@ -1,0 +1,26 @@
+//! The wire between the MARS controller and the robot's HAL process.
+//!
+//! Both sides meet only through iceoryx2 shared memory. Everything here is plain data or a thin, typed wrapper
+//! around an iceoryx2 port, so the controller and `mars-hal` cannot disagree about layout, service names or
+//! quality-of-service settings. No model code lives here.
+//!
+//! - [`schema`]: the schema version every frame carries in its user header, and the refusal of mismatches.
+//! - [`state`], [`command`], [`image`]: the `#[repr(C)]` zero-copy payloads.
+//! - [`names`]: the per-robot service namespace.
+//! - [`wire`]: typed publishers/subscribers for state, command and camera frames.
+//! - [`node`]: node creation that first cleans up what dead processes left behind.
+
+pub mod command;
+pub mod image;
+pub mod names;
+pub mod node;
+pub mod schema;
+pub mod state;
+pub mod wire;
+
+pub use command::{CommandMode, JointCommand};
+pub use image::{ImageEncoding, ImageHeader};
+pub use names::{NameError, RobotNamespace};
+pub use schema::{FrameHeader, SCHEMA_VERSION, SchemaMismatch};
+pub use state::{HoldReason, MAX_JOINTS, RobotState, status};
+pub use wire::{CommandReader, CommandWriter, ImageReader, ImageWriter, StateReader, StateWriter, WireError};

@@ -1,0 +1,63 @@
+//! Schema version carried in every frame's iceoryx2 user header.
+//!
+//! iceoryx2 itself refuses to connect ports whose payload types differ in name, size or alignment. That does not
+//! catch a change of *meaning* with the same layout (a field renamed from radians to degrees, a flag bit
+//! re-assigned). So every frame also carries [`SCHEMA_VERSION`], and a receiver refuses any frame whose version
+//! differs, with an error that names both versions. Bump it whenever a payload's layout or meaning changes.
+
+use iceoryx2::prelude::ZeroCopySend;
+
+/// The version of the frame layouts in this crate.
+pub const SCHEMA_VERSION: u32 = 1;
+
+/// The iceoryx2 user header of state and command frames.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ZeroCopySend)]
+#[type_name("mars::FrameHeader")]
+#[repr(C)]
+pub struct FrameHeader {
+    pub schema_version: u32,
+}
+
+impl Default for FrameHeader {
+    /// A header of this build: what every writer in this crate sends.
+    fn default() -> Self {
+        Self { schema_version: SCHEMA_VERSION }
+    }
+}
+
+/// A frame from a build with another schema: it must not be interpreted.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+#[error(
+    "schema version mismatch: this build speaks mars-ipc schema v{expected}, the peer sent v{found}; \
+     rebuild the controller and mars-hal from the same revision"
+)]
+pub struct SchemaMismatch {
+    pub expected: u32,
+    pub found: u32,
+}
+
+/// Accept a frame only if it was written with this build's schema.
+pub fn check_schema_version(found: u32) -> Result<(), SchemaMismatch> {
+    if found == SCHEMA_VERSION { Ok(()) } else { Err(SchemaMismatch { expected: SCHEMA_VERSION, found }) }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn own_version_is_accepted() {
+        assert_eq!(check_schema_version(FrameHeader::default().schema_version), Ok(()));
+    }
+
+    #[test]
+    fn other_version_is_refused_naming_both_versions() {
+        let err = check_schema_version(SCHEMA_VERSION + 1).unwrap_err();
+        assert_eq!(err, SchemaMismatch { expected: SCHEMA_VERSION, found: SCHEMA_VERSION + 1 });
+        let msg = err.to_string();
+        assert!(
+            msg.contains(&format!("v{SCHEMA_VERSION}")) && msg.contains(&format!("v{}", SCHEMA_VERSION + 1)),
+            "{msg}"
+        );
+    }
+}

@@ -1,0 +1,134 @@
+//! The robot state frame the HAL publishes once per control tick.
+
+use iceoryx2::prelude::ZeroCopySend;
+
+/// Fixed joint capacity of every frame: no heap, one layout for every supported arm (FR3: 7, R1 Lite arm: 6).
+pub const MAX_JOINTS: usize = 8;
+
+/// Bits of [`RobotState::status`].
+pub mod status {
+    /// A controller session is active and its commands are being followed.
+    pub const ACTIVE: u32 = 1 << 0;
+    /// The HAL is braking to rest or holding; see [`super::RobotState::hold_reason`].
+    pub const HOLDING: u32 = 1 << 1;
+    /// The joints are at rest (every |velocity| of the applied setpoint below 1e-3 rad/s).
+    pub const AT_REST: u32 = 1 << 2;
+}
+
+/// Why the HAL is holding, in [`RobotState::hold_reason`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[repr(u32)]
+pub enum HoldReason {
+    /// Not holding.
+    None = 0,
+    /// No controller session has started yet.
+    NoSession = 1,
+    /// No valid command arrived within the profile's command timeout.
+    CommandTimeout = 2,
+    /// The controller ended its session (a [`crate::CommandMode::Hold`] command).
+    ControllerRequested = 3,
+}
+
+impl HoldReason {
+    /// Decode the wire value; unknown values are `None` so a newer peer cannot crash an older reader.
+    pub fn from_u32(v: u32) -> Option<Self> {
+        match v {
+            0 => Some(Self::None),
+            1 => Some(Self::NoSession),
+            2 => Some(Self::CommandTimeout),
+            3 => Some(Self::ControllerRequested),
+            _ => None,
+        }
+    }
+}
+
+/// One state frame. Joint arrays are valid up to `num_joints`; the rest is zero.
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("mars::RobotState")]
+#[repr(C)]
+pub struct RobotState {
+    /// Increments by one per published frame; a gap means frames were dropped.
+    pub seq: u64,
+    /// Monotonic time of the measurement on the HAL's clock (ns since the HAL started).
+    pub timestamp_ns: u64,
+    /// The controller session the HAL is following (0: none yet).
+    pub session: u64,
+    /// `seq` of the last command the HAL accepted (0: none).
+    pub last_command_seq: u64,
+    /// Measured joint positions (rad).
+    pub position: [f64; MAX_JOINTS],
+    /// Measured joint velocities (rad/s).
+    pub velocity: [f64; MAX_JOINTS],
+    /// Measured joint efforts (N·m). The sim backend reports zero.
+    pub effort: [f64; MAX_JOINTS],
+    /// The setpoint the HAL applied this tick, after its safety filter (rad).
+    pub applied_position: [f64; MAX_JOINTS],
+    /// Gripper opening (m).
+    pub gripper: f64,
+    /// Commands refused since start (NaN, wrong joint count, wrong schema, out of limits under `reject`).
+    pub rejected_commands: u64,
+    /// Commands clamped into the limits since start (under `clamp`).
+    pub clamped_commands: u64,
+    /// [`status`] bits.
+    pub status: u32,
+    /// Fault bits of the backend (0: none).
+    pub fault: u32,
+    /// A [`HoldReason`] as `u32`.
+    pub hold_reason: u32,
+    pub num_joints: u32,
+}
+
+impl Default for RobotState {
+    fn default() -> Self {
+        Self {
+            seq: 0,
+            timestamp_ns: 0,
+            session: 0,
+            last_command_seq: 0,
+            position: [0.0; MAX_JOINTS],
+            velocity: [0.0; MAX_JOINTS],
+            effort: [0.0; MAX_JOINTS],
+            applied_position: [0.0; MAX_JOINTS],
+            gripper: 0.0,
+            rejected_commands: 0,
+            clamped_commands: 0,
+            status: 0,
+            fault: 0,
+            hold_reason: HoldReason::NoSession as u32,
+            num_joints: 0,
+        }
+    }
+}
+
+impl RobotState {
+    /// The valid joint positions.
+    pub fn positions(&self) -> &[f64] {
+        &self.position[..(self.num_joints as usize).min(MAX_JOINTS)]
+    }
+
+    pub fn is(&self, bit: u32) -> bool {
+        self.status & bit != 0
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn hold_reason_round_trips_and_unknown_is_none() {
+        for r in [HoldReason::None, HoldReason::NoSession, HoldReason::CommandTimeout, HoldReason::ControllerRequested]
+        {
+            assert_eq!(HoldReason::from_u32(r as u32), Some(r));
+        }
+        assert_eq!(HoldReason::from_u32(77), None);
+    }
+
+    #[test]
+    fn positions_are_cut_at_num_joints_and_never_past_capacity() {
+        let mut s = RobotState { num_joints: 7, ..Default::default() };
+        assert_eq!(s.positions().len(), 7);
+        s.num_joints = 100;
+        assert_eq!(s.positions().len(), MAX_JOINTS);
+    }
+}

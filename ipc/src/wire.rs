@@ -1,0 +1,244 @@
+//! Typed ports for the three kinds of frame.
+//!
+//! Both sides open every service through the functions here, so the quality-of-service settings they pass to
+//! iceoryx2 are identical by construction (iceoryx2 refuses to open a service with incompatible settings).
+//! Readers check the schema version of every frame and hand out [`WireError::Schema`] instead of a frame from
+//! a mismatched build.
+
+use iceoryx2::port::publisher::Publisher;
+use iceoryx2::port::subscriber::Subscriber;
+use iceoryx2::prelude::*;
+use iceoryx2::sample::Sample;
+
+use crate::command::JointCommand;
+use crate::image::ImageHeader;
+use crate::names::{NameError, RobotNamespace};
+use crate::schema::{FrameHeader, SchemaMismatch, check_schema_version};
+use crate::state::RobotState;
+
+/// Frames a subscriber keeps before the oldest is overwritten. At 1 kHz this is 16 ms of backlog: a reader
+/// that falls further behind wants the newest frames anyway.
+const BUFFER: usize = 16;
+/// Room for a restarted controller while a dead one's ports are still registered, plus monitoring tools.
+const MAX_PORTS: usize = 8;
+const MAX_NODES: usize = 16;
+
+#[derive(Debug, thiserror::Error)]
+pub enum WireError {
+    #[error(transparent)]
+    Name(#[from] NameError),
+    #[error("iceoryx2 node: {0}")]
+    Node(String),
+    #[error("iceoryx2 service {service:?}: {reason}")]
+    Service { service: String, reason: String },
+    #[error("iceoryx2 port on {service:?}: {reason}")]
+    Port { service: String, reason: String },
+    #[error("refused a frame on {service:?}: {mismatch}")]
+    Schema { service: String, mismatch: SchemaMismatch },
+    #[error("refused an image on {service:?}: header says {expected:?} bytes, payload has {found}")]
+    BadImage { service: String, expected: Option<usize>, found: usize },
+}
+
+fn svc_err(service: &ServiceName, e: impl core::fmt::Debug) -> WireError {
+    WireError::Service { service: service.as_str().to_owned(), reason: format!("{e:?}") }
+}
+
+fn port_err(service: &ServiceName, e: impl core::fmt::Debug) -> WireError {
+    WireError::Port { service: service.as_str().to_owned(), reason: format!("{e:?}") }
+}
+
+/// What opening a service yields: its name (for errors) and its port factory.
+type Opened<T, H> = (ServiceName, iceoryx2::service::port_factory::publish_subscribe::PortFactory<ipc::Service, T, H>);
+
+type FramePublisher<T> = Publisher<ipc::Service, T, FrameHeader>;
+type FrameSubscriber<T> = Subscriber<ipc::Service, T, FrameHeader>;
+
+macro_rules! frame_ports {
+    ($writer:ident, $reader:ident, $payload:ty, $name_fn:ident) => {
+        fn $name_fn(
+            node: &Node<ipc::Service>,
+            ns: &RobotNamespace,
+        ) -> Result<
+            (
+                ServiceName,
+                iceoryx2::service::port_factory::publish_subscribe::PortFactory<ipc::Service, $payload, FrameHeader>,
+            ),
+            WireError,
+        > {
+            let name = ns.$name_fn()?;
+            let service = node
+                .service_builder(&name)
+                .publish_subscribe::<$payload>()
+                .user_header::<FrameHeader>()
+                .subscriber_max_buffer_size(BUFFER)
+                .history_size(0)
+                .max_publishers(MAX_PORTS)
+                .max_subscribers(MAX_PORTS)
+                .max_nodes(MAX_NODES)
+                .open_or_create()
+                .map_err(|e| svc_err(&name, e))?;
+            Ok((name, service))
+        }
+
+        /// Publishes frames stamped with this build's schema version.
+        pub struct $writer {
+            name: ServiceName,
+            publisher: FramePublisher<$payload>,
+        }
+
+        impl $writer {
+            pub fn new(node: &Node<ipc::Service>, ns: &RobotNamespace) -> Result<Self, WireError> {
+                let (name, service) = $name_fn(node, ns)?;
+                let publisher = service.publisher_builder().create().map_err(|e| port_err(&name, e))?;
+                Ok(Self { name, publisher })
+            }
+
+            /// Write `frame` straight into shared memory and deliver it; returns how many readers got it.
+            pub fn send(&self, frame: &$payload) -> Result<usize, WireError> {
+                self.send_with_header(frame, FrameHeader::default())
+            }
+
+            /// [`Self::send`] with an explicit header: only for exercising the receivers' refusal path.
+            pub fn send_with_header(&self, frame: &$payload, header: FrameHeader) -> Result<usize, WireError> {
+                let mut sample = self.publisher.loan_uninit().map_err(|e| port_err(&self.name, e))?;
+                *sample.user_header_mut() = header;
+                sample.write_payload(*frame).send().map_err(|e| port_err(&self.name, e))
+            }
+        }
+
+        /// Receives frames and refuses those of another schema version.
+        pub struct $reader {
+            name: ServiceName,
+            subscriber: FrameSubscriber<$payload>,
+        }
+
+        impl $reader {
+            pub fn new(node: &Node<ipc::Service>, ns: &RobotNamespace) -> Result<Self, WireError> {
+                let (name, service) = $name_fn(node, ns)?;
+                let subscriber =
+                    service.subscriber_builder().buffer_size(BUFFER).create().map_err(|e| port_err(&name, e))?;
+                Ok(Self { name, subscriber })
+            }
+
+            /// The next frame, `Ok(None)` when none is waiting, or [`WireError::Schema`] for a frame from a
+            /// mismatched build (that frame is consumed; the next call goes on with the following one).
+            pub fn receive(&self) -> Result<Option<$payload>, WireError> {
+                let Some(sample) = self.subscriber.receive().map_err(|e| port_err(&self.name, e))? else {
+                    return Ok(None);
+                };
+                check_schema_version(sample.user_header().schema_version)
+                    .map_err(|mismatch| WireError::Schema { service: self.name.as_str().to_owned(), mismatch })?;
+                Ok(Some(*sample.payload()))
+            }
+        }
+    };
+}
+
+frame_ports!(StateWriter, StateReader, RobotState, state);
+frame_ports!(CommandWriter, CommandReader, JointCommand, command);
+
+fn image_service(
+    node: &Node<ipc::Service>,
+    ns: &RobotNamespace,
+    camera: &str,
+) -> Result<Opened<[u8], ImageHeader>, WireError> {
+    let name = ns.camera(camera)?;
+    let service = node
+        .service_builder(&name)
+        .publish_subscribe::<[u8]>()
+        .user_header::<ImageHeader>()
+        .subscriber_max_buffer_size(2)
+        .history_size(0)
+        .max_publishers(2)
+        .max_subscribers(MAX_PORTS)
+        .max_nodes(MAX_NODES)
+        .open_or_create()
+        .map_err(|e| svc_err(&name, e))?;
+    Ok((name, service))
+}
+
+/// Publishes camera frames as `[u8]` slices written in place in shared memory.
+pub struct ImageWriter {
+    name: ServiceName,
+    publisher: Publisher<ipc::Service, [u8], ImageHeader>,
+}
+
+impl ImageWriter {
+    /// `max_len`: the largest frame expected (e.g. 640·480·3); a larger one grows the pool (power of two).
+    pub fn new(
+        node: &Node<ipc::Service>,
+        ns: &RobotNamespace,
+        camera: &str,
+        max_len: usize,
+    ) -> Result<Self, WireError> {
+        let (name, service) = image_service(node, ns, camera)?;
+        let publisher = service
+            .publisher_builder()
+            .initial_max_slice_len(max_len)
+            .allocation_strategy(AllocationStrategy::PowerOfTwo)
+            .create()
+            .map_err(|e| port_err(&name, e))?;
+        Ok(Self { name, publisher })
+    }
+
+    /// Loan `header.expected_len()` bytes of shared memory, let `fill` write the pixels there, and deliver.
+    pub fn send_with(&self, header: ImageHeader, fill: impl FnOnce(&mut [u8])) -> Result<usize, WireError> {
+        let len = header.expected_len().ok_or(WireError::BadImage {
+            service: self.name.as_str().to_owned(),
+            expected: None,
+            found: 0,
+        })?;
+        let mut sample = self.publisher.loan_slice_uninit(len).map_err(|e| port_err(&self.name, e))?;
+        *sample.user_header_mut() = header;
+        for b in sample.payload_mut() {
+            b.write(0);
+        }
+        // SAFETY: every byte of the payload was written just above.
+        let mut sample = unsafe { sample.assume_init() };
+        fill(sample.payload_mut());
+        sample.send().map_err(|e| port_err(&self.name, e))
+    }
+}
+
+/// A received image: a view into shared memory, released when dropped.
+pub struct ImageFrame {
+    sample: Sample<ipc::Service, [u8], ImageHeader>,
+}
+
+impl ImageFrame {
+    pub fn header(&self) -> &ImageHeader {
+        self.sample.user_header()
+    }
+
+    pub fn pixels(&self) -> &[u8] {
+        self.sample.payload()
+    }
+}
+
+pub struct ImageReader {
+    name: ServiceName,
+    subscriber: Subscriber<ipc::Service, [u8], ImageHeader>,
+}
+
+impl ImageReader {
+    pub fn new(node: &Node<ipc::Service>, ns: &RobotNamespace, camera: &str) -> Result<Self, WireError> {
+        let (name, service) = image_service(node, ns, camera)?;
+        let subscriber = service.subscriber_builder().buffer_size(2).create().map_err(|e| port_err(&name, e))?;
+        Ok(Self { name, subscriber })
+    }
+
+    /// The next image, or [`WireError::Schema`] / [`WireError::BadImage`] for a frame that must not be read.
+    pub fn receive(&self) -> Result<Option<ImageFrame>, WireError> {
+        let Some(sample) = self.subscriber.receive().map_err(|e| port_err(&self.name, e))? else {
+            return Ok(None);
+        };
+        let service = || self.name.as_str().to_owned();
+        check_schema_version(sample.user_header().schema_version)
+            .map_err(|mismatch| WireError::Schema { service: service(), mismatch })?;
+        let expected = sample.user_header().expected_len();
+        if expected != Some(sample.payload().len()) {
+            return Err(WireError::BadImage { service: service(), expected, found: sample.payload().len() });
+        }
+        Ok(Some(ImageFrame { sample }))
+    }
+}
