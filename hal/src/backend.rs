@@ -36,4 +36,8 @@ pub trait Backend {
     fn apply(&mut self, position: &[f64], gripper: f64) -> Result<(), BackendError>;
     /// Advance one control period (a real robot does this by itself) and measure.
     fn read(&mut self) -> Result<Measurement, BackendError>;
+    /// Loop faults to inject into the tick just measured (only the sim backend injects any).
+    fn loop_faults(&mut self) -> crate::fault::LoopFaults {
+        crate::fault::LoopFaults::default()
+    }
 }

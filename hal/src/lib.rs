@@ -2,6 +2,7 @@
 //! implementation, and the `mars-hal` process loop.
 
 pub mod backend;
+pub mod fault;
 pub mod profile;
 pub mod runner;
 pub mod safety;

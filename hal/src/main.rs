@@ -5,6 +5,7 @@ use std::path::PathBuf;
 use std::time::Duration;
 
 use clap::Parser;
+use mars_hal::fault::FaultConfig;
 use mars_hal::profile::Profile;
 use mars_hal::runner::{RunOptions, run};
 use mars_hal::sim::SimBackend;
@@ -24,6 +25,60 @@ struct Args {
     /// Pin the loop to this CPU core.
     #[arg(long)]
     core: Option<usize>,
+    #[command(flatten)]
+    faults: FaultArgs,
+}
+
+/// Fault injection; each flag overrides the profile's `[sim.faults]` entry of the same name. Ticks count from
+/// 0 (the frame with `seq` 1).
+#[derive(clap::Args)]
+struct FaultArgs {
+    /// Drop each state frame with this probability.
+    #[arg(long)]
+    drop_probability: Option<f64>,
+    /// Drop every N-th state frame.
+    #[arg(long)]
+    drop_every: Option<u64>,
+    /// Publish every N-th state frame late, by --late-ms.
+    #[arg(long)]
+    late_every: Option<u64>,
+    #[arg(long)]
+    late_ms: Option<f64>,
+    /// The position sensor freezes at this tick.
+    #[arg(long)]
+    freeze_at_tick: Option<u64>,
+    /// Joint --nan-joint measures NaN from --nan-at-tick on.
+    #[arg(long)]
+    nan_joint: Option<usize>,
+    #[arg(long)]
+    nan_at_tick: Option<u64>,
+    /// The loop sleeps --stall-ms once at this tick.
+    #[arg(long)]
+    stall_at_tick: Option<u64>,
+    #[arg(long)]
+    stall_ms: Option<f64>,
+    /// The process aborts at this tick.
+    #[arg(long)]
+    crash_at_tick: Option<u64>,
+    /// Seed of the random drops.
+    #[arg(long)]
+    fault_seed: Option<u64>,
+}
+
+impl FaultArgs {
+    fn apply(&self, f: &mut FaultConfig) {
+        macro_rules! set {
+            ($($field:ident),*) => { $(if let Some(v) = self.$field { f.$field = v; })* };
+        }
+        macro_rules! set_opt {
+            ($($field:ident),*) => { $(if self.$field.is_some() { f.$field = self.$field; })* };
+        }
+        set!(drop_probability, drop_every, late_every, late_ms, stall_ms);
+        set_opt!(freeze_at_tick, nan_joint, nan_at_tick, stall_at_tick, crash_at_tick);
+        if let Some(seed) = self.fault_seed {
+            f.seed = seed;
+        }
+    }
 }
 
 fn main() -> anyhow::Result<()> {
@@ -32,7 +87,12 @@ fn main() -> anyhow::Result<()> {
         .with_writer(std::io::stderr)
         .init();
     let args = Args::parse();
-    let profile = Profile::load(&args.profile)?;
+    let mut profile = Profile::load(&args.profile)?;
+    args.faults.apply(&mut profile.sim.faults);
+    profile.validate()?;
+    if profile.sim.faults.any() {
+        tracing::warn!(faults = ?profile.sim.faults, "fault injection is on");
+    }
     if let Some(d) = args.duration_s {
         anyhow::ensure!(d.is_finite() && d > 0.0, "--duration-s must be a positive number of seconds, got {d}");
     }

@@ -6,6 +6,8 @@ use std::path::Path;
 use mars_ipc::MAX_JOINTS;
 use serde::Deserialize;
 
+use crate::fault::FaultConfig;
+
 /// What the safety filter does with a command outside the limits.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -31,11 +33,20 @@ pub struct SimParams {
     pub position_noise_std: f64,
     #[serde(default)]
     pub seed: u64,
+    /// Faults to inject (all off by default); see [`crate::fault`].
+    #[serde(default)]
+    pub faults: FaultConfig,
 }
 
 impl Default for SimParams {
     fn default() -> Self {
-        Self { latency_ticks: 0, tracking_time_constant_s: 0.0, position_noise_std: 0.0, seed: 0 }
+        Self {
+            latency_ticks: 0,
+            tracking_time_constant_s: 0.0,
+            position_noise_std: 0.0,
+            seed: 0,
+            faults: FaultConfig::default(),
+        }
     }
 }
 
@@ -167,6 +178,9 @@ impl Profile {
         if s.latency_ticks > 1000 {
             return bad(format!("sim.latency_ticks = {} is more than 1000", s.latency_ticks));
         }
+        if let Err(msg) = s.faults.validate(self.joints) {
+            return bad(format!("sim.{msg}"));
+        }
         Ok(())
     }
 }
@@ -226,6 +240,18 @@ mod tests {
             .replace("rate_hz = 1000.0", "rate_hz = 100.0")
             .replace("command_timeout_ms = 20.0", "command_timeout_ms = 50.0");
         assert!(invalid(&t).contains("jerk_max/rate_hz"), "{}", invalid(&t));
+    }
+
+    #[test]
+    fn faults_are_read_from_the_profile_and_validated() {
+        let p = Profile::parse(&format!("{}\n[sim.faults]\ndrop_every = 10\ncrash_at_tick = 500\n", fr3_text()), "t")
+            .unwrap();
+        assert_eq!((p.sim.faults.drop_every, p.sim.faults.crash_at_tick), (10, Some(500)));
+        assert!(!Profile::load(&config("fr3.toml")).unwrap().sim.faults.any(), "shipped profiles inject nothing");
+        let t = format!("{}\n[sim.faults]\nnan_joint = 9\nnan_at_tick = 0\n", fr3_text());
+        assert!(invalid(&t).contains("sim.faults.nan_joint = 9"), "{}", invalid(&t));
+        let t = format!("{}\n[sim.faults]\ndrop_sometimes = 1\n", fr3_text());
+        assert!(invalid(&t).contains("drop_sometimes"));
     }
 
     #[test]

@@ -5,6 +5,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::Context;
 use hdrhistogram::Histogram;
+use mars_ipc::liveness::{Heartbeat, PeerWatch, Side};
 use mars_ipc::node::create_node;
 use mars_ipc::wire::WireError;
 use mars_ipc::{CommandMode, CommandReader, HoldReason, MAX_JOINTS, RobotNamespace, RobotState, StateWriter, status};
@@ -35,12 +36,18 @@ pub struct Report {
     pub rejected: u64,
     pub clamped: u64,
     pub schema_refusals: u64,
+    /// State frames not published because of injected drops.
+    pub dropped_frames: u64,
 }
 
 impl std::fmt::Display for Report {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         let q = |h: &Histogram<u64>, p: f64| h.value_at_quantile(p);
-        writeln!(f, "mars-hal: {} ticks, {} overruns", self.ticks, self.overruns)?;
+        writeln!(
+            f,
+            "mars-hal: {} ticks, {} overruns, {} state frames dropped by fault injection",
+            self.ticks, self.overruns, self.dropped_frames
+        )?;
         writeln!(
             f,
             "  wake-up lateness µs: p50 {} p99 {} p99.9 {} max {}",
@@ -77,6 +84,11 @@ pub fn run(profile: &Profile, backend: &mut dyn Backend, opts: &RunOptions) -> a
     }
     let state_out = StateWriter::new(&node, &ns)?;
     let commands = CommandReader::new(&node, &ns)?;
+    // Liveness: our heartbeat for the controller, and a WaitSet watch on the controller's heartbeat that tells
+    // within milliseconds when its process died (in addition to the command timeout).
+    let mut heartbeat = Heartbeat::new(&node, &ns, Side::Hal)?;
+    let controller = PeerWatch::controller(&ns)?;
+    let mut losses_seen = 0;
 
     let n = profile.joints;
     let period = Duration::from_secs_f64(profile.period_s());
@@ -94,6 +106,7 @@ pub fn run(profile: &Profile, backend: &mut dyn Backend, opts: &RunOptions) -> a
         rejected: 0,
         clamped: 0,
         schema_refusals: 0,
+        dropped_frames: 0,
     };
     info!(robot = %opts.robot, rate_hz = profile.rate_hz, joints = n, "mars-hal running");
 
@@ -131,6 +144,14 @@ pub fn run(profile: &Profile, backend: &mut dyn Backend, opts: &RunOptions) -> a
                 Err(e) => return Err(e).context("receiving commands"),
             }
         }
+        let losses = controller.losses();
+        if losses != losses_seen {
+            losses_seen = losses;
+            if supervisor.on_controller_lost(now_ns, 2 * period.as_nanos() as u64) {
+                warn!("the controller's process is gone ({:?}): braking to rest and holding", controller.peer());
+                target = None;
+            }
+        }
         if supervisor.on_tick(now_ns) {
             warn!(
                 "no valid command for {} ms: braking to rest and holding; send a new session id to resume",
@@ -144,6 +165,18 @@ pub fn run(profile: &Profile, backend: &mut dyn Backend, opts: &RunOptions) -> a
         let setpoint = filter.step(if follow { target.as_ref() } else { None });
         backend.apply(setpoint, gripper)?;
         let m = backend.read()?;
+        let injected = backend.loop_faults();
+        if injected.crash {
+            // Injected crash: die like a segfault would, without unwinding, reporting or releasing anything.
+            eprintln!("mars-hal: injected crash at tick {}", report.ticks);
+            std::process::abort();
+        }
+        // The measurement is only reported, never fed back into the setpoint: a NaN or frozen sensor cannot
+        // move the arm. It is flagged so the controller can refuse the frame.
+        let mut fault_bits = m.fault;
+        if m.position[..n].iter().chain(&m.velocity[..n]).any(|x| !x.is_finite()) {
+            fault_bits |= mars_ipc::fault::NON_FINITE_MEASUREMENT;
+        }
 
         // 3. State frame.
         let (session, hold_reason) = match supervisor.mode() {
@@ -163,7 +196,7 @@ pub fn run(profile: &Profile, backend: &mut dyn Backend, opts: &RunOptions) -> a
             rejected_commands: filter.rejected,
             clamped_commands: filter.clamped,
             status: if follow { status::ACTIVE } else { status::HOLDING },
-            fault: m.fault,
+            fault: fault_bits,
             hold_reason: hold_reason as u32,
             num_joints: n as u32,
             ..Default::default()
@@ -172,7 +205,19 @@ pub fn run(profile: &Profile, backend: &mut dyn Backend, opts: &RunOptions) -> a
         if filter.at_rest() {
             st.status |= status::AT_REST;
         }
-        state_out.send(&st)?;
+        if !injected.late.is_zero() {
+            std::thread::sleep(injected.late);
+        }
+        if injected.drop_frame {
+            report.dropped_frames += 1;
+        } else {
+            state_out.send(&st)?;
+        }
+        if !injected.stall.is_zero() {
+            warn!("injected stall of {:?} at tick {}", injected.stall, report.ticks);
+            std::thread::sleep(injected.stall);
+        }
+        heartbeat.beat()?;
         report.ticks += 1;
         report.work_us.saturating_record(woke.elapsed().as_micros() as u64);
 

@@ -1,7 +1,8 @@
 //! Who the HAL is following, and when it stops following: the session state machine.
 //!
 //! Idle → Active(s) on the first valid command of session s. Active(s) → Holding(s, timeout) when no valid
-//! command arrived within the profile's timeout; → Holding(s, requested) on a `Hold` command. While holding,
+//! command arrived within the profile's timeout; → Holding(s, controller lost) when the liveness watch reports a
+//! controller process gone and s has gone quiet; → Holding(s, requested) on a `Hold` command. While holding,
 //! commands of session s are ignored: only a command with a *different* session id resumes, so a stream that
 //! stalled and came back is never silently followed again.
 
@@ -56,6 +57,22 @@ impl Supervisor {
         Decision::Follow
     }
 
+    /// A controller's process was found dead (or closed its heartbeat) at `now_ns`: the active session ends at
+    /// once, without waiting for the command timeout, unless it sent a valid command within the last
+    /// `quiet_ns`. The liveness watch cannot say *which* controller died, and a dead one has been silent for at
+    /// least the heartbeat deadline, so a session still commanding belongs to a live controller (e.g. one that
+    /// just replaced the dead one) and is kept; if the dead one was missed this way, the command timeout still
+    /// catches it. Returns true if a session was ended.
+    pub fn on_controller_lost(&mut self, now_ns: u64, quiet_ns: u64) -> bool {
+        if let Mode::Active { session } = self.mode
+            && now_ns.saturating_sub(self.last_valid_ns) > quiet_ns
+        {
+            self.mode = Mode::Holding { session, reason: HoldReason::ControllerLost };
+            return true;
+        }
+        false
+    }
+
     /// Called once per tick; returns true when the session just timed out.
     pub fn on_tick(&mut self, now_ns: u64) -> bool {
         if let Mode::Active { session } = self.mode
@@ -87,6 +104,20 @@ mod tests {
         assert_eq!(s.mode(), Mode::Holding { session: 7, reason: HoldReason::CommandTimeout });
         assert_eq!(s.on_command(8, false, 23 * MS), Decision::Follow);
         assert_eq!(s.mode(), Mode::Active { session: 8 });
+    }
+
+    #[test]
+    fn a_lost_controller_ends_its_session_and_only_a_new_one_resumes() {
+        let mut s = Supervisor::new(20 * MS);
+        assert!(!s.on_controller_lost(MS, 2 * MS), "nothing to end while idle");
+        s.on_command(4, false, 10 * MS);
+        assert!(!s.on_controller_lost(11 * MS, 2 * MS), "a session that is still commanding has a live controller");
+        assert_eq!(s.mode(), Mode::Active { session: 4 });
+        assert!(s.on_controller_lost(13 * MS, 2 * MS));
+        assert_eq!(s.mode(), Mode::Holding { session: 4, reason: HoldReason::ControllerLost });
+        assert!(!s.on_controller_lost(14 * MS, 2 * MS));
+        assert_eq!(s.on_command(4, false, MS), Decision::StaleSession);
+        assert_eq!(s.on_command(5, false, MS), Decision::Follow);
     }
 
     #[test]

@@ -1,11 +1,13 @@
 //! The sim backend: a joint-space plant stepped once per HAL tick that follows the applied setpoint after a
-//! configurable latency, with first-order tracking dynamics and Gaussian position noise.
+//! configurable latency, with first-order tracking dynamics and Gaussian position noise, and with the faults of
+//! [`crate::fault`] injected as configured.
 
 use std::collections::VecDeque;
 
 use mars_ipc::MAX_JOINTS;
 
 use crate::backend::{Backend, BackendError, Measurement};
+use crate::fault::{FaultConfig, FaultInjector, LoopFaults};
 use crate::profile::Profile;
 
 pub struct SimBackend {
@@ -21,10 +23,21 @@ pub struct SimBackend {
     q: [f64; MAX_JOINTS],
     dq: [f64; MAX_JOINTS],
     gripper: f64,
+    faults: FaultInjector,
+    /// Ticks measured so far (the tick index of the next `read`).
+    tick: u64,
+    /// What the sensor showed when it froze.
+    frozen: Option<[f64; MAX_JOINTS]>,
 }
 
 impl SimBackend {
+    /// The profile's plant with the profile's `[sim.faults]`.
     pub fn new(p: &Profile) -> Self {
+        Self::with_faults(p, p.sim.faults.clone())
+    }
+
+    /// The profile's plant with `faults` instead of the profile's.
+    pub fn with_faults(p: &Profile, faults: FaultConfig) -> Self {
         let mut q = [0.0; MAX_JOINTS];
         q[..p.joints].copy_from_slice(&p.home);
         let dt = p.period_s();
@@ -40,6 +53,9 @@ impl SimBackend {
             q,
             dq: [0.0; MAX_JOINTS],
             gripper: p.gripper_min,
+            faults: FaultInjector::new(faults),
+            tick: 0,
+            frozen: None,
         }
     }
 
@@ -80,7 +96,23 @@ impl Backend for SimBackend {
         for i in 0..self.n {
             m.position[i] = self.q[i] + if self.noise_std > 0.0 { self.noise_std * self.gaussian() } else { 0.0 };
         }
+        let tick = self.tick;
+        self.tick += 1;
+        if self.faults.frozen(tick) {
+            m.position = *self.frozen.get_or_insert(m.position);
+            m.velocity = [0.0; MAX_JOINTS];
+            m.fault |= mars_ipc::fault::FROZEN_SENSOR;
+        }
+        if let Some(j) = self.faults.nan_joint(tick) {
+            m.position[j] = f64::NAN;
+            m.velocity[j] = f64::NAN;
+            m.fault |= mars_ipc::fault::NAN_SENSOR;
+        }
         Ok(m)
+    }
+
+    fn loop_faults(&mut self) -> LoopFaults {
+        self.faults.loop_faults(self.tick.saturating_sub(1))
     }
 }
 
@@ -130,6 +162,61 @@ mod tests {
             prev = now;
         }
         assert_eq!(reacted, Some(3), "a change reaches the plant latency_ticks later");
+    }
+
+    #[test]
+    fn frozen_sensor_repeats_tick_t_while_the_plant_moves_on() {
+        let mut p = fr3();
+        p.sim.position_noise_std = 0.0;
+        let mut sim = SimBackend::with_faults(&p, FaultConfig { freeze_at_tick: Some(5), ..Default::default() });
+        let mut target = p.home.clone();
+        let mut seen = Vec::new();
+        for _ in 0..20 {
+            target[0] += 0.001;
+            sim.apply(&target, 0.0).unwrap();
+            seen.push(sim.read().unwrap());
+        }
+        assert!(seen[..5].iter().all(|m| m.fault == 0));
+        assert!(seen[4].position[0] < seen[5].position[0], "still moving up to tick 4");
+        assert!(seen[5..].iter().all(|m| m.position == seen[5].position && m.velocity[0] == 0.0));
+        assert!(seen[5..].iter().all(|m| m.fault == mars_ipc::fault::FROZEN_SENSOR));
+        assert!(sim.q[0] > seen[5].position[0] + 0.01, "the plant itself kept following");
+    }
+
+    #[test]
+    fn nan_sensor_hits_one_joint_from_tick_t() {
+        let mut p = fr3();
+        p.sim.position_noise_std = 0.0;
+        let cfg = FaultConfig { nan_joint: Some(2), nan_at_tick: Some(3), ..Default::default() };
+        let mut sim = SimBackend::with_faults(&p, cfg);
+        for tick in 0..10 {
+            sim.apply(&p.home, 0.0).unwrap();
+            let m = sim.read().unwrap();
+            assert_eq!(m.position[2].is_nan(), tick >= 3, "tick {tick}");
+            assert_eq!(m.fault, if tick >= 3 { mars_ipc::fault::NAN_SENSOR } else { 0 });
+            assert!(m.position[..7].iter().enumerate().all(|(i, x)| i == 2 || x.is_finite()));
+        }
+    }
+
+    #[test]
+    fn loop_faults_refer_to_the_tick_just_read() {
+        let p = fr3();
+        let mut sim =
+            SimBackend::with_faults(&p, FaultConfig { drop_every: 3, crash_at_tick: Some(4), ..Default::default() });
+        let mut drops = Vec::new();
+        let mut crash = None;
+        for tick in 0..6 {
+            sim.apply(&p.home, 0.0).unwrap();
+            sim.read().unwrap();
+            let f = sim.loop_faults();
+            if f.drop_frame {
+                drops.push(tick);
+            }
+            if f.crash {
+                crash = Some(tick);
+            }
+        }
+        assert_eq!((drops, crash), (vec![2, 5], Some(4)));
     }
 
     #[test]

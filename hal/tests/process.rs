@@ -36,11 +36,21 @@ struct Rig {
     states: StateReader,
     commands: CommandWriter,
     profile: Profile,
-    _hal: Proc,
+    hal: Proc,
 }
 
 impl Rig {
     fn start(profile: &str) -> Self {
+        Self::start_with(profile, &[])
+    }
+
+    /// Start `mars-hal` with extra command-line arguments (fault injection).
+    fn start_with(profile: &str, extra: &[&str]) -> Self {
+        Self::start_at(&profile_path(profile), extra)
+    }
+
+    /// Start `mars-hal` with the profile file at `path`.
+    fn start_at(path: &str, extra: &[&str]) -> Self {
         let robot = unique_robot();
         let ns = RobotNamespace::new(&robot).unwrap();
         let (node, _) = create_node("hal-test").unwrap();
@@ -48,13 +58,15 @@ impl Rig {
         let states = StateReader::new(&node, &ns).unwrap();
         let commands = CommandWriter::new(&node, &ns).unwrap();
         let hal = Command::new(env!("CARGO_BIN_EXE_mars-hal"))
-            .args(["--profile", &profile_path(profile), "--robot", &robot, "--duration-s", "30"])
+            .args(["--profile", path, "--robot", &robot])
+            .args(if extra.contains(&"--duration-s") { &[][..] } else { &["--duration-s", "30"][..] })
+            .args(extra)
             .env("RUST_LOG", "warn")
             .stdout(Stdio::null())
             .spawn()
             .unwrap();
-        let profile = Profile::load(Path::new(&profile_path(profile))).unwrap();
-        let rig = Rig { ns, _node: node, states, commands, profile, _hal: Proc(hal) };
+        let profile = Profile::load(Path::new(path)).unwrap();
+        let rig = Rig { ns, _node: node, states, commands, profile, hal: Proc(hal) };
         rig.wait_for("the first state frame", Duration::from_secs(10), |_| true);
         rig
     }
@@ -231,4 +243,346 @@ fn a_command_with_a_wrong_schema_version_is_refused() {
     assert_eq!(s.session, 0, "a mismatched build must not start a session");
     assert_eq!(s.last_command_seq, 0);
     assert!(s.is(status::HOLDING));
+}
+
+/// Every frame until `until` holds for one (included) or `timeout` passes.
+fn collect(rig: &Rig, timeout: Duration, mut until: impl FnMut(&RobotState) -> bool) -> Vec<RobotState> {
+    let mut frames = Vec::new();
+    let end = Instant::now() + timeout;
+    while Instant::now() < end {
+        while let Some(s) = rig.states.receive().unwrap() {
+            frames.push(s);
+            if until(&s) {
+                return frames;
+            }
+        }
+        std::thread::sleep(Duration::from_micros(200));
+    }
+    frames
+}
+
+#[test]
+fn injected_frame_drops_show_as_seq_gaps() {
+    let rig = Rig::start_with("fr3.toml", &["--drop-every", "10"]);
+    let frames = collect(&rig, Duration::from_secs(5), |s| s.seq >= 400);
+    assert!(frames.len() >= 100, "only {} frames", frames.len());
+    assert!(frames.iter().all(|s| s.seq % 10 != 0), "a frame that should have been dropped arrived");
+    let gaps = frames.windows(2).filter(|w| w[1].seq == w[0].seq + 2 && w[0].seq % 10 == 9).count();
+    assert!(gaps >= 5, "expected the every-10th gaps, saw {gaps}");
+}
+
+#[test]
+fn injected_crash_kills_the_process_non_zero_at_its_tick() {
+    let mut rig = Rig::start_with("fr3.toml", &["--crash-at-tick", "300"]);
+    let first = rig.latest();
+    let started = Instant::now();
+    let end = started + Duration::from_secs(10);
+    let status = loop {
+        if let Some(status) = rig.hal.0.try_wait().unwrap() {
+            break status;
+        }
+        assert!(Instant::now() < end, "mars-hal still running 10 s after the injected crash tick");
+        std::thread::sleep(Duration::from_millis(2));
+    };
+    let lived = started.elapsed();
+    assert!(!status.success(), "a crash must exit non-zero: {status:?}");
+    // Tick 300 is 300 ms after the first frame at 1 kHz; the first frame we saw came at most a little later.
+    let expected = Duration::from_millis(300 - first.seq.min(300));
+    assert!(
+        lived + Duration::from_millis(50) >= expected && lived < expected + Duration::from_millis(1500),
+        "{lived:?}"
+    );
+    let frames = collect(&rig, Duration::from_millis(100), |_| false);
+    assert!(frames.iter().all(|s| s.seq <= 300), "a frame after the crash tick");
+}
+
+#[test]
+fn injected_stall_shows_as_a_timestamp_gap() {
+    let rig = Rig::start_with("fr3.toml", &["--stall-at-tick", "150", "--stall-ms", "120"]);
+    let hal = HalLiveness::hal(&rig.ns).unwrap();
+    let frames = collect(&rig, Duration::from_secs(5), |s| s.seq >= 300);
+    // A stalled HAL misses its heartbeat deadline but is not dead: the watch must not say so.
+    let end = Instant::now() + Duration::from_secs(2);
+    while hal.peer() != Peer::Alive {
+        assert!(Instant::now() < end, "HAL not alive again after its stall: {:?}", hal.peer());
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    assert_eq!(hal.deaths(), 0);
+    let gap = frames
+        .windows(2)
+        .filter(|w| w[1].seq == w[0].seq + 1)
+        .map(|w| w[1].timestamp_ns - w[0].timestamp_ns)
+        .max()
+        .unwrap();
+    assert!((110_000_000..400_000_000).contains(&gap), "largest gap {gap} ns");
+}
+
+#[test]
+fn nan_sensor_is_flagged_and_never_reaches_the_applied_setpoint() {
+    let rig = Rig::start_with("fr3.toml", &["--nan-joint", "1", "--nan-at-tick", "200"]);
+    let p = rig.profile.clone();
+    // A naive controller that commands "measured position + a small step": once the sensor is NaN its
+    // commands are NaN too. The HAL must refuse them and keep a finite setpoint within the limits.
+    let start = Instant::now();
+    let mut seq = 0;
+    let mut frames = Vec::new();
+    while start.elapsed() < Duration::from_millis(600) {
+        while let Some(s) = rig.states.receive().unwrap() {
+            seq += 1;
+            let q: Vec<f64> = s.positions().iter().map(|x| x + 1e-5).collect();
+            rig.commands.send(&JointCommand::position(1, seq, s.seq, &q)).unwrap();
+            frames.push(s);
+        }
+        std::thread::sleep(Duration::from_micros(100));
+    }
+    let nan: Vec<&RobotState> = frames.iter().filter(|s| s.seq > 200).collect();
+    assert!(nan.len() > 50, "only {} frames after the NaN tick", nan.len());
+    for s in &nan {
+        assert!(s.position[1].is_nan());
+        assert_eq!(s.fault, fault::NAN_SENSOR | fault::NON_FINITE_MEASUREMENT, "seq {}", s.seq);
+    }
+    assert!(frames.iter().filter(|s| s.seq <= 200).all(|s| s.fault == 0 && s.position[1].is_finite()));
+    let last = frames.last().unwrap();
+    assert!(last.rejected_commands > 10, "NaN commands must be refused, {} were", last.rejected_commands);
+    for s in &frames {
+        for i in 0..7 {
+            let a = s.applied_position[i];
+            assert!(a.is_finite() && a >= p.q_min[i] && a <= p.q_max[i], "seq {} joint {i}: {a}", s.seq);
+        }
+    }
+}
+
+/// FR3 with a command timeout of `ms`, written to a temp file that is removed when dropped.
+struct TempProfile(std::path::PathBuf);
+impl TempProfile {
+    fn fr3_with_timeout(ms: u32) -> Self {
+        let text = std::fs::read_to_string(profile_path("fr3.toml")).unwrap();
+        let text = text.replace("command_timeout_ms = 20.0", &format!("command_timeout_ms = {ms}.0"));
+        assert!(text.contains(&format!("command_timeout_ms = {ms}.0")));
+        let path = std::env::temp_dir().join(format!("{}.toml", unique_robot()));
+        std::fs::write(&path, text).unwrap();
+        Self(path)
+    }
+    fn path(&self) -> String {
+        self.0.display().to_string()
+    }
+}
+impl Drop for TempProfile {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_file(&self.0);
+    }
+}
+
+#[test]
+fn hal_sees_a_sigkilled_controller_die_through_iceoryx2_events_long_before_the_command_timeout() {
+    // A 3 s command timeout: a hold within a fraction of that can only come from the liveness watch.
+    let profile = TempProfile::fr3_with_timeout(3000);
+    let rig = Rig::start_at(&profile.path(), &[]);
+    let probe = Command::new(env!("CARGO_BIN_EXE_mars-hal-probe"))
+        .args(["--robot", rig.ns.robot(), "--session", "91", "--heartbeat"])
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let mut probe = Proc(probe);
+    rig.wait_for("the probe's session", Duration::from_secs(10), |s| s.session == 91 && s.is(status::ACTIVE));
+    std::thread::sleep(Duration::from_millis(200));
+    assert!(rig.latest().is(status::ACTIVE), "probe lost control before it was killed");
+    probe.0.kill().unwrap();
+    let killed = Instant::now();
+    probe.0.wait().unwrap();
+    let held = rig.wait_for("hold after SIGKILL", Duration::from_secs(3), |s| s.is(status::HOLDING));
+    let waited = killed.elapsed();
+    assert_eq!(HoldReason::from_u32(held.hold_reason), Some(HoldReason::ControllerLost));
+    assert_eq!(held.session, 91);
+    // Deadline 10 ms + clean-up + one tick; generous for a loaded 2-core machine, far below the 3 s timeout.
+    assert!(waited < Duration::from_millis(1000), "{waited:?}");
+    let rest = rig.wait_for("rest", Duration::from_secs(2), |s| s.is(status::AT_REST));
+    assert_eq!(HoldReason::from_u32(rest.hold_reason), Some(HoldReason::ControllerLost));
+}
+
+#[test]
+fn controller_sees_a_sigkilled_hal_die_through_iceoryx2_events() {
+    let mut rig = Rig::start("fr3.toml");
+    let hal = HalLiveness::hal(&rig.ns).unwrap();
+    let start = Instant::now();
+    while hal.peer() != Peer::Alive {
+        assert!(start.elapsed() < Duration::from_secs(5), "HAL heartbeat never seen: {:?}", hal.peer());
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    std::thread::sleep(Duration::from_millis(100));
+    // (A descheduled HAL may be `Late` on a loaded machine, but a running one is never `Dead`.)
+    assert_ne!(hal.peer(), Peer::Dead, "a running HAL must not be declared dead");
+    assert_eq!(hal.deaths(), 0);
+    rig.hal.0.kill().unwrap();
+    let killed = Instant::now();
+    rig.hal.0.wait().unwrap();
+    while hal.peer() != Peer::Dead {
+        assert!(killed.elapsed() < Duration::from_secs(3), "still {:?} 3 s after SIGKILL", hal.peer());
+        std::thread::sleep(Duration::from_micros(200));
+    }
+    let waited = killed.elapsed();
+    assert_eq!(hal.deaths(), 1);
+    assert!(waited < Duration::from_millis(1000), "{waited:?}");
+    eprintln!("HAL death seen {waited:?} after SIGKILL");
+}
+
+#[test]
+fn controller_sees_an_injected_hal_crash_as_a_death() {
+    let rig = Rig::start_with("fr3.toml", &["--crash-at-tick", "400"]);
+    let hal = HalLiveness::hal(&rig.ns).unwrap();
+    let start = Instant::now();
+    while hal.peer() != Peer::Dead {
+        assert!(start.elapsed() < Duration::from_secs(5), "still {:?}", hal.peer());
+        std::thread::sleep(Duration::from_micros(500));
+    }
+    assert_eq!(hal.deaths(), 1);
+}
+
+#[test]
+fn a_clean_hal_exit_is_seen_as_left_not_dead() {
+    let rig = Rig::start_with("fr3.toml", &["--duration-s", "0.6"]);
+    let hal = HalLiveness::hal(&rig.ns).unwrap();
+    let start = Instant::now();
+    while hal.peer() != Peer::Left {
+        assert!(start.elapsed() < Duration::from_secs(5), "still {:?}", hal.peer());
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    assert_eq!((hal.deaths(), hal.exits()), (0, 1));
+}
+
+/// Names of the dead (crashed, not yet cleaned up) iceoryx2 nodes on this machine.
+fn dead_node_names() -> Vec<String> {
+    use iceoryx2::node::NodeView;
+    let mut names = Vec::new();
+    Node::<ipc::Service>::list(Config::global_config(), |state| {
+        if let NodeState::Dead(view) = state
+            && let Some(d) = view.details()
+        {
+            names.push(d.name().as_str().to_owned());
+        }
+        CallbackProgression::Continue
+    })
+    .unwrap();
+    names
+}
+
+#[test]
+fn a_sigkilled_hals_resources_are_cleaned_up_when_the_next_node_starts() {
+    let mut rig = Rig::start("fr3.toml");
+    let hal_node = format!("mars-hal-{}", rig.ns.robot());
+    rig.hal.0.kill().unwrap();
+    rig.hal.0.wait().unwrap();
+    // A restarted HAL (or controller) creates its node through `create_node`, which removes what dead nodes
+    // left behind; after it, no dead node of the killed HAL may remain.
+    let (_node, _cleaned) = create_node("hal-test-restart").unwrap();
+    let dead = dead_node_names();
+    assert!(!dead.iter().any(|n| n.contains(rig.ns.robot())), "{hal_node} left behind: {dead:?}");
+    // And a new HAL on the same robot id starts and publishes (the old one's frames are drained first).
+    while rig.states.receive().unwrap().is_some() {}
+    let robot = rig.ns.robot().to_owned();
+    let hal = Command::new(env!("CARGO_BIN_EXE_mars-hal"))
+        .args(["--profile", &profile_path("fr3.toml"), "--robot", &robot, "--duration-s", "30"])
+        .env("RUST_LOG", "warn")
+        .stdout(Stdio::null())
+        .spawn()
+        .unwrap();
+    rig.hal = Proc(hal);
+    rig.wait_for("a frame from the restarted HAL", Duration::from_secs(10), |_| true);
+}
+
+#[test]
+fn injected_late_frames_arrive_late() {
+    let rig = Rig::start_with("fr3.toml", &["--late-every", "100", "--late-ms", "40"]);
+    let t0 = Instant::now();
+    let mut frames = Vec::new(); // (frame, our receive time ns since t0)
+    let end = t0 + Duration::from_secs(5);
+    while Instant::now() < end && frames.last().is_none_or(|(s, _): &(RobotState, u64)| s.seq < 450) {
+        while let Some(s) = rig.states.receive().unwrap() {
+            frames.push((s, t0.elapsed().as_nanos() as u64));
+        }
+        std::thread::sleep(Duration::from_micros(200));
+    }
+    // Our clock minus the HAL's, up to the smallest delivery delay: the least lateness over all frames.
+    let offset = frames.iter().map(|(s, rx)| *rx as i64 - s.timestamp_ns as i64).min().unwrap();
+    let lateness = |(s, rx): &(RobotState, u64)| (*rx as i64 - s.timestamp_ns as i64 - offset) as f64 * 1e-6;
+    let late: Vec<f64> = frames.iter().filter(|(s, _)| s.seq % 100 == 0).map(lateness).collect();
+    assert!(late.len() >= 3, "only {} late frames seen", late.len());
+    assert!(late.iter().all(|&ms| ms >= 35.0), "late frames arrived after {late:?} ms");
+    // Frames just before a late one are on time (the median, so a descheduled test thread cannot fail it).
+    let mut before: Vec<f64> = frames.iter().filter(|(s, _)| s.seq % 100 == 90).map(lateness).collect();
+    before.sort_by(f64::total_cmp);
+    assert!(before[before.len() / 2] < 20.0, "on-time frames arrived after {before:?} ms");
+}
+
+#[test]
+fn frozen_sensor_is_flagged_while_the_applied_setpoint_keeps_moving() {
+    let rig = Rig::start_with("fr3.toml", &["--freeze-at-tick", "150"]);
+    let home = rig.profile.home.clone();
+    let last = rig.stream(1, 0.5, |t| home.iter().map(|h| h + 0.2 * t).collect());
+    let frozen = collect(&rig, Duration::from_secs(2), |s| s.seq > last.seq + 5);
+    let f = frozen.last().unwrap();
+    assert!(f.seq > 150);
+    assert_eq!(f.fault, fault::FROZEN_SENSOR);
+    assert!(f.velocity[..7].iter().all(|&v| v == 0.0));
+    // The sensor shows the pose of tick 150; the arm (its applied setpoint) went on to follow the stream.
+    assert!(f.applied_position[0] > f.position[0] + 0.03, "{} vs {}", f.applied_position[0], f.position[0]);
+}
+
+#[test]
+fn an_invalid_fault_flag_is_refused_with_a_clear_error() {
+    let out = Command::new(env!("CARGO_BIN_EXE_mars-hal"))
+        .args(["--profile", &profile_path("fr3.toml"), "--robot", &unique_robot(), "--duration-s", "1"])
+        .args(["--nan-joint", "7", "--nan-at-tick", "0"])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("sim.faults.nan_joint = 7 but the robot has 7 joints"), "{err}");
+}
+
+#[test]
+fn a_controller_restarted_after_a_sigkill_takes_over_without_waiting_for_the_command_timeout() {
+    let profile = TempProfile::fr3_with_timeout(3000);
+    let rig = Rig::start_at(&profile.path(), &[]);
+    let probe = |session: &str| {
+        let c = Command::new(env!("CARGO_BIN_EXE_mars-hal-probe"))
+            .args(["--robot", rig.ns.robot(), "--session", session, "--heartbeat"])
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap();
+        Proc(c)
+    };
+    let mut first = probe("11");
+    rig.wait_for("the first probe's session", Duration::from_secs(10), |s| s.session == 11 && s.is(status::ACTIVE));
+    first.0.kill().unwrap();
+    first.0.wait().unwrap();
+    let killed = Instant::now();
+    let _second = probe("12");
+    rig.wait_for("the second probe's session", Duration::from_secs(3), |s| s.session == 12 && s.is(status::ACTIVE));
+    assert!(killed.elapsed() < Duration::from_millis(2000), "{:?}", killed.elapsed());
+    // The first one's death does not end the second one's session.
+    std::thread::sleep(Duration::from_millis(300));
+    let s = rig.latest();
+    assert!(s.session == 12 && s.is(status::ACTIVE), "session {} status {:b}", s.session, s.status);
+}
+
+/// `--core N` pins the loop thread (the main thread, tid = pid) to that core; without it the HAL keeps the
+/// affinity it was started with.
+#[test]
+fn core_flag_pins_the_loop_thread() {
+    let allowed = |pid: u32| -> String {
+        let status = std::fs::read_to_string(format!("/proc/{pid}/task/{pid}/status")).unwrap();
+        let line = status.lines().find(|l| l.starts_with("Cpus_allowed_list:")).unwrap();
+        line.split_whitespace().nth(1).unwrap().to_string()
+    };
+    let last_core = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1) - 1;
+    let core = last_core.to_string();
+    let pinned = Rig::start_with("fr3.toml", &["--core", &core]);
+    assert_eq!(allowed(pinned.hal.0.id()), core, "the HAL loop is not pinned to core {core}");
+    if last_core > 0 {
+        let free = Rig::start("fr3.toml");
+        assert_ne!(allowed(free.hal.0.id()), core, "without --core the HAL must not pin itself");
+    }
 }

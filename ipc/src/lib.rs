@@ -8,10 +8,12 @@
 //! - [`state`], [`command`], [`image`]: the `#[repr(C)]` zero-copy payloads.
 //! - [`names`]: the per-robot service namespace.
 //! - [`wire`]: typed publishers/subscribers for state, command and camera frames.
+//! - [`liveness`]: heartbeats over iceoryx2 events and a WaitSet watch that tells when the other side died.
 //! - [`node`]: node creation that first cleans up what dead processes left behind.
 
 pub mod command;
 pub mod image;
+pub mod liveness;
 pub mod names;
 pub mod node;
 pub mod schema;
@@ -20,7 +22,8 @@ pub mod wire;
 
 pub use command::{CommandMode, JointCommand};
 pub use image::{ImageEncoding, ImageHeader};
+pub use liveness::{ControllerLiveness, HalLiveness, Heartbeat, Peer, PeerWatch, Side};
 pub use names::{NameError, RobotNamespace};
 pub use schema::{FrameHeader, SCHEMA_VERSION, SchemaMismatch};
-pub use state::{HoldReason, MAX_JOINTS, RobotState, status};
+pub use state::{HoldReason, MAX_JOINTS, RobotState, fault, status};
 pub use wire::{CommandReader, CommandWriter, ImageReader, ImageWriter, StateReader, StateWriter, WireError};

@@ -8,7 +8,8 @@
 use iceoryx2::prelude::ZeroCopySend;
 
 /// The version of the frame layouts in this crate.
-pub const SCHEMA_VERSION: u32 = 1;
+/// v2: `HoldReason::ControllerLost` and the `fault` bits of `RobotState`.
+pub const SCHEMA_VERSION: u32 = 2;
 
 /// The iceoryx2 user header of state and command frames.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ZeroCopySend)]

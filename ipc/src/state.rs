@@ -15,6 +15,17 @@ pub mod status {
     pub const AT_REST: u32 = 1 << 2;
 }
 
+/// Bits of [`RobotState::fault`]: a frame with any of them set carries measurements a controller must not
+/// trust.
+pub mod fault {
+    /// The position sensor stopped updating (sim fault injection).
+    pub const FROZEN_SENSOR: u32 = 1 << 0;
+    /// A joint sensor reports NaN (sim fault injection).
+    pub const NAN_SENSOR: u32 = 1 << 1;
+    /// The HAL found a non-finite measured position or velocity, whatever the backend said.
+    pub const NON_FINITE_MEASUREMENT: u32 = 1 << 2;
+}
+
 /// Why the HAL is holding, in [`RobotState::hold_reason`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[repr(u32)]
@@ -27,6 +38,8 @@ pub enum HoldReason {
     CommandTimeout = 2,
     /// The controller ended its session (a [`crate::CommandMode::Hold`] command).
     ControllerRequested = 3,
+    /// The controller's process died or closed its heartbeat (seen through [`crate::liveness`]).
+    ControllerLost = 4,
 }
 
 impl HoldReason {
@@ -37,6 +50,7 @@ impl HoldReason {
             1 => Some(Self::NoSession),
             2 => Some(Self::CommandTimeout),
             3 => Some(Self::ControllerRequested),
+            4 => Some(Self::ControllerLost),
             _ => None,
         }
     }
@@ -117,8 +131,13 @@ mod tests {
 
     #[test]
     fn hold_reason_round_trips_and_unknown_is_none() {
-        for r in [HoldReason::None, HoldReason::NoSession, HoldReason::CommandTimeout, HoldReason::ControllerRequested]
-        {
+        for r in [
+            HoldReason::None,
+            HoldReason::NoSession,
+            HoldReason::CommandTimeout,
+            HoldReason::ControllerRequested,
+            HoldReason::ControllerLost,
+        ] {
             assert_eq!(HoldReason::from_u32(r as u32), Some(r));
         }
         assert_eq!(HoldReason::from_u32(77), None);

@@ -36,4 +36,3 @@ pub fn neighbour_sources(neighbour_history: &Tensor, w: &Tensor, eps: &Tensor) -
     let w = w.unsqueeze(1)?.unsqueeze(1)?; // [B, 1, 1, D]
     neighbour_history.broadcast_mul(&w.affine(-1.0, 1.0)?)? + eps.broadcast_mul(&w)?
 }
-

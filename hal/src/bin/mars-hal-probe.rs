@@ -4,6 +4,7 @@
 use std::time::Duration;
 
 use clap::Parser;
+use mars_ipc::liveness::{Heartbeat, Side};
 use mars_ipc::node::create_node;
 use mars_ipc::{CommandWriter, JointCommand, RobotNamespace, StateReader};
 
@@ -13,6 +14,9 @@ struct Args {
     robot: String,
     #[arg(long)]
     session: u64,
+    /// Also send the controller heartbeat (so the HAL sees this process die through iceoryx2 events).
+    #[arg(long)]
+    heartbeat: bool,
 }
 
 fn main() -> anyhow::Result<()> {
@@ -22,8 +26,12 @@ fn main() -> anyhow::Result<()> {
     let (node, _) = create_node(&format!("mars-hal-probe-{}", args.robot))?;
     let states = StateReader::new(&node, &ns)?;
     let commands = CommandWriter::new(&node, &ns)?;
+    let mut heartbeat = if args.heartbeat { Some(Heartbeat::new(&node, &ns, Side::Controller)?) } else { None };
     let mut seq = 0;
     while node.wait(Duration::from_micros(100)).is_ok() {
+        if let Some(h) = heartbeat.as_mut() {
+            h.beat()?;
+        }
         while let Some(s) = states.receive()? {
             seq += 1;
             let n = s.num_joints as usize;
