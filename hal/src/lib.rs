@@ -2,6 +2,7 @@
 //! implementation, and the `mars-hal` process loop.
 
 pub mod backend;
+pub mod events;
 pub mod fault;
 pub mod profile;
 pub mod runner;

@@ -12,6 +12,7 @@ use mars_ipc::{CommandMode, CommandReader, HoldReason, MAX_JOINTS, RobotNamespac
 use tracing::{info, warn};
 
 use crate::backend::Backend;
+use crate::events::{EventLogger, LoopEvent};
 use crate::profile::Profile;
 use crate::safety::SafetyFilter;
 use crate::session::{Decision, Mode, Supervisor};
@@ -110,6 +111,8 @@ pub fn run(profile: &Profile, backend: &mut dyn Backend, opts: &RunOptions) -> a
     };
     info!(robot = %opts.robot, rate_hz = profile.rate_hz, joints = n, "mars-hal running");
 
+    // Log lines are formatted and written by a logger thread, never in the loop (see `events`).
+    let (events, logger) = EventLogger::start(1024, Duration::from_millis(20), |e| warn!("{e}"))?;
     let start = Instant::now();
     let mut deadline = start;
     loop {
@@ -122,12 +125,12 @@ pub fn run(profile: &Profile, backend: &mut dyn Backend, opts: &RunOptions) -> a
             match commands.receive() {
                 Ok(None) => break,
                 Ok(Some(cmd)) => match filter.admit(&cmd) {
-                    Err(refusal) => warn!(seq = cmd.seq, "refused command: {refusal}"),
+                    Err(refusal) => events.send(LoopEvent::Refused { seq: cmd.seq, refusal }),
                     Ok(t) => {
                         let hold = cmd.mode == CommandMode::Hold as u32;
                         if cmd.session == 0 {
                             filter.rejected += 1;
-                            warn!(seq = cmd.seq, "refused command: session id 0 is reserved");
+                            events.send(LoopEvent::ReservedSession { seq: cmd.seq });
                         } else if supervisor.on_command(cmd.session, hold, now_ns) == Decision::Follow {
                             target = if hold { None } else { Some(t.position) };
                             gripper = t.gripper;
@@ -138,7 +141,7 @@ pub fn run(profile: &Profile, backend: &mut dyn Backend, opts: &RunOptions) -> a
                 Err(WireError::Schema { mismatch, .. }) => {
                     schema_refusals += 1;
                     if schema_refusals == 1 {
-                        warn!("refusing commands: {mismatch}");
+                        events.send(LoopEvent::WrongSchema(mismatch));
                     }
                 }
                 Err(e) => return Err(e).context("receiving commands"),
@@ -148,15 +151,12 @@ pub fn run(profile: &Profile, backend: &mut dyn Backend, opts: &RunOptions) -> a
         if losses != losses_seen {
             losses_seen = losses;
             if supervisor.on_controller_lost(now_ns, 2 * period.as_nanos() as u64) {
-                warn!("the controller's process is gone ({:?}): braking to rest and holding", controller.peer());
+                events.send(LoopEvent::ControllerLost(controller.peer()));
                 target = None;
             }
         }
         if supervisor.on_tick(now_ns) {
-            warn!(
-                "no valid command for {} ms: braking to rest and holding; send a new session id to resume",
-                profile.command_timeout_ms
-            );
+            events.send(LoopEvent::CommandTimeout { ms: profile.command_timeout_ms as u64 });
             target = None;
         }
 
@@ -214,7 +214,7 @@ pub fn run(profile: &Profile, backend: &mut dyn Backend, opts: &RunOptions) -> a
             state_out.send(&st)?;
         }
         if !injected.stall.is_zero() {
-            warn!("injected stall of {:?} at tick {}", injected.stall, report.ticks);
+            events.send(LoopEvent::InjectedStall { ms: injected.stall.as_millis() as u64, tick: report.ticks });
             std::thread::sleep(injected.stall);
         }
         heartbeat.beat()?;
@@ -235,6 +235,10 @@ pub fn run(profile: &Profile, backend: &mut dyn Backend, opts: &RunOptions) -> a
             info!("termination requested");
             break;
         }
+    }
+    let lost = logger.finish();
+    if lost > 0 {
+        warn!("{lost} log events were dropped: the logger fell behind the loop");
     }
     report.rejected = filter.rejected;
     report.clamped = filter.clamped;
