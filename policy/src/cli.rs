@@ -149,14 +149,20 @@ pub fn plot(run: &Path, layout: &Path) -> anyhow::Result<()> {
         let meta = checkpoint::load_meta(&dir)?;
         losses.push((kind.name().to_string(), meta.log.iter().map(|e| e.total).collect()));
         let eval_path = dir.join("eval.json");
-        if let Ok(text) = std::fs::read_to_string(&eval_path) {
-            let report: EvalReport = serde_json::from_str(&text)
-                .with_context(|| format!("{} is not a valid eval file", eval_path.display()))?;
-            let title = format!("{kind}: {} rollouts, colour = ‖w‖∞", report.n);
-            plots::plot_rollouts(&layout, &report.episodes, &title, &run.join(format!("rollouts_{kind}.png")))?;
-            if let Some(e) = report.episodes.iter().find(|e| e.success()).or(report.episodes.first()) {
-                k_series.push((kind.name().to_string(), e.k_per_step()));
+        let text = match std::fs::read_to_string(&eval_path) {
+            Ok(text) => text,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+                println!("{kind}: no {} (run `mars eval` on it): no rollout plot", eval_path.display());
+                continue;
             }
+            Err(e) => return Err(e).with_context(|| format!("cannot read {}", eval_path.display())),
+        };
+        let report: EvalReport =
+            serde_json::from_str(&text).with_context(|| format!("{} is not a valid eval file", eval_path.display()))?;
+        let title = format!("{kind}: {} rollouts, colour = ‖w‖∞", report.n);
+        plots::plot_rollouts(&layout, &report.episodes, &title, &run.join(format!("rollouts_{kind}.png")))?;
+        if let Some(e) = report.episodes.iter().find(|e| e.success()).or(report.episodes.first()) {
+            k_series.push((kind.name().to_string(), e.k_per_step()));
         }
     }
     if !losses.is_empty() {
