@@ -18,11 +18,21 @@ pub struct EngineConfig {
     /// pre-packed weights. The engine picks this by itself on CPUs without AVX2 + FMA; setting it elsewhere
     /// is for comparisons and tests. Allocation-free as well, and about 2× slower.
     pub portable_kernels: bool,
+    /// Fault injection (HIL tests, `marsd`'s `[faults]`): busy-wait this long in every ODE step, as a slower
+    /// CPU or a larger model would. The cost estimator measures it like any other work, so the deadline cap
+    /// reacts to it exactly as it would to real slowness. Zero in production.
+    pub injected_step_delay: std::time::Duration,
 }
 
 impl Default for EngineConfig {
     fn default() -> Self {
-        Self { seed: 0, threads: 1, warmup_calls: 3, portable_kernels: false }
+        Self {
+            seed: 0,
+            threads: 1,
+            warmup_calls: 3,
+            portable_kernels: false,
+            injected_step_delay: std::time::Duration::ZERO,
+        }
     }
 }
 

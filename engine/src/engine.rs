@@ -29,6 +29,7 @@ pub struct Engine {
     rng: StdRng,
     estimator: Estimator,
     mm: MatMul,
+    injected_step_delay: Duration,
 }
 
 /// The result of a call: borrowed views into the engine's buffers (valid until the next call) and the step
@@ -75,6 +76,17 @@ enum Steps {
     Forced(usize),
 }
 
+/// Busy-waits (no syscall, no allocation): the injected slowness must look like compute to the estimator.
+fn spin_for(d: Duration) {
+    if d.is_zero() {
+        return;
+    }
+    let start = Instant::now();
+    while start.elapsed() < d {
+        std::hint::spin_loop();
+    }
+}
+
 /// Cheap in-place validation: one pass, no allocation.
 fn check(what: Input, x: &[f32], want: usize) -> Result<(), EngineError> {
     if x.len() != want {
@@ -108,6 +120,7 @@ impl Engine {
             rng: StdRng::seed_from_u64(cfg.seed),
             estimator: Estimator::default(),
             mm,
+            injected_step_delay: cfg.injected_step_delay,
         };
         engine.warm_up(cfg.warmup_calls)?;
         Ok(engine)
@@ -188,6 +201,7 @@ impl Engine {
         let dt32 = (1.0 / k as f64) as f32; // as the candle model rounds it
         for step in 0..k {
             velocity(wt, &d, b, step, mm);
+            spin_for(self.injected_step_delay);
             for (a, &v) in b.a.iter_mut().zip(b.v.iter()) {
                 *a += v * dt32;
             }

@@ -2,6 +2,7 @@
 //! implementation, and the `mars-hal` process loop.
 
 pub mod backend;
+pub mod cli;
 pub mod events;
 pub mod fault;
 pub mod profile;

@@ -118,7 +118,8 @@ pub fn run(profile: &Profile, backend: &mut dyn Backend, opts: &RunOptions) -> a
     loop {
         let woke = Instant::now();
         report.wake_late_us.saturating_record(woke.saturating_duration_since(deadline).as_micros() as u64);
-        let now_ns = woke.duration_since(start).as_nanos() as u64;
+        // Frames carry CLOCK_MONOTONIC time, which the controller shares: it computes state ages from it.
+        let now_ns = mars_ipc::clock::monotonic_ns();
 
         // 1. Commands: every frame is judged (so every bad one is counted); the newest valid one wins.
         loop {
@@ -202,6 +203,8 @@ pub fn run(profile: &Profile, backend: &mut dyn Backend, opts: &RunOptions) -> a
             ..Default::default()
         };
         st.applied_position[..n].copy_from_slice(filter.position());
+        st.applied_velocity[..n].copy_from_slice(filter.velocity());
+        st.applied_acceleration[..n].copy_from_slice(filter.acceleration());
         if filter.at_rest() {
             st.status |= status::AT_REST;
         }

@@ -197,10 +197,46 @@ impl SafetyFilter {
         Ok(t)
     }
 
+    fn reachable_in_one_tick(&self, t: &[f64; MAX_JOINTS]) -> bool {
+        (0..self.n).all(|i| {
+            let v = (t[i] - self.q[i]) / self.dt;
+            let a = (v - self.v[i]) / self.dt;
+            let j = (a - self.a[i]) / self.dt;
+            (self.q_min[i]..=self.q_max[i]).contains(&t[i])
+                && v.abs() <= self.v_max[i] * (1.0 + EPS)
+                && a.abs() <= self.a_max[i] * (1.0 + EPS)
+                && j.abs() <= self.j_max[i] * (1.0 + EPS)
+                // The cascade's invariant (libfranka's velocity-dependent acceleration bound), so that if a
+                // later target is not reachable in one tick, the cascade takes over from a state it can handle.
+                && a <= self.j_max[i] / self.a_max[i] * (self.v_max[i] - v) + EPS
+                && a >= self.j_max[i] / self.a_max[i] * (-self.v_max[i] - v) - EPS
+                // … and one from which the cascade can still stop before the position limit it is heading for
+                // (braking at half the acceleration limit after the jerk-limited ramp), should the stream end.
+                && {
+                    let room = if v >= 0.0 { self.q_max[i] - t[i] } else { t[i] - self.q_min[i] };
+                    v * v / self.a_max[i] + v.abs() * self.a_max[i] / self.j_max[i] <= room
+                }
+        })
+    }
+
     /// Advance the applied setpoint one tick toward `target`, or to rest (zero velocity where it is) when
     /// `target` is `None`. Returns the new setpoint positions.
     pub fn step(&mut self, target: Option<&[f64; MAX_JOINTS]>) -> &[f64] {
         let dt = self.dt;
+        // A target the setpoint can reach this very tick within every limit is applied exactly, as libfranka
+        // applies a compliant command: a controller that streams limit-respecting commands gets them unchanged
+        // (and the next command's implied rates are its own finite differences, so it is never clamped).
+        if let Some(t) = target
+            && self.reachable_in_one_tick(t)
+        {
+            for i in 0..self.n {
+                let v_new = (t[i] - self.q[i]) / dt;
+                self.a[i] = (v_new - self.v[i]) / dt;
+                self.v[i] = v_new;
+                self.q[i] = t[i];
+            }
+            return &self.q[..self.n];
+        }
         for i in 0..self.n {
             let (q, v, a) = (self.q[i], self.v[i], self.a[i]);
             let (vm, am, jm) = (self.v_max[i], self.a_max[i], self.j_max[i]);
@@ -376,6 +412,25 @@ mod tests {
             q_prev = q;
         }
         assert_eq!(f.position_guard_hits, 0);
+    }
+
+    /// A stream that respects every limit (a slow sine) is applied exactly, tick for tick, and never counted as
+    /// clamped; a skipped command (a late packet) is smoothed instead of applied.
+    #[test]
+    fn a_compliant_stream_is_applied_exactly() {
+        let p = fr3();
+        let mut f = SafetyFilter::new(&p, &p.home);
+        let mut q = p.home.clone();
+        for k in 0..2000 {
+            q[0] = p.home[0] + 0.2 * (1.0 - (k as f64 * 1e-3 * std::f64::consts::PI).cos());
+            let t = f.admit(&cmd(&q)).unwrap().position;
+            assert_eq!(f.step(Some(&t))[0], q[0], "tick {k}");
+        }
+        assert_eq!(f.clamped, 0);
+        q[0] += 2.0 * (q[0] - f.position()[0]) + 1e-3; // a skipped tick: twice the step and more
+        let t = f.admit(&cmd(&q)).unwrap().position;
+        assert_ne!(f.step(Some(&t))[0], q[0]);
+        assert_eq!(f.clamped, 1);
     }
 
     #[test]

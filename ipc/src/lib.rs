@@ -4,6 +4,7 @@
 //! around an iceoryx2 port, so the controller and `mars-hal` cannot disagree about layout, service names or
 //! quality-of-service settings. No model code lives here.
 //!
+//! - [`clock`]: CLOCK_MONOTONIC nanoseconds, the timestamps of every frame (comparable across processes).
 //! - [`schema`]: the schema version every frame carries in its user header, and the refusal of mismatches.
 //! - [`state`], [`command`], [`image`]: the `#[repr(C)]` zero-copy payloads.
 //! - [`names`]: the per-robot service namespace.
@@ -11,6 +12,7 @@
 //! - [`liveness`]: heartbeats over iceoryx2 events and a WaitSet watch that tells when the other side died.
 //! - [`node`]: node creation that first cleans up what dead processes left behind.
 
+pub mod clock;
 pub mod command;
 pub mod image;
 pub mod liveness;

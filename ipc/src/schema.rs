@@ -9,7 +9,8 @@ use iceoryx2::prelude::ZeroCopySend;
 
 /// The version of the frame layouts in this crate.
 /// v2: `HoldReason::ControllerLost` and the `fault` bits of `RobotState`.
-pub const SCHEMA_VERSION: u32 = 2;
+/// v3: `RobotState::applied_velocity` / `applied_acceleration`.
+pub const SCHEMA_VERSION: u32 = 3;
 
 /// The iceoryx2 user header of state and command frames.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ZeroCopySend)]

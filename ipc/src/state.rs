@@ -77,6 +77,11 @@ pub struct RobotState {
     pub effort: [f64; MAX_JOINTS],
     /// The setpoint the HAL applied this tick, after its safety filter (rad).
     pub applied_position: [f64; MAX_JOINTS],
+    /// Velocity and acceleration of the applied setpoint (libfranka's dq_d, ddq_d): a controller that sees the
+    /// HAL did not apply its last command (a late packet) continues its trajectory from this state, so its
+    /// next command is again within every limit relative to what the joints actually follow.
+    pub applied_velocity: [f64; MAX_JOINTS],
+    pub applied_acceleration: [f64; MAX_JOINTS],
     /// Gripper opening (m).
     pub gripper: f64,
     /// Commands refused since start (NaN, wrong joint count, wrong schema, out of limits under `reject`).
@@ -103,6 +108,8 @@ impl Default for RobotState {
             velocity: [0.0; MAX_JOINTS],
             effort: [0.0; MAX_JOINTS],
             applied_position: [0.0; MAX_JOINTS],
+            applied_velocity: [0.0; MAX_JOINTS],
+            applied_acceleration: [0.0; MAX_JOINTS],
             gripper: 0.0,
             rejected_commands: 0,
             clamped_commands: 0,

@@ -31,7 +31,7 @@ type Area<'a> = DrawingArea<BitMapBackend<'a>, Shift>;
 
 /// Registers the bundled font once. plotters' default label styles ask for "sans-serif", so that name (and
 /// the other generic families, in case a style asks for them) all map to the bundled font.
-fn ensure_font() -> anyhow::Result<()> {
+pub fn ensure_font() -> anyhow::Result<()> {
     static REGISTERED: OnceLock<Result<(), String>> = OnceLock::new();
     REGISTERED
         .get_or_init(|| {

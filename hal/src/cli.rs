@@ -1,0 +1,100 @@
+//! The `mars-hal` command line as a library, so another binary can run the very same HAL process.
+
+use std::path::PathBuf;
+use std::time::Duration;
+
+use crate::fault::FaultConfig;
+use crate::profile::Profile;
+use crate::runner::{Report, RunOptions, run};
+use crate::sim::SimBackend;
+
+/// The `mars-hal` command line (also flattened into `mars-hil hal`, which runs the same HAL process).
+#[derive(clap::Args)]
+pub struct HalArgs {
+    /// Robot profile (TOML), e.g. configs/fr3.toml.
+    #[arg(long)]
+    pub profile: PathBuf,
+    /// Robot id of the iceoryx2 service namespace; defaults to the profile's name.
+    #[arg(long)]
+    pub robot: Option<String>,
+    /// Stop after this many seconds (default: until SIGINT/SIGTERM).
+    #[arg(long)]
+    pub duration_s: Option<f64>,
+    /// Pin the loop to this CPU core.
+    #[arg(long)]
+    pub core: Option<usize>,
+    #[command(flatten)]
+    pub faults: FaultArgs,
+}
+
+/// Fault injection; each flag overrides the profile's `[sim.faults]` entry of the same name. Ticks count from
+/// 0 (the frame with `seq` 1).
+#[derive(clap::Args)]
+pub struct FaultArgs {
+    /// Drop each state frame with this probability.
+    #[arg(long)]
+    drop_probability: Option<f64>,
+    /// Drop every N-th state frame.
+    #[arg(long)]
+    drop_every: Option<u64>,
+    /// Publish every N-th state frame late, by --late-ms.
+    #[arg(long)]
+    late_every: Option<u64>,
+    #[arg(long)]
+    late_ms: Option<f64>,
+    /// The position sensor freezes at this tick.
+    #[arg(long)]
+    freeze_at_tick: Option<u64>,
+    /// Joint --nan-joint measures NaN from --nan-at-tick on.
+    #[arg(long)]
+    nan_joint: Option<usize>,
+    #[arg(long)]
+    nan_at_tick: Option<u64>,
+    /// The loop sleeps --stall-ms once at this tick.
+    #[arg(long)]
+    stall_at_tick: Option<u64>,
+    #[arg(long)]
+    stall_ms: Option<f64>,
+    /// The process aborts at this tick.
+    #[arg(long)]
+    crash_at_tick: Option<u64>,
+    /// Seed of the random drops.
+    #[arg(long)]
+    fault_seed: Option<u64>,
+}
+
+impl FaultArgs {
+    fn apply(&self, f: &mut FaultConfig) {
+        macro_rules! set {
+            ($($field:ident),*) => { $(if let Some(v) = self.$field { f.$field = v; })* };
+        }
+        macro_rules! set_opt {
+            ($($field:ident),*) => { $(if self.$field.is_some() { f.$field = self.$field; })* };
+        }
+        set!(drop_probability, drop_every, late_every, late_ms, stall_ms);
+        set_opt!(freeze_at_tick, nan_joint, nan_at_tick, stall_at_tick, crash_at_tick);
+        if let Some(seed) = self.fault_seed {
+            f.seed = seed;
+        }
+    }
+}
+
+/// Runs the HAL process loop with the sim backend until the duration ends or SIGINT/SIGTERM; returns its report.
+pub fn run_hal(args: HalArgs) -> anyhow::Result<Report> {
+    let mut profile = Profile::load(&args.profile)?;
+    args.faults.apply(&mut profile.sim.faults);
+    profile.validate()?;
+    if profile.sim.faults.any() {
+        tracing::warn!(faults = ?profile.sim.faults, "fault injection is on");
+    }
+    if let Some(d) = args.duration_s {
+        anyhow::ensure!(d.is_finite() && d > 0.0, "--duration-s must be a positive number of seconds, got {d}");
+    }
+    let opts = RunOptions {
+        robot: args.robot.unwrap_or_else(|| profile.name.clone()),
+        duration: args.duration_s.map(Duration::from_secs_f64),
+        core: args.core,
+    };
+    let mut backend = SimBackend::new(&profile);
+    run(&profile, &mut backend, &opts)
+}

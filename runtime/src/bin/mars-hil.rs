@@ -1,0 +1,93 @@
+//! `mars-hil`: the FR3 hardware-in-the-loop task (Pick Cup, rim vs handle): expert demos recorded on the sim
+//! plant, and in-process evaluation of a checkpoint against it.
+
+use std::path::PathBuf;
+
+use clap::{Parser, Subcommand};
+use mars_runtime::task::cli;
+
+#[derive(Parser)]
+#[command(name = "mars-hil", version, about = "MARS on the FR3 HIL task: the demo, demos, in-process evaluation")]
+struct Args {
+    #[command(subcommand)]
+    command: Command,
+}
+
+/// Where the task and the robot are described (shared by every subcommand).
+#[derive(clap::Args)]
+struct TaskArgs {
+    #[arg(long, default_value = "configs/pick_cup.toml")]
+    task: PathBuf,
+    #[arg(long, default_value = "configs/fr3.toml")]
+    profile: PathBuf,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// The HIL demo: start the mock FR3 HAL and marsd as two processes, run the episodes, print the report
+    /// (success, modes, γ, K, latency percentiles, deadline misses, limit violations) and write plots and
+    /// histogram logs.
+    Demo {
+        #[command(flatten)]
+        args: mars_runtime::cli::DemoArgs,
+    },
+    /// The controller daemon (the same as the `marsd` binary; the demo starts it this way).
+    Marsd {
+        #[command(flatten)]
+        args: mars_runtime::cli::MarsdArgs,
+    },
+    /// The mock HAL process (the same as the `mars-hal` binary; the demo starts it this way).
+    Hal {
+        #[command(flatten)]
+        args: mars_hal::cli::HalArgs,
+    },
+    /// Record balanced, verified expert demos on the sim plant (train on them with `mars train --demos`).
+    Demos {
+        #[command(flatten)]
+        task: TaskArgs,
+        #[arg(long, default_value_t = 100)]
+        n: usize,
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        #[arg(long, default_value = "runs/fr3/demos.json")]
+        out: PathBuf,
+    },
+    /// Roll a checkpoint out in-process against the sim plant (no IPC): success, grasp modes, γ, mean K.
+    EvalSim {
+        #[arg(long, default_value = "assets/checkpoints/fr3_pick_cup/mars")]
+        checkpoint: PathBuf,
+        #[command(flatten)]
+        task: TaskArgs,
+        #[arg(long, default_value_t = 100)]
+        episodes: usize,
+        #[arg(long, default_value_t = 1000)]
+        seed: u64,
+        /// Also write the report with every episode to this JSON file.
+        #[arg(long)]
+        out: Option<PathBuf>,
+    },
+}
+
+fn main() -> std::process::ExitCode {
+    let args = Args::parse();
+    mars_policy::cli::init_runtime_env(1);
+    let result = match args.command {
+        Command::Demo { args } => match mars_runtime::cli::demo(args) {
+            Ok(code) => return std::process::ExitCode::from(code),
+            Err(e) => Err(e),
+        },
+        Command::Marsd { args } => return mars_runtime::cli::marsd(args),
+        Command::Hal { args } => mars_hal::cli::run_hal(args).map(|report| println!("{report}")),
+        Command::Demos { task, n, seed, out } => cli::demos(&task.task, &task.profile, n, seed, &out),
+        Command::EvalSim { checkpoint, task, episodes, seed, out } => {
+            cli::eval(&checkpoint, &task.task, &task.profile, episodes, seed, out.as_deref()).map(|_| ())
+        }
+    };
+    match result {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}

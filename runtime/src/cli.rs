@@ -1,0 +1,126 @@
+//! The command lines of `marsd` and of `mars-hil`'s process-spawning subcommands, as library code: the
+//! `marsd` binary and `mars-hil marsd` run the very same daemon (the demo spawns it as a separate process
+//! from its own executable, so one `cargo run` builds everything the demo needs).
+
+use std::path::PathBuf;
+use std::process::{Child, Command, ExitCode};
+use std::time::{Duration, Instant};
+
+use anyhow::Context;
+
+use crate::daemon::{self, exit};
+use crate::servo_loop::no_hook;
+
+#[derive(clap::Args, Debug, Clone)]
+pub struct MarsdArgs {
+    /// Daemon configuration (TOML).
+    #[arg(long, default_value = "configs/marsd.toml")]
+    pub config: PathBuf,
+    /// Override `robot` (the iceoryx2 namespace; must match the HAL's --robot).
+    #[arg(long)]
+    pub robot: Option<String>,
+    /// Override `episodes` (0: run until SIGTERM/SIGINT).
+    #[arg(long)]
+    pub episodes: Option<usize>,
+    /// Override `out`.
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Override `checkpoint`.
+    #[arg(long)]
+    pub checkpoint: Option<PathBuf>,
+    /// Fault injection: every ODE step of the engine busy-waits this long (ms).
+    #[arg(long)]
+    pub engine_step_delay_ms: Option<f64>,
+}
+
+pub fn init_logging() {
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into());
+    let ansi = std::io::IsTerminal::is_terminal(&std::io::stderr());
+    let _ = tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).with_ansi(ansi).try_init();
+}
+
+/// `marsd`'s main: exit status per [`daemon::exit`].
+pub fn marsd(args: MarsdArgs) -> ExitCode {
+    let prepared = (|| {
+        let mut cfg = daemon::load_config(&args.config, args.robot, args.episodes, args.out)?;
+        if let Some(c) = args.checkpoint {
+            cfg.checkpoint = c;
+        }
+        if let Some(d) = args.engine_step_delay_ms {
+            anyhow::ensure!(d.is_finite() && d >= 0.0, "--engine-step-delay-ms must be ≥ 0, got {d}");
+            cfg.faults.engine_step_delay_ms = d;
+        }
+        daemon::prepare(cfg)
+    })();
+    let prepared = match prepared {
+        Ok(p) => p,
+        Err(e) => {
+            tracing::error!("refusing to start, nothing was commanded: {e:#}");
+            return ExitCode::from(exit::BAD_SETUP);
+        }
+    };
+    match daemon::run(prepared, no_hook) {
+        Ok(outcome) => ExitCode::from(outcome.exit),
+        Err(e) => {
+            tracing::error!("{e:#}");
+            ExitCode::from(exit::FAILURE)
+        }
+    }
+}
+
+#[derive(clap::Args, Debug, Clone)]
+pub struct DemoArgs {
+    #[command(flatten)]
+    pub marsd: MarsdArgs,
+    /// CPU core of the HAL's loop.
+    #[arg(long, default_value_t = 0)]
+    pub hal_core: usize,
+}
+
+/// Kills a child on drop, so a failing demo never leaves a HAL running.
+struct Reaped(Child);
+
+impl Drop for Reaped {
+    fn drop(&mut self) {
+        if matches!(self.0.try_wait(), Ok(None)) {
+            let _ = self.0.kill();
+            let _ = self.0.wait();
+        }
+    }
+}
+
+/// The HIL demo: the mock FR3 HAL and `marsd` as two processes (both from this executable), N episodes, the
+/// report. Returns marsd's exit status.
+pub fn demo(args: DemoArgs) -> anyhow::Result<u8> {
+    let exe = std::env::current_exe().context("locating this executable")?;
+    let cfg = crate::config::DaemonConfig::load(&args.marsd.config)?;
+    // A namespace of its own, so a demo never meets another run's HAL or controller.
+    let robot = args.marsd.robot.clone().unwrap_or_else(|| format!("{}-demo-{}", cfg.robot, std::process::id()));
+    let mut hal = Command::new(&exe);
+    hal.args(["hal", "--profile"]).arg(&cfg.profile).args(["--robot", &robot, "--core", &args.hal_core.to_string()]);
+    let mut hal = Reaped(hal.spawn().context("starting the HAL process")?);
+    let mut marsd = Command::new(&exe);
+    marsd.arg("marsd").arg("--config").arg(&args.marsd.config).args(["--robot", &robot]);
+    if let Some(n) = args.marsd.episodes {
+        marsd.args(["--episodes", &n.to_string()]);
+    }
+    if let Some(o) = &args.marsd.out {
+        marsd.arg("--out").arg(o);
+    }
+    if let Some(c) = &args.marsd.checkpoint {
+        marsd.arg("--checkpoint").arg(c);
+    }
+    if let Some(d) = args.marsd.engine_step_delay_ms {
+        marsd.args(["--engine-step-delay-ms", &d.to_string()]);
+    }
+    let status = marsd.status().context("running marsd")?;
+    // marsd has ended its session with a hold command; stop the HAL the way systemd would.
+    // SAFETY: plain kill(2) on our own child's pid.
+    unsafe { libc::kill(hal.0.id() as libc::pid_t, libc::SIGTERM) };
+    let deadline = Instant::now() + Duration::from_secs(5);
+    while Instant::now() < deadline && matches!(hal.0.try_wait(), Ok(None)) {
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    drop(hal);
+    Ok(status.code().map_or(exit::FAILURE, |c| c as u8))
+}

@@ -1,0 +1,262 @@
+//! `marsd` as a whole: check everything before anything moves, start the servo and policy threads, be a good
+//! systemd citizen from the main (non-real-time) thread, and write the report at the end.
+//!
+//! The main thread owns everything that may allocate or block: signal handling (flags set by signal-hook),
+//! systemd notifications (`READY=1` after the HAL handshake, `WATCHDOG=1` only while both loops make progress
+//! and nothing tripped — the sd-notify crate allocates and opens a socket per call), log lines for trips as
+//! soon as the servo publishes them, and the handshake timeout.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use anyhow::Context;
+use crossbeam_queue::ArrayQueue;
+use mars_engine::{Engine, EngineConfig};
+use mars_hal::profile::Profile;
+use tracing::{error, info};
+
+use crate::chunk::{MAX_ACTION, MAX_CHUNK, TimedChunk};
+use crate::config::DaemonConfig;
+use crate::latency::{Channel, Collector};
+use crate::policy_loop::{PolicyChannels, PolicyLoop};
+use crate::report::Summary;
+use crate::servo::ServoTick;
+use crate::servo_loop::{ServoChannels, ServoReport, ServoWire, TickHook, run_servo};
+use crate::shared::{Observed, Status};
+use crate::task::pick_cup::PickCup;
+
+/// Exit statuses, so a supervisor (or a test) can tell outcomes apart.
+pub mod exit {
+    /// Clean: the episodes ran, or SIGTERM/SIGINT brought the arm to rest.
+    pub const OK: u8 = 0;
+    /// Something failed at run time outside the watchdog (I/O, threads).
+    pub const FAILURE: u8 = 1;
+    /// Bad configuration, profile, task or checkpoint: refused before anything moved.
+    pub const BAD_SETUP: u8 = 2;
+    /// The watchdog tripped: the arm was brought to rest and held; the reason is in the log.
+    pub const TRIPPED: u8 = 3;
+    /// No HAL answered within the handshake timeout; nothing was commanded.
+    pub const NO_HAL: u8 = 4;
+}
+
+/// Everything loaded and checked, nothing started.
+pub struct Prepared {
+    pub cfg: DaemonConfig,
+    pub profile: Profile,
+    pub task: PickCup,
+    pub engine: Engine,
+}
+
+/// Loads and cross-checks the profile, task and checkpoint. Any error here means nothing moved.
+pub fn prepare(cfg: DaemonConfig) -> anyhow::Result<Prepared> {
+    let profile = Profile::load(&cfg.profile)?;
+    profile.validate()?;
+    let task = PickCup::load(&cfg.task, &profile).with_context(|| format!("task {}", cfg.task.display()))?;
+    let engine_cfg = EngineConfig {
+        seed: cfg.seed,
+        injected_step_delay: Duration::from_secs_f64(cfg.faults.engine_step_delay_ms * 1e-3),
+        ..EngineConfig::default()
+    };
+    let engine = Engine::load(&cfg.checkpoint, engine_cfg)
+        .with_context(|| format!("checkpoint {}", cfg.checkpoint.display()))?;
+    let ck = cfg.checkpoint.display();
+    anyhow::ensure!(
+        engine.obs_dim() == task.obs_dim() && engine.action_dim() == task.action_dim(),
+        "checkpoint {ck} maps {} observations to {} actions; the task needs {} → {}",
+        engine.obs_dim(),
+        engine.action_dim(),
+        task.obs_dim(),
+        task.action_dim()
+    );
+    anyhow::ensure!(
+        engine.chunk_len() <= MAX_CHUNK && engine.action_dim() <= MAX_ACTION,
+        "checkpoint {ck}: chunks of {} actions × {} values exceed the handoff's {MAX_CHUNK} × {MAX_ACTION}",
+        engine.chunk_len(),
+        engine.action_dim()
+    );
+    let rate = task.cfg.policy_rate_hz;
+    anyhow::ensure!(
+        (cfg.policy.rate_hz - rate).abs() < 1e-9,
+        "policy.rate_hz = {} but the task's demos were recorded at {rate} Hz",
+        cfg.policy.rate_hz
+    );
+    Ok(Prepared { cfg, profile, task, engine })
+}
+
+/// How long `marsd` waits for the first valid state frame before giving up.
+pub const HANDSHAKE_TIMEOUT: Duration = Duration::from_secs(10);
+
+pub struct Outcome {
+    pub exit: u8,
+    pub summary: Summary,
+}
+
+/// Runs the loops to the end and writes the report into `cfg.out`.
+pub fn run(p: Prepared, hook: TickHook) -> anyhow::Result<Outcome> {
+    let Prepared { cfg, profile, task, engine } = p;
+    let mode_names: Vec<String> = task.cfg.grasps.iter().map(|g| g.name.clone()).collect();
+    std::fs::create_dir_all(&cfg.out).with_context(|| format!("creating {}", cfg.out.display()))?;
+    let collector = Collector::start(&cfg.out, Duration::from_millis(50))?;
+    let servo_rec = collector.recorder(
+        "servo",
+        &[Channel::WakeJitter, Channel::TickCompute, Channel::StateAge, Channel::StateToCommand],
+        8,
+    );
+    let policy_rec = collector.recorder("policy", &[Channel::Inference, Channel::KRequested, Channel::KUsed], 8);
+
+    let status = Arc::new(Status::default());
+    let requests = Arc::new(ArrayQueue::new(16));
+    let (chunk_in, chunk_out) = triple_buffer::triple_buffer(&TimedChunk::default());
+    let (obs_in, obs_out) = triple_buffer::triple_buffer(&Observed::default());
+    let session = session_id();
+    let tick = ServoTick::new(&cfg, &profile, session)?;
+    let period = Duration::from_secs_f64(profile.period_s());
+    let interval = Duration::from_secs_f64(cfg.histograms.interval_s);
+
+    let servo_ch =
+        ServoChannels { chunks: chunk_out, observed: obs_in, requests: requests.clone(), status: status.clone() };
+    let (servo_core, servo_prio, lock) = (cfg.servo.core, cfg.servo.priority, cfg.servo.lock_memory);
+    let robot = cfg.robot.clone();
+    let (opened_tx, opened_rx) = std::sync::mpsc::channel::<anyhow::Result<()>>();
+    let servo = std::thread::Builder::new()
+        .name("marsd-servo".into())
+        .spawn(move || {
+            let wire = match ServoWire::open(&robot) {
+                Ok(w) => {
+                    let _ = opened_tx.send(Ok(()));
+                    w
+                }
+                Err(e) => {
+                    let _ = opened_tx.send(Err(e));
+                    return None;
+                }
+            };
+            crate::rt::setup_realtime("servo", servo_core, Some(servo_prio), lock);
+            Some(run_servo(tick, wire, servo_ch, servo_rec, period, interval, hook))
+        })
+        .context("spawning the servo thread")?;
+    opened_rx.recv().context("the servo thread died while opening the wire")??;
+    // Signals only set flags (registered after the wire is open: iceoryx2 installs its own handlers when a
+    // node is created, and signal-hook chains to a handler that was there before it); the main thread turns them into a safe stop. A second SIGINT/SIGTERM while
+    // stopping exits at once (status 1); the HAL then brakes on command loss.
+    let term = Arc::new(AtomicBool::new(false));
+    for sig in [signal_hook::consts::SIGTERM, signal_hook::consts::SIGINT] {
+        signal_hook::flag::register_conditional_shutdown(sig, 1, term.clone())?;
+        signal_hook::flag::register(sig, term.clone())?;
+    }
+
+    let policy_cfg = cfg.clone();
+    let policy_ch = PolicyChannels { chunks: chunk_in, observed: obs_out, requests, status: status.clone() };
+    let (policy_core, policy_prio) = (cfg.policy.core, cfg.policy.priority);
+    let policy = std::thread::Builder::new()
+        .name("marsd-policy".into())
+        .spawn(move || {
+            crate::rt::setup_realtime("policy", policy_core, Some(policy_prio), false);
+            PolicyLoop { engine, task, ch: policy_ch, rec: policy_rec }.run(&policy_cfg)
+        })
+        .context("spawning the policy thread")?;
+
+    let no_hal = supervise(&status, &term, &servo);
+    let servo_report = servo
+        .join()
+        .map_err(|_| anyhow::anyhow!("the servo thread panicked"))?
+        .context("the servo thread could not open the wire")?;
+    let policy_report = policy.join().map_err(|_| anyhow::anyhow!("the policy thread panicked"))?;
+    let totals = collector.finish();
+
+    if let Some(v) = servo_report.first_violation {
+        tracing::error!("the first command refused by the final limit check: {v:?}");
+    }
+    let summary = Summary::new(&cfg, &mode_names, &servo_report, &policy_report, totals);
+    let written = summary.write(&cfg.out, &policy_report)?;
+    println!("{summary}");
+    println!("  wrote {}", written.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(", "));
+    let exit = if no_hal {
+        exit::NO_HAL
+    } else if summary.trip.is_some() {
+        exit::TRIPPED
+    } else {
+        exit::OK
+    };
+    Ok(Outcome { exit, summary })
+}
+
+/// The main thread's loop until the servo thread ends: signals, systemd, trip logging, handshake timeout.
+/// Returns true if no HAL ever answered.
+fn supervise(status: &Status, term: &AtomicBool, servo: &std::thread::JoinHandle<Option<ServoReport>>) -> bool {
+    let started = Instant::now();
+    let watchdog = sd_notify::watchdog_enabled();
+    let mut last_ping = Instant::now();
+    let mut last_ticks = 0;
+    let (mut ready_sent, mut trip_logged, mut stop_logged, mut no_hal) = (false, false, false, false);
+    while !servo.is_finished() {
+        std::thread::sleep(Duration::from_millis(2));
+        if term.load(Ordering::Acquire) && !status.stop_requested.load(Ordering::Acquire) {
+            status.stop_requested.store(true, Ordering::Release);
+            if !stop_logged {
+                info!("termination requested: bringing the arm to rest");
+                stop_logged = true;
+                let _ = sd_notify::notify(&[sd_notify::NotifyState::Stopping]);
+            }
+        }
+        let hal_ready = status.hal_ready.load(Ordering::Acquire);
+        if hal_ready && !ready_sent {
+            ready_sent = true;
+            info!(after_ms = started.elapsed().as_millis() as u64, "HAL handshake done: ready");
+            let _ = sd_notify::notify(&[sd_notify::NotifyState::Ready]);
+        }
+        if !hal_ready && !no_hal && started.elapsed() > HANDSHAKE_TIMEOUT {
+            error!(
+                "no state frame from a HAL within {HANDSHAKE_TIMEOUT:?}: is mars-hal running with the same --robot?"
+            );
+            no_hal = true;
+            status.stop_requested.store(true, Ordering::Release);
+        }
+        if let Some(trip) = status.trip()
+            && !trip_logged
+        {
+            trip_logged = true;
+            error!(reason = %trip, "watchdog trip: stopping the arm with a jerk-limited brake and holding");
+        }
+        // systemd's watchdog is fed only while the servo loop makes progress and nothing tripped.
+        if let Some(w) = watchdog
+            && last_ping.elapsed() >= w / 2
+        {
+            let ticks = status.ticks.load(Ordering::Acquire);
+            if ticks > last_ticks && status.trip().is_none() {
+                let _ = sd_notify::notify(&[sd_notify::NotifyState::Watchdog]);
+            }
+            last_ticks = ticks;
+            last_ping = Instant::now();
+        }
+    }
+    no_hal
+}
+
+/// A session id no other controller run uses: the HAL never resumes a session that stopped.
+fn session_id() -> u64 {
+    let t = mars_ipc::clock::monotonic_ns();
+    (t ^ (u64::from(std::process::id()) << 40)) | 1
+}
+
+/// The configuration `marsd` actually runs with: the file, then the command line's overrides.
+pub fn load_config(
+    path: &Path,
+    robot: Option<String>,
+    episodes: Option<usize>,
+    out: Option<PathBuf>,
+) -> anyhow::Result<DaemonConfig> {
+    let mut cfg = DaemonConfig::load(path)?;
+    if let Some(r) = robot {
+        cfg.robot = r;
+    }
+    if let Some(e) = episodes {
+        cfg.episodes = e;
+    }
+    if let Some(o) = out {
+        cfg.out = o;
+    }
+    Ok(cfg)
+}

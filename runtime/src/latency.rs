@@ -1,0 +1,507 @@
+//! Latency histograms recorded in the real-time loops without allocating, merged and logged off the loop.
+//!
+//! Each loop thread owns a [`Recorder`]: HdrHistograms for its channels, preallocated with fixed bounds, so
+//! recording is an index computation and an increment. Once per interval the thread swaps its filled set for
+//! an empty one through a lock-free pool shared with the [`Collector`] thread, which merges the set into the
+//! run's totals, appends it to an HdrHistogram interval log (so a run can be inspected over time with the
+//! standard tools) and returns it emptied. Nothing on the loop side blocks or allocates: if the collector has
+//! not returned a set yet, the loop keeps recording into the current one (the interval just gets longer).
+
+use std::fmt;
+use std::fs::File;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+use std::thread::JoinHandle;
+use std::time::{Duration, SystemTime};
+
+use anyhow::Context;
+use crossbeam_queue::ArrayQueue;
+use hdrhistogram::Histogram;
+use hdrhistogram::serialization::V2DeflateSerializer;
+use hdrhistogram::serialization::interval_log::{IntervalLogWriter, IntervalLogWriterBuilder, Tag};
+use serde::{Deserialize, Serialize};
+use tracing::warn;
+
+use crate::rt::monotonic_ns;
+
+/// Largest K the K histograms hold (larger values are clamped to it).
+pub const K_MAX: u64 = 64;
+/// Largest time the time histograms hold: 10 s (a longer stall is clamped to it, and is a failure anyway).
+pub const TIME_MAX_NS: u64 = 10_000_000_000;
+/// The interval log's file name inside the collector's directory.
+pub const LOG_FILE: &str = "latency.hlog";
+
+/// What is measured. Time channels are recorded in nanoseconds; the K channels are unitless.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Channel {
+    /// Servo wake-up lateness past its deadline.
+    WakeJitter,
+    /// Work done in one servo tick.
+    TickCompute,
+    /// Age of the state frame when it is used.
+    StateAge,
+    /// State frame receipt → command sent.
+    StateToCommand,
+    /// One policy call.
+    Inference,
+    /// ODE steps the policy asked for.
+    KRequested,
+    /// ODE steps actually run (after the deadline cap).
+    KUsed,
+}
+
+impl Channel {
+    pub const COUNT: usize = 7;
+    pub const ALL: [Channel; Channel::COUNT] = [
+        Channel::WakeJitter,
+        Channel::TickCompute,
+        Channel::StateAge,
+        Channel::StateToCommand,
+        Channel::Inference,
+        Channel::KRequested,
+        Channel::KUsed,
+    ];
+
+    /// The tag of its histograms in the interval log.
+    pub fn tag(self) -> &'static str {
+        match self {
+            Channel::WakeJitter => "wake_jitter",
+            Channel::TickCompute => "tick_compute",
+            Channel::StateAge => "state_age",
+            Channel::StateToCommand => "state_to_command",
+            Channel::Inference => "inference",
+            Channel::KRequested => "k_requested",
+            Channel::KUsed => "k_used",
+        }
+    }
+
+    pub fn from_tag(tag: &str) -> Option<Channel> {
+        Channel::ALL.into_iter().find(|c| c.tag() == tag)
+    }
+
+    pub fn is_time(self) -> bool {
+        !matches!(self, Channel::KRequested | Channel::KUsed)
+    }
+
+    /// The unit of its summary values: µs for time channels (recorded in ns), K otherwise.
+    pub fn unit(self) -> &'static str {
+        if self.is_time() { "us" } else { "K" }
+    }
+
+    /// An empty histogram with this channel's fixed bounds (3 significant digits).
+    pub fn new_histogram(self) -> Histogram<u64> {
+        let high = if self.is_time() { TIME_MAX_NS } else { K_MAX };
+        Histogram::new_with_bounds(1, high, 3).expect("constant bounds are valid")
+    }
+
+    fn index(self) -> usize {
+        self as usize
+    }
+}
+
+/// One recorder's histograms for one interval: the unit handed between a recorder and the collector.
+struct Interval {
+    /// Indexed by [`Channel::index`]; `None` for channels the recorder does not own.
+    hists: [Option<Histogram<u64>>; Channel::COUNT],
+    start_ns: u64,
+    end_ns: u64,
+    /// Samples for channels the recorder does not own: a bug in the caller, counted rather than lost silently.
+    stray: u64,
+}
+
+impl Interval {
+    fn new(channels: &[Channel]) -> Box<Interval> {
+        let mut hists: [Option<Histogram<u64>>; Channel::COUNT] = Default::default();
+        for c in channels {
+            hists[c.index()] = Some(c.new_histogram());
+        }
+        Box::new(Interval { hists, start_ns: 0, end_ns: 0, stray: 0 })
+    }
+}
+
+/// The sets of one recorder. Every set is always in exactly one place: the recorder's hand, `full` or
+/// `empty` (or the collector's hand, briefly), so neither queue can ever be full.
+struct Pool {
+    name: String,
+    full: ArrayQueue<Box<Interval>>,
+    empty: ArrayQueue<Box<Interval>>,
+    /// `end_interval` calls that found no empty set.
+    starved: AtomicU64,
+}
+
+/// A loop thread's histograms. `record` and `end_interval` never allocate, lock or block.
+pub struct Recorder {
+    /// Always `Some` until dropped.
+    current: Option<Box<Interval>>,
+    pool: Arc<Pool>,
+}
+
+impl Recorder {
+    /// Records one sample (ns for time channels); values beyond the channel's bounds are clamped.
+    #[inline]
+    pub fn record(&mut self, channel: Channel, value: u64) {
+        let Some(cur) = self.current.as_mut() else { return };
+        match cur.hists[channel.index()].as_mut() {
+            Some(h) => h.saturating_record(value),
+            None => cur.stray += 1,
+        }
+    }
+
+    /// Ends the current interval at `now_ns` (on [`monotonic_ns`]): hands the filled set to the collector and
+    /// continues in an empty one. Returns false if none was free; recording then continues in the same set.
+    pub fn end_interval(&mut self, now_ns: u64) -> bool {
+        let Some(mut fresh) = self.pool.empty.pop() else {
+            self.pool.starved.fetch_add(1, Ordering::Relaxed);
+            return false;
+        };
+        fresh.start_ns = now_ns;
+        if let Some(mut filled) = self.current.replace(fresh) {
+            filled.end_ns = now_ns;
+            let handed = self.pool.full.push(filled);
+            debug_assert!(handed.is_ok(), "the full queue holds every set, so it cannot be full");
+        }
+        true
+    }
+
+    /// Intervals extended so far because the collector had not returned a set.
+    pub fn starved(&self) -> u64 {
+        self.pool.starved.load(Ordering::Relaxed)
+    }
+}
+
+impl Drop for Recorder {
+    /// Hands the last, partial interval over, so samples recorded after the last `end_interval` are kept.
+    fn drop(&mut self) {
+        if let Some(mut last) = self.current.take() {
+            last.end_ns = monotonic_ns();
+            let _ = self.pool.full.push(last);
+        }
+    }
+}
+
+struct Registry {
+    pools: Vec<Arc<Pool>>,
+    /// Channels some recorder owns: these appear in the summary, with a count of 0 if nothing was recorded.
+    channels: [bool; Channel::COUNT],
+}
+
+struct Shared {
+    registry: Mutex<Registry>,
+    stop: AtomicBool,
+}
+
+/// The non-real-time thread that merges, logs and recycles the recorders' interval sets.
+pub struct Collector {
+    shared: Arc<Shared>,
+    thread: Option<JoinHandle<Totals>>,
+    log_path: PathBuf,
+}
+
+impl Collector {
+    /// Creates `dir` and its [`LOG_FILE`], and starts the thread, which looks for filled sets every `poll`.
+    pub fn start(dir: &Path, poll: Duration) -> anyhow::Result<Collector> {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+        let log_path = dir.join(LOG_FILE);
+        let file = File::create(&log_path).with_context(|| format!("creating {}", log_path.display()))?;
+        let shared = Arc::new(Shared {
+            registry: Mutex::new(Registry { pools: Vec::new(), channels: [false; Channel::COUNT] }),
+            stop: AtomicBool::new(false),
+        });
+        let worker = shared.clone();
+        let path = log_path.clone();
+        let thread = std::thread::Builder::new()
+            .name("marsd-latency".into())
+            .spawn(move || collect(&worker, file, path, poll))
+            .context("spawning the latency collector thread")?;
+        Ok(Collector { shared, thread: Some(thread), log_path })
+    }
+
+    /// A recorder for `channels` with `sets` preallocated interval sets (at least 2: one being filled, one
+    /// coming back). More sets ride out a slower collector. Call at setup, not in a loop: this allocates.
+    pub fn recorder(&self, name: &str, channels: &[Channel], sets: usize) -> Recorder {
+        let sets = sets.max(2);
+        let pool = Arc::new(Pool {
+            name: name.to_string(),
+            full: ArrayQueue::new(sets),
+            empty: ArrayQueue::new(sets),
+            starved: AtomicU64::new(0),
+        });
+        for _ in 1..sets {
+            let _ = pool.empty.push(Interval::new(channels));
+        }
+        let mut first = Interval::new(channels);
+        first.start_ns = monotonic_ns();
+        let mut reg = self.shared.registry.lock().expect("latency registry poisoned");
+        for c in channels {
+            reg.channels[c.index()] = true;
+        }
+        reg.pools.push(pool.clone());
+        Recorder { current: Some(first), pool }
+    }
+
+    pub fn log_path(&self) -> &Path {
+        &self.log_path
+    }
+
+    /// Stops the thread after it has taken in every handed-over set, and returns the run's totals. Drop (or
+    /// join the threads owning) the recorders first: a live recorder's current interval is not included.
+    pub fn finish(mut self) -> Totals {
+        self.shared.stop.store(true, Ordering::Release);
+        let thread = self.thread.take().expect("finish runs once");
+        thread.thread().unpark();
+        match thread.join() {
+            Ok(totals) => totals,
+            Err(panic) => std::panic::resume_unwind(panic),
+        }
+    }
+}
+
+impl Drop for Collector {
+    fn drop(&mut self) {
+        if let Some(t) = self.thread.take() {
+            self.shared.stop.store(true, Ordering::Release);
+            t.thread().unpark();
+            let _ = t.join();
+        }
+    }
+}
+
+/// The collector thread: poll, merge, log, recycle; a last pass after `stop`.
+fn collect(shared: &Shared, file: File, path: PathBuf, poll: Duration) -> Totals {
+    // Interval timestamps are seconds since the collector started (BaseTime), as the HdrHistogram tools expect.
+    let (base_wall, base_ns) = (SystemTime::now(), monotonic_ns());
+    let mut serializer = V2DeflateSerializer::new();
+    // Unbuffered: each line reaches the file as it is written, so a crashed run still leaves a readable log.
+    let mut out = &file;
+    let mut log: Option<IntervalLogWriter<_, _>> = None;
+    let mut log_error = None;
+    match IntervalLogWriterBuilder::new()
+        .add_comment("marsd latency: time channels in ns, k_requested/k_used in ODE steps")
+        .with_start_time(base_wall)
+        .with_base_time(base_wall)
+        .begin_log_with(&mut out, &mut serializer)
+    {
+        Ok(w) => log = Some(w),
+        Err(e) => log_error = Some(format!("writing {}: {e}", path.display())),
+    }
+    let mut totals = Totals::empty(path);
+    loop {
+        let stopping = shared.stop.load(Ordering::Acquire);
+        let reg = shared.registry.lock().expect("latency registry poisoned");
+        for pool in &reg.pools {
+            while let Some(mut set) = pool.full.pop() {
+                if let Some(w) = log.as_mut()
+                    && let Err(e) = write_interval(w, &set, base_ns)
+                {
+                    warn!("latency log {}: {e}; no further intervals are logged", totals.log.display());
+                    log_error = Some(e);
+                    log = None;
+                }
+                totals.absorb(&mut set);
+                let _ = pool.empty.push(set);
+            }
+        }
+        if stopping {
+            for pool in &reg.pools {
+                totals.starved += pool.starved.load(Ordering::Relaxed);
+                // The collector holds one reference; another means the recorder still lives.
+                if Arc::strong_count(pool) > 1 {
+                    warn!(recorder = pool.name, "latency recorder still alive at finish: its last interval is lost");
+                }
+            }
+            totals.registered = reg.channels;
+            break;
+        }
+        drop(reg);
+        std::thread::park_timeout(poll);
+    }
+    totals.log_error = log_error;
+    totals.summarize();
+    totals
+}
+
+fn write_interval(
+    w: &mut IntervalLogWriter<&File, V2DeflateSerializer>,
+    set: &Interval,
+    base_ns: u64,
+) -> Result<(), String> {
+    let start = Duration::from_nanos(set.start_ns.saturating_sub(base_ns));
+    let length = Duration::from_nanos(set.end_ns.saturating_sub(set.start_ns));
+    for c in Channel::ALL {
+        if let Some(h) = set.hists[c.index()].as_ref().filter(|h| !h.is_empty()) {
+            w.write_histogram(h, start, length, Tag::new(c.tag())).map_err(|e| e.to_string())?;
+        }
+    }
+    Ok(())
+}
+
+/// A channel's percentiles: µs for time channels, K for the K channels.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ChannelStats {
+    pub channel: Channel,
+    pub unit: String,
+    pub count: u64,
+    pub mean: f64,
+    pub p50: f64,
+    pub p90: f64,
+    pub p99: f64,
+    #[serde(rename = "p99.9")]
+    pub p99_9: f64,
+    #[serde(rename = "p99.99")]
+    pub p99_99: f64,
+    pub max: f64,
+}
+
+impl ChannelStats {
+    pub fn of(channel: Channel, h: &Histogram<u64>) -> ChannelStats {
+        let scale = if channel.is_time() { 1e-3 } else { 1.0 };
+        let q = |p: f64| h.value_at_quantile(p) as f64 * scale;
+        ChannelStats {
+            channel,
+            unit: channel.unit().to_string(),
+            count: h.len(),
+            mean: h.mean() * scale,
+            p50: q(0.5),
+            p90: q(0.9),
+            p99: q(0.99),
+            p99_9: q(0.999),
+            p99_99: q(0.9999),
+            max: h.max() as f64 * scale,
+        }
+    }
+}
+
+/// A run's merged histograms and their percentile table (`Display`; `Serialize` for a summary file).
+#[derive(Debug, Clone, Serialize)]
+pub struct Totals {
+    pub channels: Vec<ChannelStats>,
+    /// Interval sets merged.
+    pub intervals: u64,
+    /// Interval ends that found no free set, so that interval was extended (no samples lost).
+    pub starved: u64,
+    /// Samples recorded for channels their recorder does not own (dropped; a bug if not 0).
+    pub stray: u64,
+    pub log: PathBuf,
+    pub log_error: Option<String>,
+    #[serde(skip)]
+    hists: [Option<Histogram<u64>>; Channel::COUNT],
+    #[serde(skip)]
+    registered: [bool; Channel::COUNT],
+}
+
+impl Totals {
+    fn empty(log: PathBuf) -> Totals {
+        Totals {
+            channels: Vec::new(),
+            intervals: 0,
+            starved: 0,
+            stray: 0,
+            log,
+            log_error: None,
+            hists: Default::default(),
+            registered: [false; Channel::COUNT],
+        }
+    }
+
+    /// Totals of histograms gathered elsewhere (another run's log, a test); same-channel ones are merged.
+    pub fn from_histograms(hists: impl IntoIterator<Item = (Channel, Histogram<u64>)>) -> Totals {
+        let mut t = Totals::empty(PathBuf::new());
+        for (c, h) in hists {
+            t.merge(c, &h);
+            t.registered[c.index()] = true;
+        }
+        t.summarize();
+        t
+    }
+
+    /// The merged histogram of a channel that got samples.
+    pub fn histogram(&self, channel: Channel) -> Option<&Histogram<u64>> {
+        self.hists[channel.index()].as_ref()
+    }
+
+    pub fn stats(&self, channel: Channel) -> Option<&ChannelStats> {
+        self.channels.iter().find(|s| s.channel == channel)
+    }
+
+    fn merge(&mut self, c: Channel, h: &Histogram<u64>) {
+        let total = self.hists[c.index()].get_or_insert_with(|| c.new_histogram());
+        // Clamped on the way in: anything recorded fits the same bounds; a foreign histogram is clamped too.
+        if total.add(h).is_err() {
+            for v in h.iter_recorded() {
+                total.saturating_record_n(v.value_iterated_to(), v.count_at_value());
+            }
+        }
+    }
+
+    fn absorb(&mut self, set: &mut Interval) {
+        for c in Channel::ALL {
+            if let Some(h) = set.hists[c.index()].as_mut().filter(|h| !h.is_empty()) {
+                self.merge(c, h);
+                h.reset();
+            }
+        }
+        self.stray += std::mem::take(&mut set.stray);
+        self.intervals += 1;
+    }
+
+    fn summarize(&mut self) {
+        self.channels = Channel::ALL
+            .into_iter()
+            .filter(|c| self.registered[c.index()] || self.hists[c.index()].is_some())
+            .map(|c| match &self.hists[c.index()] {
+                Some(h) => ChannelStats::of(c, h),
+                None => ChannelStats::of(c, &c.new_histogram()),
+            })
+            .collect();
+    }
+}
+
+impl fmt::Display for Totals {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        writeln!(
+            f,
+            "{:<17} {:>4} {:>10} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9}",
+            "channel", "unit", "count", "p50", "p90", "p99", "p99.9", "p99.99", "max"
+        )?;
+        for s in &self.channels {
+            let v = |x: f64| num(x, s.channel.is_time());
+            writeln!(
+                f,
+                "{:<17} {:>4} {:>10} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9}",
+                s.channel.tag(),
+                if s.channel.is_time() { "µs" } else { "K" },
+                s.count,
+                v(s.p50),
+                v(s.p90),
+                v(s.p99),
+                v(s.p99_9),
+                v(s.p99_99),
+                v(s.max)
+            )?;
+        }
+        write!(f, "{} intervals", self.intervals)?;
+        if self.starved > 0 {
+            write!(f, ", {} extended for want of a free set (no samples lost)", self.starved)?;
+        }
+        if self.stray > 0 {
+            write!(f, ", {} samples for channels their recorder does not own (dropped)", self.stray)?;
+        }
+        if let Some(e) = &self.log_error {
+            write!(f, "; interval log incomplete: {e}")?;
+        }
+        Ok(())
+    }
+}
+
+/// Three significant digits or so, without a wall of decimals.
+fn num(x: f64, time: bool) -> String {
+    if !time || x >= 1000.0 {
+        format!("{x:.0}")
+    } else if x >= 10.0 {
+        format!("{x:.1}")
+    } else {
+        format!("{x:.2}")
+    }
+}

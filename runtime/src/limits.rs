@@ -1,0 +1,163 @@
+//! The last check before a command leaves: inside the position limits, and — by finite differences over the
+//! commands actually sent, the way the robot sees the stream — inside the velocity, acceleration and jerk
+//! limits. The smoother is built never to fail this; if it ever does, the command is not sent and the
+//! watchdog trips.
+
+use mars_hal::profile::Profile;
+use mars_ipc::MAX_JOINTS;
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Violation {
+    NonFinite { joint: usize },
+    Position { joint: usize },
+    Velocity { joint: usize },
+    Acceleration { joint: usize },
+    Jerk { joint: usize },
+}
+
+pub struct LimitCheck {
+    n: usize,
+    dt: f64,
+    q_min: [f64; MAX_JOINTS],
+    q_max: [f64; MAX_JOINTS],
+    /// Velocity, acceleration and jerk bounds, with a relative tolerance for floating-point rounding.
+    bounds: [[f64; MAX_JOINTS]; 3],
+    /// The last (up to) three positions sent, newest first.
+    recent: [[f64; MAX_JOINTS]; 3],
+    known: usize,
+    pub violations: u64,
+}
+
+/// Finite differences of exactly-limited motion can exceed the limit by rounding only.
+const ROUNDING: f64 = 1e-6;
+
+impl LimitCheck {
+    pub fn new(p: &Profile) -> Self {
+        let n = p.joints;
+        let mut c = Self {
+            n,
+            dt: p.period_s(),
+            q_min: [0.0; MAX_JOINTS],
+            q_max: [0.0; MAX_JOINTS],
+            bounds: [[0.0; MAX_JOINTS]; 3],
+            recent: [[0.0; MAX_JOINTS]; 3],
+            known: 0,
+            violations: 0,
+        };
+        c.q_min[..n].copy_from_slice(&p.q_min);
+        c.q_max[..n].copy_from_slice(&p.q_max);
+        for (k, lim) in [&p.dq_max, &p.ddq_max, &p.jerk_max].into_iter().enumerate() {
+            for j in 0..n {
+                c.bounds[k][j] = lim[j] * (1.0 + ROUNDING);
+            }
+        }
+        c
+    }
+
+    /// Forget the stream (a gap in sending, or a new session): differences restart from the next command.
+    pub fn restart(&mut self) {
+        self.known = 0;
+    }
+
+    /// Continue the stream from a setpoint the robot applied (position, velocity, acceleration as finite
+    /// differences, as the HAL reports them): the three previous positions are reconstructed from them.
+    pub fn continue_from(&mut self, q: &[f64], v: &[f64], a: &[f64]) {
+        let dt = self.dt;
+        for j in 0..self.n {
+            let q1 = q[j] - v[j] * dt;
+            let v1 = v[j] - a[j] * dt;
+            self.recent[0][j] = q[j];
+            self.recent[1][j] = q1;
+            self.recent[2][j] = q1 - v1 * dt;
+        }
+        // The acceleration before `a` is unknown, so the first jerk after a re-sync is checked against a
+        // reconstructed history in which it was constant.
+        self.known = 3;
+    }
+
+    /// Checks `q` as the next command after the ones accepted so far; accepted commands join the stream.
+    pub fn admit(&mut self, q: &[f64]) -> Result<(), Violation> {
+        let verdict = self.verdict(q);
+        match verdict {
+            Ok(()) => {
+                self.recent.copy_within(0..2, 1);
+                self.recent[0][..self.n].copy_from_slice(&q[..self.n]);
+                self.known = (self.known + 1).min(3);
+            }
+            Err(_) => self.violations += 1,
+        }
+        verdict
+    }
+
+    fn verdict(&self, q: &[f64]) -> Result<(), Violation> {
+        let (r, dt) = (&self.recent, self.dt);
+        for j in 0..self.n {
+            if !q[j].is_finite() {
+                return Err(Violation::NonFinite { joint: j });
+            }
+            if q[j] < self.q_min[j] || q[j] > self.q_max[j] {
+                return Err(Violation::Position { joint: j });
+            }
+            if self.known >= 1 && ((q[j] - r[0][j]) / dt).abs() > self.bounds[0][j] {
+                return Err(Violation::Velocity { joint: j });
+            }
+            if self.known >= 2 && ((q[j] - 2.0 * r[0][j] + r[1][j]) / (dt * dt)).abs() > self.bounds[1][j] {
+                return Err(Violation::Acceleration { joint: j });
+            }
+            let jerk = (q[j] - 3.0 * r[0][j] + 3.0 * r[1][j] - r[2][j]) / (dt * dt * dt);
+            if self.known >= 3 && jerk.abs() > self.bounds[2][j] {
+                return Err(Violation::Jerk { joint: j });
+            }
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn profile() -> Profile {
+        let text = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/../configs/fr3.toml")).unwrap();
+        Profile::parse(&text, "fr3.toml").unwrap()
+    }
+
+    #[test]
+    fn refuses_each_limit_and_keeps_the_stream_of_accepted_commands() {
+        let p = profile();
+        let mut c = LimitCheck::new(&p);
+        let home = p.home.clone();
+        for _ in 0..4 {
+            assert_eq!(c.admit(&home), Ok(()));
+        }
+        let mut q = home.clone();
+        q[0] += 0.01; // 10 rad/s in one 1 ms tick
+        assert_eq!(c.admit(&q), Err(Violation::Velocity { joint: 0 }));
+        q[0] = home[0] + 2e-6; // 2 mrad/s, but 2 rad/s² … fine; 2000 rad/s³: fine too
+        assert_eq!(c.admit(&q), Ok(()));
+        let mut q2 = q.clone();
+        q2[1] += 2e-5; // from rest: 20 rad/s² at once
+        assert_eq!(c.admit(&q2), Err(Violation::Acceleration { joint: 1 }));
+        let mut out = home.clone();
+        out[3] = p.q_max[3] + 0.01;
+        assert_eq!(c.admit(&out), Err(Violation::Position { joint: 3 }));
+        out[3] = f64::NAN;
+        assert_eq!(c.admit(&out), Err(Violation::NonFinite { joint: 3 }));
+        assert_eq!(c.violations, 4);
+    }
+
+    #[test]
+    fn jerk_is_checked_once_three_commands_are_known() {
+        let p = profile();
+        let mut c = LimitCheck::new(&p);
+        let mut q = p.home.clone();
+        c.admit(&q).unwrap();
+        c.admit(&q).unwrap();
+        c.admit(&q).unwrap();
+        // 6e-6 rad in one tick from rest: v = 6 mrad/s, a = 6 rad/s², j = 6000 rad/s³ > 5000.
+        q[2] += 6e-6;
+        assert_eq!(c.admit(&q), Err(Violation::Jerk { joint: 2 }));
+        c.restart();
+        assert_eq!(c.admit(&q), Ok(()), "after a restart no difference is taken across the gap");
+    }
+}

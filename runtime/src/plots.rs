@@ -1,0 +1,309 @@
+//! PNG plots of a daemon run: latency percentile distributions, K requested vs used, joint-space episodes.
+//!
+//! Text uses the policy crate's bundled font (no fontconfig or system fonts on the robot computer).
+
+use std::ops::Range;
+use std::path::Path;
+
+use anyhow::{anyhow, ensure};
+use mars_policy::plots::{ensure_font, palette, w_color};
+use plotters::coord::Shift;
+use plotters::prelude::*;
+
+use crate::latency::{Channel, K_MAX, Totals};
+
+pub const LATENCY_SIZE: (u32, u32) = (1000, 600);
+pub const K_SIZE: (u32, u32) = (900, 520);
+pub const EPISODES_SIZE: (u32, u32) = (1000, 700);
+
+const FONT: &str = "sans-serif";
+
+type Area<'a> = DrawingArea<BitMapBackend<'a>, Shift>;
+
+/// One episode of the HIL demo, sampled at the policy rate.
+#[derive(Debug, Clone, Default)]
+pub struct EpisodeTrace {
+    /// The grasp mode the episode ended in, if known.
+    pub mode: Option<usize>,
+    /// Joint positions (rad), one per policy call.
+    pub q: Vec<[f64; 7]>,
+    /// ‖w‖∞ of the chunk each call produced (same length as `q`).
+    pub w_inf: Vec<f32>,
+}
+
+fn to_png(path: &Path, size: (u32, u32), draw: impl FnOnce(&Area) -> anyhow::Result<()>) -> anyhow::Result<()> {
+    ensure_font()?;
+    let root = BitMapBackend::new(path, size).into_drawing_area();
+    root.fill(&WHITE).map_err(err)?;
+    draw(&root).map_err(|e| e.context(format!("drawing {}", path.display())))?;
+    root.present().map_err(|e| anyhow!("writing {}: {e}", path.display()))
+}
+
+fn err<E: std::error::Error + Send + Sync>(e: DrawingAreaErrorKind<E>) -> anyhow::Error {
+    anyhow!("plotting failed: {e}")
+}
+
+fn legend<'a, 'b: 'a, CT: plotters::coord::CoordTranslate>(
+    chart: &mut ChartContext<'a, BitMapBackend<'b>, CT>,
+    position: SeriesLabelPosition,
+) -> anyhow::Result<()> {
+    chart
+        .configure_series_labels()
+        .position(position)
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .label_font((FONT, 14))
+        .draw()
+        .map_err(err)
+}
+
+/// Latency against percentile, one line per time channel, on the HdrHistogram "1/(1−q)" axis: equal
+/// distances per added nine (90%, 99%, 99.9%, ...), which is where control-loop tails live.
+pub fn plot_latency(totals: &Totals, path: &Path) -> anyhow::Result<()> {
+    to_png(path, LATENCY_SIZE, |root| draw_latency(root, totals))
+}
+
+fn draw_latency(root: &Area, totals: &Totals) -> anyhow::Result<()> {
+    let series: Vec<(Channel, Vec<(f64, f64)>)> = Channel::ALL
+        .into_iter()
+        .filter(|c| c.is_time())
+        .filter_map(|c| totals.histogram(c).filter(|h| !h.is_empty()).map(|h| (c, h)))
+        .map(|(c, h)| {
+            // The last quantile is 1, whose 1/(1−q) is infinite: cap q at 1 − 1/count, the resolution of the data.
+            let q_max = 1.0 - 1.0 / h.len().max(2) as f64;
+            let pts = h
+                .iter_quantiles(5)
+                .map(|v| {
+                    (1.0 / (1.0 - v.quantile_iterated_to().min(q_max)), (v.value_iterated_to() as f64 / 1e3).max(1e-3))
+                })
+                .collect();
+            (c, pts)
+        })
+        .collect();
+    let all = || series.iter().flat_map(|(_, p)| p);
+    let x_hi = all().map(|p| p.0).fold(1e4, f64::max);
+    let (y_lo, y_hi) = all().fold((f64::INFINITY, 0f64), |(lo, hi), p| (lo.min(p.1), hi.max(p.1)));
+    let (y_lo, y_hi) = if series.is_empty() { (1.0, 1000.0) } else { decades(y_lo, y_hi) };
+    let title = if series.is_empty() { "latency: no samples" } else { "latency by percentile" };
+    let mut chart = ChartBuilder::on(root)
+        .caption(title, (FONT, 22))
+        .margin(15)
+        .margin_right(30)
+        .x_label_area_size(40)
+        .y_label_area_size(70)
+        .build_cartesian_2d((1.0..decades(1.0, x_hi).1).log_scale(), (y_lo..y_hi).log_scale())
+        .map_err(err)?;
+    chart
+        .configure_mesh()
+        .x_desc("percentile")
+        .y_desc("latency (µs)")
+        .label_style((FONT, 15))
+        .axis_desc_style((FONT, 16))
+        .x_label_formatter(&|x| percentile_label(*x))
+        .y_label_formatter(&|y| short(*y))
+        .draw()
+        .map_err(err)?;
+    for (i, (c, pts)) in series.iter().enumerate() {
+        let color = palette(i);
+        chart
+            .draw_series(LineSeries::new(pts.iter().copied(), color.stroke_width(2)))
+            .map_err(err)?
+            .label(c.tag())
+            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(3)));
+    }
+    if series.is_empty() {
+        return Ok(());
+    }
+    legend(&mut chart, SeriesLabelPosition::UpperLeft)
+}
+
+/// Whole decades around [lo, hi], so a log axis has labelled ends.
+fn decades(lo: f64, hi: f64) -> (f64, f64) {
+    let lo = 10f64.powf(lo.max(1e-9).log10().floor());
+    let hi = 10f64.powf(hi.max(lo).log10().ceil());
+    (lo, if hi > lo { hi } else { lo * 10.0 })
+}
+
+/// x = 1/(1−q) as a percentile: 10 → "90%", 1000 → "99.9%"; only decades are labelled (one more nine each).
+fn percentile_label(x: f64) -> String {
+    if (x.log10() - x.log10().round()).abs() > 1e-6 {
+        return String::new();
+    }
+    let p = 100.0 * (1.0 - 1.0 / x);
+    let s = format!("{p:.4}");
+    format!("{}%", s.trim_end_matches('0').trim_end_matches('.'))
+}
+
+fn short(v: f64) -> String {
+    // Tick values computed as sums can miss zero by rounding error (1e-16): that is zero.
+    if v.abs() < 1e-9 {
+        "0".into()
+    } else if (1e-3..1e5).contains(&v.abs()) {
+        let s = format!("{v:.3}");
+        s.trim_end_matches('0').trim_end_matches('.').to_string()
+    } else {
+        format!("{v:.0e}")
+    }
+}
+
+/// How often each K was requested and used, as grouped bars per K: the deadline cap shows as used bars
+/// shifted left of requested ones.
+pub fn plot_k(totals: &Totals, path: &Path) -> anyhow::Result<()> {
+    to_png(path, K_SIZE, |root| draw_k(root, totals))
+}
+
+fn draw_k(root: &Area, totals: &Totals) -> anyhow::Result<()> {
+    let counts = |c: Channel| -> Vec<u64> {
+        let h = totals.histogram(c);
+        (0..=K_MAX).map(|k| h.map_or(0, |h| h.count_at(k))).collect()
+    };
+    let (req, used) = (counts(Channel::KRequested), counts(Channel::KUsed));
+    let k_hi = (1..=K_MAX as usize).rev().find(|&k| req[k] + used[k] > 0).unwrap_or(1).max(4);
+    let y_hi = req.iter().chain(&used).copied().max().unwrap_or(0).max(10) as f64 * 1.1;
+    let mut chart = ChartBuilder::on(root)
+        .caption("ODE steps K: requested vs used", (FONT, 22))
+        .margin(15)
+        .x_label_area_size(40)
+        .y_label_area_size(70)
+        .build_cartesian_2d(0.5..k_hi as f64 + 0.5, 0.0..y_hi)
+        .map_err(err)?;
+    chart
+        .configure_mesh()
+        .x_desc("K")
+        .y_desc("policy calls")
+        .label_style((FONT, 15))
+        .axis_desc_style((FONT, 16))
+        .x_labels(k_hi.min(16))
+        .x_label_formatter(&|x| if x.fract().abs() < 1e-9 { format!("{x:.0}") } else { String::new() })
+        .y_label_formatter(&|y| short(*y))
+        .light_line_style(WHITE)
+        .draw()
+        .map_err(err)?;
+    for (i, (name, c, side)) in [("requested", &req, -0.4), ("used", &used, 0.0)].into_iter().enumerate() {
+        let color = palette(i);
+        let bars = (1..=k_hi).filter(|&k| c[k] > 0).map(move |k| {
+            let x = k as f64 + side;
+            Rectangle::new([(x, 0.0), (x + 0.4, c[k] as f64)], color.filled())
+        });
+        chart
+            .draw_series(bars)
+            .map_err(err)?
+            .label(format!("{name} ({} calls)", c.iter().sum::<u64>()))
+            .legend(move |(x, y)| Rectangle::new([(x, y - 5), (x + 15, y + 5)], color.filled()));
+    }
+    legend(&mut chart, SeriesLabelPosition::UpperRight)
+}
+
+/// Episodes in the plane of two joints, each step coloured by its chunk's ‖w‖∞, starts as black dots and
+/// ends as circles in the colour of the episode's grasp mode: the two modes show as two branches.
+pub fn plot_episodes(traces: &[EpisodeTrace], joint_x: usize, joint_y: usize, path: &Path) -> anyhow::Result<()> {
+    ensure!(joint_x < 7 && joint_y < 7, "joints are 0..7, not ({joint_x}, {joint_y})");
+    to_png(path, EPISODES_SIZE, |root| draw_episodes(root, traces, joint_x, joint_y))
+}
+
+fn draw_episodes(root: &Area, traces: &[EpisodeTrace], jx: usize, jy: usize) -> anyhow::Result<()> {
+    let (map, bar) = root.split_horizontally(EPISODES_SIZE.0 - 110);
+    let xy = |q: &[f64; 7]| (q[jx], q[jy]);
+    let pts = || traces.iter().flat_map(|t| t.q.iter().map(xy)).filter(|p| p.0.is_finite() && p.1.is_finite());
+    let span = |v: Vec<f64>| -> Range<f64> {
+        let (lo, hi) = v.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| (a.min(x), b.max(x)));
+        if lo > hi {
+            return -1.0..1.0;
+        }
+        let pad = ((hi - lo) * 0.06).max(0.05);
+        (lo - pad)..(hi + pad)
+    };
+    let (xr, yr) = (span(pts().map(|p| p.0).collect()), span(pts().map(|p| p.1).collect()));
+    let mut chart = ChartBuilder::on(&map)
+        .caption(format!("{} episodes in the (q{jx}, q{jy}) plane", traces.len()), (FONT, 22))
+        .margin(15)
+        .x_label_area_size(40)
+        .y_label_area_size(60)
+        .build_cartesian_2d(xr, yr)
+        .map_err(err)?;
+    chart
+        .configure_mesh()
+        .disable_mesh()
+        .x_desc(format!("q{jx} (rad)"))
+        .y_desc(format!("q{jy} (rad)"))
+        .label_style((FONT, 15))
+        .axis_desc_style((FONT, 16))
+        .x_label_formatter(&|v| short(*v))
+        .y_label_formatter(&|v| short(*v))
+        .draw()
+        .map_err(err)?;
+    for t in traces {
+        let segments = t.q.windows(2).enumerate().map(|(i, w)| {
+            let color = w_color(t.w_inf.get(i).copied().unwrap_or(f32::NAN));
+            PathElement::new(vec![xy(&w[0]), xy(&w[1])], color.stroke_width(2))
+        });
+        chart.draw_series(segments).map_err(err)?;
+    }
+    chart
+        .draw_series(traces.iter().filter_map(|t| t.q.first()).map(|q| Circle::new(xy(q), 4, BLACK.filled())))
+        .map_err(err)?;
+    let n_modes = traces.iter().filter_map(|t| t.mode).map(|m| m + 1).max().unwrap_or(0);
+    for mode in (0..n_modes).map(Some).chain([None]) {
+        let ends: Vec<_> = traces.iter().filter(|t| t.mode == mode).filter_map(|t| t.q.last().map(xy)).collect();
+        if ends.is_empty() {
+            continue;
+        }
+        let color = mode.map_or(RGBColor(128, 128, 128), palette);
+        let name = mode.map_or("no mode".to_string(), |m| format!("mode {m}"));
+        chart
+            .draw_series(ends.iter().map(|&p| Circle::new(p, 7, color.stroke_width(3))))
+            .map_err(err)?
+            .label(format!("{name} ({})", ends.len()))
+            .legend(move |(x, y)| Circle::new((x + 10, y), 6, color.stroke_width(3)));
+    }
+    let (x, y) = (chart.x_range(), chart.y_range());
+    legend(&mut chart, emptiest_corner(pts(), x, y))?;
+    draw_colorbar(&bar)
+}
+
+/// The corner of the plot with the fewest points in it, for the legend (episodes end in corners too).
+fn emptiest_corner(pts: impl Iterator<Item = (f64, f64)>, x: Range<f64>, y: Range<f64>) -> SeriesLabelPosition {
+    let mut n = [0usize; 4]; // upper left, upper right, lower left, lower right
+    for (px, py) in pts {
+        let (fx, fy) = ((px - x.start) / (x.end - x.start), (py - y.start) / (y.end - y.start));
+        let (left, right, up, low) = (fx < 0.35, fx > 0.65, fy > 0.7, fy < 0.3);
+        for (i, hit) in [left && up, right && up, left && low, right && low].into_iter().enumerate() {
+            n[i] += hit as usize;
+        }
+    }
+    use SeriesLabelPosition::*;
+    // Ties go to the first: upper right, where legends usually are.
+    let corners = [(n[1], UpperRight), (n[0], UpperLeft), (n[3], LowerRight), (n[2], LowerLeft)];
+    corners.into_iter().min_by_key(|c| c.0).map_or(UpperRight, |c| c.1)
+}
+
+/// A vertical 0..1 bar of `w_color`.
+fn draw_colorbar(area: &Area) -> anyhow::Result<()> {
+    // The title is drawn by hand above the bar: as a chart caption it collides with the top tick label.
+    area.draw(&Text::new("‖w‖∞", (25, 12), (FONT, 18).into_font())).map_err(err)?;
+    let mut chart = ChartBuilder::on(area)
+        .margin_top(45)
+        .margin_bottom(55)
+        .margin_left(10)
+        .margin_right(35)
+        .y_label_area_size(40)
+        .build_cartesian_2d(0f32..1f32, 0f32..1f32)
+        .map_err(err)?;
+    chart
+        .configure_mesh()
+        .disable_mesh()
+        .disable_x_axis()
+        .y_labels(6)
+        .y_label_formatter(&|v| short(*v as f64))
+        .label_style((FONT, 14))
+        .draw()
+        .map_err(err)?;
+    let n = 100;
+    chart
+        .draw_series((0..n).map(|i| {
+            let (lo, hi) = (i as f32 / n as f32, (i + 1) as f32 / n as f32);
+            Rectangle::new([(0.0, lo), (1.0, hi)], w_color((lo + hi) / 2.0).filled())
+        }))
+        .map_err(err)?;
+    Ok(())
+}

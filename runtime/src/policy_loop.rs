@@ -1,0 +1,259 @@
+//! The policy loop: runs the episodes. For each: ask the servo to move to the start pose, then, once per policy
+//! period, watch the task's progress and — every `chunk_len` periods — build the observation and the history of
+//! the last `chunk_len` actions, call the engine with the time left until the servo needs the chunk, stamp the
+//! chunk's actions with their due times and hand it over without locks.
+//!
+//! Timing of chunk n (Δ = policy period, C = chunk length, t0 = episode start, lead = inference budget):
+//! inference starts at t0 + n·C·Δ, the chunk is needed at that time + lead (when the servo starts moving
+//! toward its first action), and its action i is due at t0 + lead + (n·C + i + 1)·Δ. So the next inference
+//! overlaps the execution of the current chunk, and a chunk one lead late costs nothing but smoothness.
+
+use std::sync::Arc;
+use std::sync::atomic::Ordering;
+use std::time::Duration;
+
+use crossbeam_queue::ArrayQueue;
+use mars_engine::Engine;
+use mars_ipc::MAX_JOINTS;
+use mars_ipc::clock::monotonic_ns;
+use serde::Serialize;
+
+use crate::chunk::TimedChunk;
+use crate::config::DaemonConfig;
+use crate::latency::{Channel, Recorder};
+use crate::plots::EpisodeTrace;
+use crate::rt::Ticker;
+use crate::shared::{Observed, Phase, Request, Status};
+use crate::task::pick_cup::{DoneReason, PickCup, Progress};
+use crate::watchdog::{Streak, Trip};
+
+/// One episode's outcome.
+#[derive(Debug, Clone, Serialize)]
+pub struct EpisodeResult {
+    pub episode: u64,
+    pub success: bool,
+    pub mode: Option<usize>,
+    pub reason: Option<DoneReason>,
+    pub duration_s: f64,
+    pub chunks: u64,
+    pub mean_k_used: f64,
+    pub late_chunks: u64,
+}
+
+/// Totals of the policy loop.
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct PolicyReport {
+    pub episodes: Vec<EpisodeResult>,
+    #[serde(skip)]
+    pub traces: Vec<EpisodeTrace>,
+    pub inferences: u64,
+    /// Calls whose K was cut by the deadline (k_used < k_requested).
+    pub capped: u64,
+    /// Chunks ready after the servo needed them.
+    pub late_chunks: u64,
+    /// Calls that could not fit even K = 1; their chunks were dropped.
+    pub over_budget: u64,
+    pub engine_errors: u64,
+}
+
+pub struct PolicyChannels {
+    pub chunks: triple_buffer::Input<TimedChunk>,
+    pub observed: triple_buffer::Output<Observed>,
+    pub requests: Arc<ArrayQueue<Request>>,
+    pub status: Arc<Status>,
+}
+
+pub struct PolicyLoop {
+    pub engine: Engine,
+    pub task: PickCup,
+    pub ch: PolicyChannels,
+    pub rec: Recorder,
+}
+
+/// Steps the trace of one episode can hold before it stops growing (no reallocation in the loop).
+const TRACE_CAPACITY: usize = 4096;
+
+impl PolicyLoop {
+    pub fn run(mut self, cfg: &DaemonConfig) -> PolicyReport {
+        let mut report = PolicyReport::default();
+        let episodes = if cfg.episodes == 0 { u64::MAX } else { cfg.episodes as u64 };
+        report.episodes.reserve(cfg.episodes.min(10_000));
+        if !self.wait_for(|s| s.hal_ready.load(Ordering::Acquire)) {
+            return report;
+        }
+        let mut late = Streak::new(cfg.watchdog.max_consecutive_late_chunks);
+        let mut over = Streak::new(cfg.watchdog.max_consecutive_over_budget);
+        for episode in 1..=episodes {
+            let pose_v = self.task.start_pose(cfg.seed.wrapping_add(episode));
+            let mut pose = [0.0; MAX_JOINTS];
+            pose[..pose_v.len()].copy_from_slice(&pose_v);
+            let gripper = self.task.cfg.gripper_open;
+            if !self.request(Request::MoveTo { episode, pose, gripper }) {
+                break;
+            }
+            if !self.wait_for(|s| s.phase() == Phase::Ready && s.episode.load(Ordering::Acquire) == episode) {
+                break;
+            }
+            let rest = self.task.rest_action(&pose_v);
+            match self.episode(cfg, episode, &rest, &mut late, &mut over, &mut report) {
+                Some(result) => report.episodes.push(result),
+                None => break,
+            }
+        }
+        self.request(Request::Finish);
+        report
+    }
+
+    /// Runs one episode from the start pose; `None` if the loop must stop (signal or trip).
+    fn episode(
+        &mut self,
+        cfg: &DaemonConfig,
+        episode: u64,
+        rest: &[f32],
+        late: &mut Streak,
+        over: &mut Streak,
+        report: &mut PolicyReport,
+    ) -> Option<EpisodeResult> {
+        let (c, d) = (self.engine.chunk_len(), self.engine.action_dim());
+        let period_ns = cfg.policy_period_ns();
+        let lead_ns = (cfg.policy.lead_ms * 1e6) as u64;
+        let margin_ns = (cfg.policy.handoff_margin_ms * 1e6) as u64;
+        let mut obs = vec![0.0f32; self.engine.obs_dim()];
+        let mut history: Vec<f32> = rest.iter().copied().cycle().take(c * d).collect();
+        let mut monitor = self.task.monitor();
+        let mut trace = EpisodeTrace {
+            mode: None,
+            q: Vec::with_capacity(TRACE_CAPACITY),
+            w_inf: Vec::with_capacity(TRACE_CAPACITY),
+        };
+        let (mut chunks, mut k_sum, mut ep_late, mut w_inf) = (0u64, 0u64, 0u64, 0.0f32);
+        let t0 = monotonic_ns();
+        let mut ticker = Ticker::starting_at(t0, Duration::from_nanos(period_ns));
+        let mut seq = 0u64;
+        for k in 0u64.. {
+            let wake = ticker.wait();
+            if self.must_stop() {
+                return None;
+            }
+            let now = wake.now_ns();
+            let o = *self.ch.observed.read();
+            let n = self.task.joints();
+            let progress = monitor.update(&o.position[..n], o.gripper, (now - t0) as f64 * 1e-9);
+            if trace.q.len() < TRACE_CAPACITY {
+                let mut q7 = [0.0; 7];
+                q7[..n.min(7)].copy_from_slice(&o.position[..n.min(7)]);
+                trace.q.push(q7);
+                trace.w_inf.push(w_inf);
+            }
+            if let Progress::Done { success, mode, reason } = progress {
+                trace.mode = mode;
+                report.traces.push(trace);
+                return Some(EpisodeResult {
+                    episode,
+                    success,
+                    mode,
+                    reason: Some(reason),
+                    duration_s: (now - t0) as f64 * 1e-9,
+                    chunks,
+                    mean_k_used: if chunks > 0 { k_sum as f64 / chunks as f64 } else { 0.0 },
+                    late_chunks: ep_late,
+                });
+            }
+            if k % c as u64 != 0 {
+                continue;
+            }
+            // Inference for chunk k / C.
+            let need_ns = t0 + lead_ns + k * period_ns;
+            let budget = Duration::from_nanos((need_ns - margin_ns).saturating_sub(monotonic_ns()));
+            self.task.observation(&o.position[..n], o.gripper, &mut obs);
+            let started = monotonic_ns();
+            let result = self.engine.infer(&obs, &history, budget);
+            let ready = monotonic_ns();
+            self.rec.record(Channel::Inference, ready - started);
+            report.inferences += 1;
+            let out = match result {
+                Ok(out) => out,
+                Err(_) => {
+                    report.engine_errors += 1;
+                    self.request(Request::Trip(Trip::EngineError));
+                    return None;
+                }
+            };
+            self.rec.record(Channel::KRequested, out.k_requested as u64);
+            self.rec.record(Channel::KUsed, out.k_used as u64);
+            if out.capped {
+                report.capped += 1;
+            }
+            if out.over_budget {
+                // Not even one step fitted: keep executing the previous chunk.
+                report.over_budget += 1;
+                if over.bad() {
+                    self.request(Request::Trip(Trip::InferenceOverBudget));
+                    return None;
+                }
+                continue;
+            }
+            over.good();
+            w_inf = out.w.iter().fold(0.0f32, |m, w| m.max(w.abs()));
+            seq += 1;
+            let dst = self.ch.chunks.input_buffer_mut();
+            dst.seq = episode << 32 | seq;
+            dst.episode = episode;
+            dst.period_ns = period_ns;
+            dst.first_due_ns = need_ns + period_ns;
+            dst.len = c;
+            dst.ready_ns = ready;
+            for (i, a) in out.actions().enumerate() {
+                for (j, v) in a.iter().enumerate() {
+                    dst.actions[i][j] = *v as f64;
+                }
+            }
+            history.copy_from_slice(out.chunk);
+            self.ch.chunks.publish();
+            chunks += 1;
+            k_sum += out.k_used as u64;
+            if ready > need_ns {
+                report.late_chunks += 1;
+                ep_late += 1;
+                if late.bad() {
+                    self.request(Request::Trip(Trip::LateChunks));
+                    return None;
+                }
+            } else {
+                late.good();
+            }
+        }
+        unreachable!("the episode loop only ends by returning")
+    }
+
+    fn must_stop(&self) -> bool {
+        let s = &self.ch.status;
+        s.stop_requested.load(Ordering::Acquire)
+            || s.trip().is_some()
+            || matches!(s.phase(), Phase::Stopping | Phase::Finished)
+    }
+
+    /// Polls until `ready` holds; false if the loop must stop first.
+    fn wait_for(&self, ready: impl Fn(&Status) -> bool) -> bool {
+        loop {
+            if ready(&self.ch.status) {
+                return true;
+            }
+            if self.must_stop() {
+                return false;
+            }
+            std::thread::sleep(Duration::from_millis(1));
+        }
+    }
+
+    /// Queues a request for the servo; false if the queue stayed full (the servo loop is gone).
+    fn request(&self, r: Request) -> bool {
+        for _ in 0..1000 {
+            if self.ch.requests.push(r).is_ok() {
+                return true;
+            }
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        false
+    }
+}

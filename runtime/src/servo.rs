@@ -1,0 +1,393 @@
+//! One servo tick, as plain logic: state frame and chunk in, command out. No I/O here (the loop around it in
+//! [`crate::servo_loop`] reads and writes iceoryx2), so the whole decision is testable and provably
+//! allocation-free: every field is fixed-size and preallocated in [`ServoTick::new`].
+//!
+//! Phases: waiting for the HAL → idle (holding) → resetting to an episode's start pose → ready → running the
+//! policy's chunks → … → stopping (jerk-limited brake) → finished (a hold command sent to the HAL).
+
+use mars_hal::profile::Profile;
+use mars_ipc::{CommandMode, HoldReason, JointCommand, MAX_JOINTS, RobotState, status};
+
+use crate::chunk::{MAX_ACTION, Schedule, TimedChunk};
+use crate::config::DaemonConfig;
+use crate::frame::FrameCheck;
+use crate::limits::LimitCheck;
+use crate::shared::{Observed, Phase, Request};
+use crate::smoothing::{Kinematics, Limits, Smoother, SmoothingError};
+use crate::watchdog::{ServoWatchdog, Trip};
+
+/// The gripper is not part of the jerk-limited joint trajectory: during a reset it moves at this speed (m/s).
+const GRIPPER_RESET_SPEED: f64 = 0.1;
+/// A reset waits until the measured gripper is this close to its target (m).
+const GRIPPER_TOLERANCE: f64 = 0.002;
+
+/// Why the loop is stopping.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum StopCause {
+    /// The episodes are done.
+    Finished,
+    /// SIGTERM/SIGINT.
+    Signal,
+    Trip(Trip),
+}
+
+/// What the loop hands in each tick.
+#[derive(Debug, Clone, Copy)]
+pub struct TickInput<'a> {
+    pub now_ns: u64,
+    /// Servo periods skipped before this tick (a stall).
+    pub missed: u64,
+    /// The newest state frame read this tick, if any.
+    pub frame: Option<&'a RobotState>,
+    /// The newest chunk, if the policy published one since the last tick.
+    pub chunk: Option<&'a TimedChunk>,
+    pub request: Option<Request>,
+    pub stop_requested: bool,
+    /// The liveness watch says the HAL process is gone.
+    pub hal_gone: bool,
+}
+
+/// What the tick decided.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct TickOutput {
+    pub command: Option<JointCommand>,
+    /// The newest usable state, when this tick accepted one.
+    pub observed: Option<Observed>,
+}
+
+/// Counters for the report.
+#[derive(Debug, Clone, Copy, Default, serde::Serialize)]
+pub struct ServoCounters {
+    pub ticks: u64,
+    pub commands_sent: u64,
+    pub chunks_adopted: u64,
+    /// Actions skipped because their chunk arrived after they were due.
+    pub actions_dropped: u64,
+    /// Ticks in `Running` with the chunk used up and no newer one.
+    pub starved_ticks: u64,
+    /// Policy joint targets moved inside the position limits (minus the margin).
+    pub clamped_targets: u64,
+    /// Commands that failed the final limit check (never sent). Must be 0.
+    pub limit_violations: u64,
+    /// Times the HAL had not applied the last command exactly (it arrived late, so the HAL smoothed the gap)
+    /// and the trajectory continued from the HAL's applied setpoint.
+    pub resyncs: u64,
+}
+
+pub struct ServoTick {
+    n: usize,
+    dt_ns: u64,
+    session: u64,
+    seq: u64,
+    smoother: Smoother,
+    schedule: Schedule,
+    pending: TimedChunk,
+    frames: FrameCheck,
+    limits: LimitCheck,
+    watchdog: ServoWatchdog,
+    phase: Phase,
+    episode: u64,
+    stop: Option<StopCause>,
+    pose: [f64; MAX_JOINTS],
+    gripper_target: f64,
+    gripper: f64,
+    q_lo: [f64; MAX_JOINTS],
+    q_hi: [f64; MAX_JOINTS],
+    g_lo: f64,
+    g_hi: f64,
+    settle_tolerance: f64,
+    last_state: RobotState,
+    /// The HAL has followed this session at least once (so a HOLDING status afterwards means it stopped).
+    followed: bool,
+    /// The HAL's (rejected, clamped) command counters at the handshake: the HAL counts since it started.
+    hal_counts_at_start: (u64, u64),
+    /// The first command refused by the final check, for the report.
+    pub first_violation: Option<crate::limits::Violation>,
+    pub counters: ServoCounters,
+}
+
+impl ServoTick {
+    pub fn new(cfg: &DaemonConfig, profile: &Profile, session: u64) -> Result<Self, SmoothingError> {
+        let n = profile.joints;
+        let margin = cfg.servo.position_margin;
+        let (mut q_lo, mut q_hi) = ([0.0; MAX_JOINTS], [0.0; MAX_JOINTS]);
+        for j in 0..n {
+            q_lo[j] = profile.q_min[j] + margin;
+            q_hi[j] = profile.q_max[j] - margin;
+        }
+        Ok(Self {
+            n,
+            dt_ns: (profile.period_s() * 1e9).round() as u64,
+            session,
+            seq: 0,
+            smoother: Smoother::new(n, profile.period_s(), &Limits::from_profile(profile))?,
+            schedule: Schedule::new(n + 1),
+            pending: TimedChunk::default(),
+            frames: FrameCheck::new(n, (cfg.servo.stale_state_ms * 1e6) as u64),
+            limits: LimitCheck::new(profile),
+            watchdog: ServoWatchdog::new(&cfg.watchdog),
+            phase: Phase::WaitingForHal,
+            episode: 0,
+            stop: None,
+            pose: [0.0; MAX_JOINTS],
+            gripper_target: profile.gripper_min,
+            gripper: profile.gripper_min,
+            q_lo,
+            q_hi,
+            g_lo: profile.gripper_min,
+            g_hi: profile.gripper_max,
+            settle_tolerance: cfg.servo.settle_tolerance,
+            last_state: RobotState::default(),
+            followed: false,
+            hal_counts_at_start: (0, 0),
+            first_violation: None,
+            counters: ServoCounters::default(),
+        })
+    }
+
+    pub fn phase(&self) -> Phase {
+        self.phase
+    }
+
+    pub fn episode(&self) -> u64 {
+        self.episode
+    }
+
+    pub fn stop_cause(&self) -> Option<StopCause> {
+        self.stop
+    }
+
+    pub fn frames(&self) -> &FrameCheck {
+        &self.frames
+    }
+
+    fn stop_with(&mut self, cause: StopCause) {
+        // The first cause is the one reported.
+        if self.stop.is_none() {
+            self.stop = Some(cause);
+        }
+        self.phase = match self.phase {
+            // Nothing was ever commanded, or nobody is left to command: done at once.
+            Phase::WaitingForHal | Phase::Finished => Phase::Finished,
+            _ if cause == StopCause::Trip(Trip::HalDied) => Phase::Finished,
+            _ => Phase::Stopping,
+        };
+    }
+
+    pub fn tick(&mut self, input: &TickInput) -> TickOutput {
+        let now = input.now_ns;
+        self.counters.ticks += 1;
+        let mut out = TickOutput::default();
+        if self.phase == Phase::Finished {
+            return out;
+        }
+
+        // 1. The state frame.
+        let usable = match input.frame {
+            Some(f) => self.frames.judge(f, now).is_ok(),
+            None => false,
+        };
+        if usable {
+            let f = input.frame.expect("usable implies a frame");
+            self.last_state = *f;
+            let mut obs =
+                Observed { seq: f.seq, timestamp_ns: f.timestamp_ns, gripper: f.gripper, ..Default::default() };
+            obs.position[..self.n].copy_from_slice(&f.position[..self.n]);
+            out.observed = Some(obs);
+            if self.phase == Phase::WaitingForHal {
+                // The handshake: start from the setpoint the HAL applies (as libfranka motion generators start
+                // from the last desired position, not the noisy measurement), so the first command continues
+                // the robot's own setpoint stream exactly. A HAL that reports none gets the measurement.
+                let applied = &f.applied_position[..self.n];
+                let start = if applied.iter().all(|q| q.is_finite()) && applied.iter().any(|q| *q != 0.0) {
+                    applied
+                } else {
+                    &f.position[..self.n]
+                };
+                self.smoother.reset(start);
+                self.pose[..self.n].copy_from_slice(start);
+                self.gripper = f.gripper.clamp(self.g_lo, self.g_hi);
+                self.gripper_target = self.gripper;
+                self.phase = if self.stop.is_some() { Phase::Stopping } else { Phase::Idle };
+                self.hal_counts_at_start = (f.rejected_commands, f.clamped_commands);
+            }
+            if f.session == self.session {
+                if f.is(status::ACTIVE) {
+                    self.followed = true;
+                    self.resync(f);
+                } else if self.followed && self.phase != Phase::Finished {
+                    let reason = HoldReason::from_u32(f.hold_reason).unwrap_or(HoldReason::None);
+                    self.stop_with(StopCause::Trip(Trip::HalHolding(reason)));
+                }
+            }
+        }
+
+        // 2. Watchdog, requests, signals.
+        if input.hal_gone {
+            self.stop_with(StopCause::Trip(Trip::HalDied));
+        }
+        if self.phase != Phase::WaitingForHal
+            && let Some(trip) = self.watchdog.tick(now, input.missed, usable)
+        {
+            self.stop_with(StopCause::Trip(trip));
+        }
+        match input.request {
+            Some(Request::Trip(t)) => self.stop_with(StopCause::Trip(t)),
+            Some(Request::Finish) => self.stop_with(StopCause::Finished),
+            Some(Request::MoveTo { episode, pose, gripper }) if self.stop.is_none() => {
+                self.episode = episode;
+                self.pose = pose;
+                self.gripper_target = gripper.clamp(self.g_lo, self.g_hi);
+                self.phase = Phase::Resetting;
+            }
+            _ => {}
+        }
+        if input.stop_requested {
+            self.stop_with(StopCause::Signal);
+        }
+        if matches!(self.phase, Phase::WaitingForHal | Phase::Finished) {
+            return out;
+        }
+
+        // 3. Chunks: keep the newest of this episode; switch to it when the current one is used up.
+        if let Some(c) = input.chunk
+            && c.episode == self.episode
+            && c.seq > self.pending.seq.max(self.schedule.current_seq())
+        {
+            self.pending = *c;
+        }
+        if matches!(self.phase, Phase::Ready | Phase::Running)
+            && self.pending.seq > self.schedule.current_seq()
+            && self.pending.episode == self.episode
+            && self.schedule.ready_for(&self.pending, now + self.dt_ns)
+        {
+            // Everything below is evaluated at the next tick's time, the time the command is for.
+            let a = self.schedule.adopt(&self.pending, now + self.dt_ns);
+            self.counters.chunks_adopted += 1;
+            self.counters.actions_dropped += a.dropped as u64;
+            self.phase = Phase::Running;
+        }
+
+        // 4. Motion for the next tick.
+        let next = now + self.dt_ns;
+        let mut target = [0.0; MAX_JOINTS];
+        let mut target_v = [0.0; MAX_JOINTS];
+        let motion = match self.phase {
+            Phase::Idle => self.smoother.track(&self.pose[..self.n], &target_v[..self.n]).copied(),
+            Phase::Resetting => {
+                let step = GRIPPER_RESET_SPEED * self.dt_ns as f64 * 1e-9;
+                self.gripper += (self.gripper_target - self.gripper).clamp(-step, step);
+                let r = self.smoother.track(&self.pose[..self.n], &target_v[..self.n]).copied();
+                if r.is_ok() && self.settled() {
+                    let mut hold = [0.0; MAX_ACTION];
+                    hold[..self.n].copy_from_slice(&self.pose[..self.n]);
+                    hold[self.n] = self.gripper;
+                    self.schedule.hold(now, &hold);
+                    self.phase = Phase::Ready;
+                }
+                r
+            }
+            Phase::Ready | Phase::Running => {
+                let r = self.schedule.sample(next);
+                if r.exhausted && self.phase == Phase::Running {
+                    self.counters.starved_ticks += 1;
+                }
+                for j in 0..self.n {
+                    target[j] = r.position[j].clamp(self.q_lo[j], self.q_hi[j]);
+                    if target[j] != r.position[j] {
+                        self.counters.clamped_targets += 1;
+                    } else {
+                        target_v[j] = r.velocity[j];
+                    }
+                }
+                let g = r.position[self.n];
+                self.gripper = if g.is_finite() { g.clamp(self.g_lo, self.g_hi) } else { self.gripper };
+                self.smoother.track(&target[..self.n], &target_v[..self.n]).copied()
+            }
+            Phase::Stopping => self.smoother.brake().copied(),
+            Phase::WaitingForHal | Phase::Finished => return out,
+        };
+        let kin = match motion {
+            Ok(k) => k,
+            Err(_) => {
+                self.stop_with(StopCause::Trip(Trip::Smoothing));
+                match self.smoother.brake() {
+                    Ok(k) => *k,
+                    Err(_) => return out, // nothing safe to send: the HAL's command timeout brakes
+                }
+            }
+        };
+
+        // 5. The command, after the last check.
+        if let Err(v) = self.limits.admit(&kin.position[..self.n]) {
+            self.counters.limit_violations += 1;
+            self.first_violation.get_or_insert(v);
+            self.stop_with(StopCause::Trip(Trip::LimitViolation));
+            // No command this controller computes can be trusted now: send nothing more, and the HAL brakes to
+            // rest on command loss (its own safety) within its timeout.
+            self.phase = Phase::Finished;
+            return out;
+        }
+        let stopping_done = self.phase == Phase::Stopping && self.smoother.is_at_rest();
+        self.seq += 1;
+        let mut cmd = JointCommand::position(self.session, self.seq, self.last_state.seq, &kin.position[..self.n]);
+        cmd.timestamp_ns = now;
+        cmd.velocity = kin.velocity;
+        cmd.acceleration = kin.acceleration;
+        cmd.gripper = self.gripper;
+        if stopping_done {
+            // At rest: end the session explicitly, so the HAL holds here rather than timing out.
+            cmd.mode = CommandMode::Hold as u32;
+            self.phase = Phase::Finished;
+        }
+        self.counters.commands_sent += 1;
+        out.command = Some(cmd);
+        out
+    }
+
+    /// Commands the HAL refused and clamped since the handshake, as of its newest usable frame: the robot
+    /// side's own verdict on this controller's command stream.
+    pub fn hal_limit_counts(&self) -> (u64, u64) {
+        let (r0, c0) = self.hal_counts_at_start;
+        (self.last_state.rejected_commands.saturating_sub(r0), self.last_state.clamped_commands.saturating_sub(c0))
+    }
+
+    /// If the HAL's applied setpoint is not the last command sent (a late command: the HAL held or smoothed
+    /// instead), continue from the setpoint the joints actually follow, as libfranka motion generators continue
+    /// from q_d: the next command is then within every limit relative to it, and the HAL applies it exactly.
+    fn resync(&mut self, f: &RobotState) {
+        let n = self.n;
+        let ours = &self.smoother.state().position[..n];
+        if self.seq == 0 || (f.last_command_seq == self.seq && f.applied_position[..n] == *ours) {
+            return;
+        }
+        // The HAL's velocity and acceleration are finite differences over the last tick, i.e. the values half a
+        // tick back; the smoother's state is instantaneous. Shifting the velocity by half a tick of acceleration
+        // makes the first commands' finite differences continue the HAL's without a jerk artifact of a/(2·dt).
+        let dt = self.dt_ns as f64 * 1e-9;
+        let mut applied = Kinematics {
+            position: f.applied_position,
+            velocity: f.applied_velocity,
+            acceleration: f.applied_acceleration,
+        };
+        for j in 0..n {
+            applied.velocity[j] += 0.5 * dt * f.applied_acceleration[j];
+        }
+        if self.smoother.continue_from(&applied).is_ok() {
+            self.limits.continue_from(&f.applied_position[..n], &f.applied_velocity[..n], &f.applied_acceleration[..n]);
+            self.counters.resyncs += 1;
+        }
+    }
+
+    /// At rest at the target pose, and the measured arm agrees.
+    fn settled(&self) -> bool {
+        let k = self.smoother.state();
+        let tol = self.settle_tolerance;
+        self.smoother.is_at_rest()
+            && (self.gripper - self.gripper_target).abs() < 1e-12
+            && (self.last_state.gripper - self.gripper_target).abs() <= GRIPPER_TOLERANCE
+            && (0..self.n).all(|j| {
+                (k.position[j] - self.pose[j]).abs() <= tol && (self.last_state.position[j] - self.pose[j]).abs() <= tol
+            })
+    }
+}

@@ -1,0 +1,103 @@
+//! What the three threads share, all lock-free and preallocated: the servo loop never waits on the others.
+//!
+//! - policy → servo: the newest chunk (a triple buffer in [`crate::handoff`]) and [`Request`]s (a bounded
+//!   lock-free queue);
+//! - servo → policy: the newest usable state, [`Observed`] (a triple buffer);
+//! - servo → everyone: [`Status`] atomics (phase, counters, the trip reason), which the daemon's notifier
+//!   thread reads to decide whether systemd's watchdog gets its ping.
+
+use std::sync::atomic::{AtomicBool, AtomicU8, AtomicU32, AtomicU64, Ordering};
+
+use mars_ipc::MAX_JOINTS;
+
+use crate::watchdog::Trip;
+
+/// What the policy thread (the episode coordinator) asks of the servo loop.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Request {
+    /// End whatever runs, then move jerk-limited to `pose` (joints) with `gripper`, and report `Ready`.
+    MoveTo { episode: u64, pose: [f64; MAX_JOINTS], gripper: f64 },
+    /// All episodes done: come to rest, hand the HAL a hold command, and finish.
+    Finish,
+    /// A fault found outside the servo loop (late chunks, inference over budget, engine error).
+    Trip(Trip),
+}
+
+/// The servo loop's view of the robot, for the policy thread.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Observed {
+    /// Sequence number of the state frame (0: none yet).
+    pub seq: u64,
+    pub timestamp_ns: u64,
+    pub position: [f64; MAX_JOINTS],
+    pub gripper: f64,
+}
+
+/// The servo loop's phase, as seen from outside.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[repr(u8)]
+pub enum Phase {
+    /// No usable state frame yet.
+    WaitingForHal = 0,
+    /// Holding where the robot is; waiting for a request.
+    Idle = 1,
+    /// Moving to an episode's start pose.
+    Resetting = 2,
+    /// At the start pose, holding; the policy may start.
+    Ready = 3,
+    /// Following the policy's chunks.
+    Running = 4,
+    /// Jerk-limited stop in progress (finish, signal or trip).
+    Stopping = 5,
+    /// At rest, hold command sent; the loop has ended.
+    Finished = 6,
+}
+
+impl Phase {
+    fn from_u8(v: u8) -> Self {
+        match v {
+            1 => Self::Idle,
+            2 => Self::Resetting,
+            3 => Self::Ready,
+            4 => Self::Running,
+            5 => Self::Stopping,
+            6 => Self::Finished,
+            _ => Self::WaitingForHal,
+        }
+    }
+}
+
+/// Counters and flags the servo publishes every tick (relaxed stores; readers want a recent value, not a
+/// consistent snapshot).
+#[derive(Default)]
+pub struct Status {
+    phase: AtomicU8,
+    /// The episode the phase refers to.
+    pub episode: AtomicU64,
+    pub ticks: AtomicU64,
+    /// [`Trip::code`] of the trip that stopped the loop; 0 = none.
+    trip: AtomicU32,
+    /// Set by the daemon on SIGTERM/SIGINT; the servo loop then stops safely.
+    pub stop_requested: AtomicBool,
+    /// The HAL handshake happened: a valid state frame of the right robot arrived.
+    pub hal_ready: AtomicBool,
+}
+
+impl Status {
+    pub fn phase(&self) -> Phase {
+        Phase::from_u8(self.phase.load(Ordering::Acquire))
+    }
+
+    pub fn set_phase(&self, p: Phase) {
+        self.phase.store(p as u8, Ordering::Release);
+    }
+
+    pub fn trip(&self) -> Option<Trip> {
+        Trip::from_code(self.trip.load(Ordering::Acquire))
+    }
+
+    /// Records the first trip only: the first fault is the cause, later ones are consequences.
+    pub fn set_trip(&self, t: Trip) {
+        let _ = self.trip.compare_exchange(0, t.code(), Ordering::AcqRel, Ordering::Acquire);
+    }
+}

@@ -1,0 +1,61 @@
+//! What `mars-hil demos` and `mars-hil eval-sim` do, as library functions (tests drive the same code).
+
+use std::path::Path;
+
+use anyhow::Context;
+use mars_hal::profile::Profile;
+use mars_policy::demo::{Demo, DemoSet};
+
+use super::eval::{EvalReport, evaluate};
+use super::expert::generate_demos;
+use super::pick_cup::PickCup;
+
+/// The `task` field of the demo files, naming what the demos are of.
+pub const TASK: &str = "fr3_pick_cup";
+
+/// The profile and the task checked against it.
+pub fn load_task(task: &Path, profile: &Path) -> anyhow::Result<(PickCup, Profile)> {
+    let profile = Profile::load(profile)?;
+    let task = PickCup::load(task, &profile)?;
+    Ok((task, profile))
+}
+
+/// Written to a temporary file first, so a crash never leaves half a file under the final name.
+fn write_json(path: &Path, value: &impl serde::Serialize) -> anyhow::Result<()> {
+    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    }
+    let tmp = path.with_extension("json.tmp");
+    std::fs::write(&tmp, serde_json::to_string(value)?).with_context(|| format!("cannot write {}", tmp.display()))?;
+    std::fs::rename(&tmp, path).with_context(|| format!("cannot write {}", path.display()))
+}
+
+/// `n` verified, balanced expert demos as a `DemoSet` JSON at `out`.
+pub fn demos(task: &Path, profile: &Path, n: usize, seed: u64, out: &Path) -> anyhow::Result<()> {
+    anyhow::ensure!(n > 0, "--n must be at least 1 demo");
+    let (task, profile) = load_task(task, profile)?;
+    let demos = generate_demos(&task, &profile, n, seed)?;
+    let steps: usize = demos.iter().map(Demo::len).sum();
+    write_json(out, &DemoSet { task: TASK.into(), demos })?;
+    println!("wrote {n} {TASK} demos ({steps} steps at {} Hz) to {}", task.cfg.policy_rate_hz, out.display());
+    Ok(())
+}
+
+/// `n` in-process episodes of the checkpoint in `checkpoint` (seeds `seed + i`); prints the summary (success
+/// rate, mode counts, γ, mean K) and, given `out`, writes it with every episode there as JSON.
+pub fn eval(
+    checkpoint: &Path,
+    task: &Path,
+    profile: &Path,
+    n: usize,
+    seed: u64,
+    out: Option<&Path>,
+) -> anyhow::Result<EvalReport> {
+    let (task, profile) = load_task(task, profile)?;
+    let report = evaluate(checkpoint, &task, &profile, n, seed)?;
+    println!("{report}");
+    if let Some(out) = out {
+        write_json(out, &report)?;
+    }
+    Ok(report)
+}

@@ -1,0 +1,178 @@
+//! In-process closed-loop evaluation of a checkpoint on Pick Cup: the allocation-free engine drives the HIL sim
+//! plant directly (no IPC, no daemon), executing whole chunks and re-planning after each, with the expert's
+//! servo. For validating checkpoints and for tests; the real runtime path is `marsd`.
+
+use std::path::Path;
+
+use anyhow::ensure;
+use mars_engine::{Engine, EngineConfig};
+use mars_hal::profile::Profile;
+use mars_ipc::MAX_JOINTS;
+use mars_policy::nav2d::modal_balance;
+use serde::{Deserialize, Serialize};
+
+use super::pick_cup::{DoneReason, PickCup, Progress, max_abs_diff};
+use super::sim_arm::SimArm;
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub enum Ending {
+    Done(DoneReason),
+    /// The engine refused an input or produced a non-finite chunk; the message is kept.
+    PolicyError(String),
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct EpisodeResult {
+    pub seed: u64,
+    pub success: bool,
+    /// The grasp reached first (the mode), if any.
+    pub mode: Option<usize>,
+    pub ending: Ending,
+    /// Policy actions executed.
+    pub steps: usize,
+    /// ODE steps of each policy call, in order.
+    pub k_per_call: Vec<usize>,
+    /// The closest the measured joints came to each grasp (max-abs error, rad): tells a near miss from a
+    /// policy that stopped between the grasps (mode averaging).
+    pub closest_to_grasp_rad: Vec<f64>,
+    /// Actions whose setpoints left the profile's position, velocity or gripper limits.
+    pub limit_violations: usize,
+    pub duration_s: f64,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct EvalReport {
+    pub policy: String,
+    pub mode_names: Vec<String>,
+    pub n: usize,
+    pub successes: usize,
+    /// Successful episodes per grasp, in the task's order.
+    pub mode_counts: Vec<usize>,
+    /// γ = k·min nᵢ / Σ nᵢ over the k grasps: 1 when balanced, 0 when a mode is never used.
+    pub gamma: f32,
+    /// Mean ODE steps over all policy calls.
+    pub mean_k: f32,
+    pub limit_violations: usize,
+    pub episodes: Vec<EpisodeResult>,
+}
+
+impl EvalReport {
+    pub fn success_rate(&self) -> f32 {
+        if self.n == 0 { 0.0 } else { self.successes as f32 / self.n as f32 }
+    }
+}
+
+impl std::fmt::Display for EvalReport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let modes: Vec<String> =
+            self.mode_names.iter().zip(&self.mode_counts).map(|(m, c)| format!("{m} {c}")).collect();
+        write!(
+            f,
+            "{}: success {}/{} ({:.1}%), modes {}, γ = {:.2}, mean K {:.2}, limit violations {}",
+            self.policy,
+            self.successes,
+            self.n,
+            100.0 * self.success_rate(),
+            modes.join(" / "),
+            self.gamma,
+            self.mean_k,
+            self.limit_violations
+        )
+    }
+}
+
+/// One closed-loop episode from the start pose of `seed`, with the engine's noise re-seeded by `seed`.
+pub fn run_episode(engine: &mut Engine, task: &PickCup, profile: &Profile, seed: u64) -> EpisodeResult {
+    engine.reseed(seed);
+    let (c, d) = (engine.chunk_len(), engine.action_dim());
+    let start = task.start_pose(seed);
+    let mut arm = SimArm::new(profile, task, seed);
+    arm.move_to_start(&start, task.cfg.gripper_open);
+    let mut monitor = task.monitor();
+    let mut progress = Progress::Running;
+    let mut obs = vec![0.0f32; task.obs_dim()];
+    // The last C executed actions, oldest first; before the first one, "stay at the start".
+    let mut history: Vec<f32> = task.rest_action(&start).repeat(c);
+    let mut chunk = vec![0.0f32; c * d];
+    let mut action = [0.0f64; MAX_JOINTS + 1];
+    let (mut steps, mut k_per_call, mut limit_violations) = (0, Vec::new(), 0);
+    let mut closest = vec![f64::INFINITY; task.n_modes()];
+    let ending = loop {
+        if steps % c == 0 {
+            task.observation(arm.q(), arm.gripper(), &mut obs);
+            match engine.infer_with(&obs, &history, None, None) {
+                Ok(out) => {
+                    chunk.copy_from_slice(out.chunk);
+                    k_per_call.push(out.k_used);
+                }
+                Err(e) => break Ending::PolicyError(e.to_string()),
+            }
+        }
+        let a = &chunk[(steps % c) * d..][..d];
+        for (x, &v) in action.iter_mut().zip(a) {
+            *x = v as f64;
+        }
+        let check = arm.execute(&action[..d], |q, g, t| {
+            progress = monitor.update(q, g, t);
+            for (c, grasp) in closest.iter_mut().zip(&task.cfg.grasps) {
+                *c = c.min(max_abs_diff(q, &grasp.q));
+            }
+            progress != Progress::Running
+        });
+        limit_violations += check.any() as usize;
+        history.copy_within(d.., 0);
+        history[(c - 1) * d..].copy_from_slice(a);
+        steps += 1;
+        if let Progress::Done { reason, .. } = progress {
+            break Ending::Done(reason);
+        }
+    };
+    let (success, mode) = match progress {
+        Progress::Done { success, mode, .. } => (success, mode),
+        Progress::Running => (monitor.grasped().is_some(), monitor.grasped()),
+    };
+    EpisodeResult {
+        seed,
+        success,
+        mode,
+        ending,
+        steps,
+        k_per_call,
+        closest_to_grasp_rad: closest,
+        limit_violations,
+        duration_s: arm.t_s(),
+    }
+}
+
+/// `n` episodes with seeds `seed + i` of the checkpoint in `dir`, aggregated.
+pub fn evaluate(dir: &Path, task: &PickCup, profile: &Profile, n: usize, seed: u64) -> anyhow::Result<EvalReport> {
+    ensure!(n > 0, "evaluate at least 1 episode");
+    let mut engine = Engine::load(dir, EngineConfig::with_seed(seed))?;
+    ensure!(
+        engine.obs_dim() == task.obs_dim() && engine.action_dim() == task.action_dim(),
+        "checkpoint {} has obs_dim {} / action_dim {}, the task needs {} / {}",
+        dir.display(),
+        engine.obs_dim(),
+        engine.action_dim(),
+        task.obs_dim(),
+        task.action_dim()
+    );
+    let episodes: Vec<EpisodeResult> =
+        (0..n as u64).map(|i| run_episode(&mut engine, task, profile, seed.wrapping_add(i))).collect();
+    let mut mode_counts = vec![0; task.n_modes()];
+    for m in episodes.iter().filter(|e| e.success).filter_map(|e| e.mode) {
+        mode_counts[m] += 1;
+    }
+    let calls: Vec<usize> = episodes.iter().flat_map(|e| e.k_per_call.iter().copied()).collect();
+    Ok(EvalReport {
+        policy: engine.kind().name().to_owned(),
+        mode_names: task.cfg.grasps.iter().map(|g| g.name.clone()).collect(),
+        n,
+        successes: episodes.iter().filter(|e| e.success).count(),
+        gamma: modal_balance(&mode_counts),
+        mode_counts,
+        mean_k: if calls.is_empty() { 0.0 } else { calls.iter().sum::<usize>() as f32 / calls.len() as f32 },
+        limit_violations: episodes.iter().map(|e| e.limit_violations).sum(),
+        episodes,
+    })
+}
