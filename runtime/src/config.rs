@@ -34,6 +34,9 @@ pub struct DaemonConfig {
     /// Seed of the policy's noise and of the episodes' start poses.
     #[serde(default)]
     pub seed: u64,
+    /// How long to wait for the first usable state frame before giving up (exit status 4), in seconds.
+    #[serde(default = "default_handshake_timeout_s")]
+    pub handshake_timeout_s: f64,
     pub servo: ServoConfig,
     pub policy: PolicyLoopConfig,
     pub watchdog: WatchdogConfig,
@@ -112,6 +115,9 @@ pub struct FaultConfig {
     pub engine_step_delay_ms: f64,
 }
 
+fn default_handshake_timeout_s() -> f64 {
+    10.0
+}
 fn yes() -> bool {
     true
 }
@@ -146,6 +152,7 @@ impl DaemonConfig {
         if self.robot.is_empty() {
             return bad("robot", "must not be empty".into());
         }
+        positive("handshake_timeout_s", self.handshake_timeout_s)?;
         positive("servo.stale_state_ms", self.servo.stale_state_ms)?;
         positive("servo.settle_tolerance", self.servo.settle_tolerance)?;
         if !(self.servo.position_margin.is_finite() && (0.0..0.5).contains(&self.servo.position_margin)) {

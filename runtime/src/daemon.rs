@@ -85,9 +85,6 @@ pub fn prepare(cfg: DaemonConfig) -> anyhow::Result<Prepared> {
     Ok(Prepared { cfg, profile, task, engine })
 }
 
-/// How long `marsd` waits for the first valid state frame before giving up.
-pub const HANDSHAKE_TIMEOUT: Duration = Duration::from_secs(10);
-
 pub struct Outcome {
     pub exit: u8,
     pub summary: Summary,
@@ -158,7 +155,7 @@ pub fn run(p: Prepared, hook: TickHook) -> anyhow::Result<Outcome> {
         })
         .context("spawning the policy thread")?;
 
-    let no_hal = supervise(&status, &term, &servo);
+    let no_hal = supervise(&status, &term, &servo, Duration::from_secs_f64(cfg.handshake_timeout_s));
     let servo_report = servo
         .join()
         .map_err(|_| anyhow::anyhow!("the servo thread panicked"))?
@@ -185,7 +182,12 @@ pub fn run(p: Prepared, hook: TickHook) -> anyhow::Result<Outcome> {
 
 /// The main thread's loop until the servo thread ends: signals, systemd, trip logging, handshake timeout.
 /// Returns true if no HAL ever answered.
-fn supervise(status: &Status, term: &AtomicBool, servo: &std::thread::JoinHandle<Option<ServoReport>>) -> bool {
+fn supervise(
+    status: &Status,
+    term: &AtomicBool,
+    servo: &std::thread::JoinHandle<Option<ServoReport>>,
+    handshake_timeout: Duration,
+) -> bool {
     let started = Instant::now();
     let watchdog = sd_notify::watchdog_enabled();
     let mut last_ping = Instant::now();
@@ -207,9 +209,9 @@ fn supervise(status: &Status, term: &AtomicBool, servo: &std::thread::JoinHandle
             info!(after_ms = started.elapsed().as_millis() as u64, "HAL handshake done: ready");
             let _ = sd_notify::notify(&[sd_notify::NotifyState::Ready]);
         }
-        if !hal_ready && !no_hal && started.elapsed() > HANDSHAKE_TIMEOUT {
+        if !hal_ready && !no_hal && started.elapsed() > handshake_timeout {
             error!(
-                "no state frame from a HAL within {HANDSHAKE_TIMEOUT:?}: is mars-hal running with the same --robot?"
+                "no usable state frame from a HAL within {handshake_timeout:?}: is mars-hal running with the same --robot and profile?"
             );
             no_hal = true;
             status.stop_requested.store(true, Ordering::Release);

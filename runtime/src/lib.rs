@@ -4,6 +4,7 @@
 //! [`policy_loop`] through a lock-free snapshot; the policy loop's time-stamped chunk comes back through
 //! [`handoff`]; the servo tick smooths it with [`smoothing`] (ruckig) and the command leaves in [`servo`].
 
+pub mod alloc_count;
 pub mod chunk;
 pub mod cli;
 pub mod config;

@@ -73,6 +73,9 @@ pub struct Summary {
     pub limit_violations: LimitViolations,
     pub frames: FrameCounts,
     pub commands_sent: u64,
+    /// Heap allocations on the servo thread after warm-up, over `servo_ticks_counted` ticks (None: not measured).
+    pub servo_allocations: Option<crate::alloc_count::Counts>,
+    pub servo_ticks_counted: u64,
     pub latency: Totals,
     pub episode_results: Vec<EpisodeResult>,
 }
@@ -126,6 +129,8 @@ impl Summary {
             },
             frames: s.frames,
             commands_sent: s.counters.commands_sent,
+            servo_allocations: s.allocations_after_warmup,
+            servo_ticks_counted: s.ticks_counted,
             latency,
             episode_results: p.episodes.clone(),
         }
@@ -199,6 +204,14 @@ impl std::fmt::Display for Summary {
             l.hal_clamped,
             l.resyncs
         )?;
+        match self.servo_allocations {
+            Some(n) => writeln!(
+                f,
+                "  servo thread after warm-up ({} ticks): {} system-allocator calls; {} small blocks from the preallocated RT pool (iceoryx2's per-sample bookkeeping)",
+                self.servo_ticks_counted, n.system, n.pooled
+            )?,
+            None => writeln!(f, "  servo thread heap allocations: not measured (counting allocator not installed)")?,
+        }
         let fr = &self.frames;
         writeln!(
             f,

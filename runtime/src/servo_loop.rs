@@ -70,7 +70,15 @@ pub struct ServoReport {
     pub hal_rejected: u64,
     pub hal_clamped: u64,
     pub first_violation: Option<crate::limits::Violation>,
+    /// Heap allocations on the servo thread from tick [`ALLOC_WARMUP_TICKS`] to the end (`None`: the process
+    /// does not run the counting allocator). See [`crate::alloc_count`].
+    pub allocations_after_warmup: Option<crate::alloc_count::Counts>,
+    pub ticks_counted: u64,
 }
+
+/// Ticks after which the servo thread's allocations are counted: iceoryx2 and the first chunk handoff have
+/// settled by then; every episode transition (reset, ready, running, stop) comes later.
+pub const ALLOC_WARMUP_TICKS: u64 = 500;
 
 /// Where in the HAL's period the servo ticks: this long after the HAL stamped its frame. The frame is then
 /// published (the HAL's work is ~10 µs), and the command has the rest of the period to reach the HAL before its
@@ -111,6 +119,8 @@ pub fn run_servo(
     let interval_ns = interval.as_nanos() as u64;
     let mut next_interval = monotonic_ns() + interval_ns;
     let (mut schema_refusals, mut send_errors) = (0u64, 0u64);
+    let mut allocs_at_warmup: Option<crate::alloc_count::Counts> = None;
+    crate::alloc_count::arm_rt_pool();
     loop {
         let wake = ticker.wait();
         let t0 = monotonic_ns();
@@ -173,12 +183,20 @@ pub fn run_servo(
             rec.end_interval(done);
             next_interval += interval_ns;
         }
+        if tick.counters.ticks == ALLOC_WARMUP_TICKS {
+            allocs_at_warmup = crate::alloc_count::thread_counts();
+        }
         hook(tick.counters.ticks);
         if tick.phase() == Phase::Finished {
             break;
         }
     }
+    let allocations_after_warmup = allocs_at_warmup.zip(crate::alloc_count::thread_counts()).map(|(start, end)| {
+        crate::alloc_count::Counts { system: end.system - start.system, pooled: end.pooled - start.pooled }
+    });
     ServoReport {
+        allocations_after_warmup,
+        ticks_counted: tick.counters.ticks.saturating_sub(ALLOC_WARMUP_TICKS),
         cause: tick.stop_cause(),
         counters: tick.counters,
         frames: tick.frames().counts,

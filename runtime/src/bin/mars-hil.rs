@@ -4,6 +4,10 @@
 use std::path::PathBuf;
 
 use clap::{Parser, Subcommand};
+
+// Counts heap allocations per thread, so every run reports that the servo tick made none.
+#[global_allocator]
+static ALLOC: mars_runtime::alloc_count::CountingAlloc = mars_runtime::alloc_count::CountingAlloc;
 use mars_runtime::task::cli;
 
 #[derive(Parser)]

@@ -2,6 +2,10 @@
 //! pinned servo loop with jerk-limited smoothing, a deadline-capped policy loop, a watchdog.
 
 use clap::Parser;
+
+// Counts heap allocations per thread, so every run reports that the servo tick made none.
+#[global_allocator]
+static ALLOC: mars_runtime::alloc_count::CountingAlloc = mars_runtime::alloc_count::CountingAlloc;
 use mars_runtime::cli::{MarsdArgs, init_logging, marsd};
 
 #[derive(Parser)]
