@@ -72,3 +72,19 @@ fn capped_calls_take_about_the_budget() {
     assert!(median <= budget * 2, "median {median:?} vs budget {budget:?}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// Injected slowness (HIL fault injection) is measured like real compute: the estimate grows by the delay per
+/// step, and a budget of 40 ms then fits only a few of FM's 10 steps.
+#[test]
+fn an_injected_step_delay_is_measured_and_caps_k() {
+    let dir = trained_checkpoint(PolicyKind::Fm, "budget-injected", |_| {});
+    let delay = Duration::from_millis(10);
+    let cfg = EngineConfig { injected_step_delay: delay, ..EngineConfig::default() };
+    let mut engine = Engine::load(&dir, cfg).unwrap();
+    let est = engine.cost_estimate();
+    assert!(est.per_step >= delay, "the warm-up measured the delay: {est:?}");
+    let (obs, hist) = inputs(&mut StdRng::seed_from_u64(5), engine.obs_dim(), engine.chunk_len() * 2);
+    let out = engine.infer(&obs, &hist, Duration::from_millis(40)).unwrap();
+    assert!(out.capped && (1..=3).contains(&out.k_used), "k_used {}", out.k_used);
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -72,8 +72,9 @@ pub fn marsd(args: MarsdArgs) -> ExitCode {
 pub struct DemoArgs {
     #[command(flatten)]
     pub marsd: MarsdArgs,
-    /// CPU core of the HAL's loop.
-    #[arg(long, default_value_t = 0)]
+    /// CPU core of the HAL's loop. The servo loop's core by default: its ticks are short and phase-shifted
+    /// from the HAL's, while the policy thread (which may spin for tens of ms at SCHED_FIFO) gets the other.
+    #[arg(long, default_value_t = 1)]
     pub hal_core: usize,
 }
 

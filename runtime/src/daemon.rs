@@ -191,7 +191,7 @@ fn supervise(
     let started = Instant::now();
     let watchdog = sd_notify::watchdog_enabled();
     let mut last_ping = Instant::now();
-    let mut last_ticks = 0;
+    let (mut last_ticks, mut last_beats) = (0, 0);
     let (mut ready_sent, mut trip_logged, mut stop_logged, mut no_hal) = (false, false, false, false);
     while !servo.is_finished() {
         std::thread::sleep(Duration::from_millis(2));
@@ -227,10 +227,12 @@ fn supervise(
             && last_ping.elapsed() >= w / 2
         {
             let ticks = status.ticks.load(Ordering::Acquire);
-            if ticks > last_ticks && status.trip().is_none() {
+            let beats = status.policy_beats.load(Ordering::Acquire);
+            if ticks > last_ticks && beats > last_beats && status.trip().is_none() {
                 let _ = sd_notify::notify(&[sd_notify::NotifyState::Watchdog]);
             }
             last_ticks = ticks;
+            last_beats = beats;
             last_ping = Instant::now();
         }
     }

@@ -132,6 +132,7 @@ impl PolicyLoop {
         let mut seq = 0u64;
         for k in 0u64.. {
             let wake = ticker.wait();
+            self.ch.status.policy_beats.fetch_add(1, Ordering::Relaxed);
             if self.must_stop() {
                 return None;
             }
@@ -236,6 +237,7 @@ impl PolicyLoop {
     /// Polls until `ready` holds; false if the loop must stop first.
     fn wait_for(&self, ready: impl Fn(&Status) -> bool) -> bool {
         loop {
+            self.ch.status.policy_beats.fetch_add(1, Ordering::Relaxed);
             if ready(&self.ch.status) {
                 return true;
             }

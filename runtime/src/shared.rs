@@ -75,6 +75,9 @@ pub struct Status {
     /// The episode the phase refers to.
     pub episode: AtomicU64,
     pub ticks: AtomicU64,
+    /// Bumped by the policy thread on every pass of its loops (also while it waits), so the daemon can tell
+    /// a live policy thread from a stuck one.
+    pub policy_beats: AtomicU64,
     /// [`Trip::code`] of the trip that stopped the loop; 0 = none.
     trip: AtomicU32,
     /// Set by the daemon on SIGTERM/SIGINT; the servo loop then stops safely.
