@@ -229,6 +229,7 @@ impl SafetyFilter {
         if let Some(t) = target
             && self.reachable_in_one_tick(t)
         {
+            #[allow(clippy::needless_range_loop)] // q, v, a and t indexed by joint
             for i in 0..self.n {
                 let v_new = (t[i] - self.q[i]) / dt;
                 self.a[i] = (v_new - self.v[i]) / dt;

@@ -138,8 +138,8 @@ impl Schedule {
             let span = (due - self.anchor_ns).max(1) as f64;
             let s = (t_ns.saturating_sub(self.anchor_ns) as f64 / span).clamp(0.0, 1.0);
             let target = &self.chunk.actions[self.next];
-            for i in 0..w {
-                let delta = target[i] - self.anchor[i];
+            for (i, &goal) in target[..w].iter().enumerate() {
+                let delta = goal - self.anchor[i];
                 r.position[i] = self.anchor[i] + s * delta;
                 r.velocity[i] = delta / (span * 1e-9);
             }

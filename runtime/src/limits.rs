@@ -47,8 +47,8 @@ impl LimitCheck {
         c.q_min[..n].copy_from_slice(&p.q_min);
         c.q_max[..n].copy_from_slice(&p.q_max);
         for (k, lim) in [&p.dq_max, &p.ddq_max, &p.jerk_max].into_iter().enumerate() {
-            for j in 0..n {
-                c.bounds[k][j] = lim[j] * (1.0 + ROUNDING);
+            for (bound, &l) in c.bounds[k][..n].iter_mut().zip(lim) {
+                *bound = l * (1.0 + ROUNDING);
             }
         }
         c

@@ -147,7 +147,8 @@ impl Summary {
         std::fs::write(&table, self.latency.to_string()).with_context(|| format!("writing {}", table.display()))?;
         written.push(table);
         written.push(self.latency.log.clone());
-        let plots: [(&str, Box<dyn Fn(&Path) -> anyhow::Result<()>>); 3] = [
+        type Draw<'a> = Box<dyn Fn(&Path) -> anyhow::Result<()> + 'a>;
+        let plots: [(&str, Draw); 3] = [
             ("latency.png", Box::new(|path| crate::plots::plot_latency(&self.latency, path))),
             ("k.png", Box::new(|path| crate::plots::plot_k(&self.latency, path))),
             // Joints 0 and 6 are where the two grasps differ most.
