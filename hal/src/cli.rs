@@ -23,6 +23,9 @@ pub struct HalArgs {
     /// Pin the loop to this CPU core.
     #[arg(long)]
     pub core: Option<usize>,
+    /// Run the loop at this SCHED_FIFO priority (1–99) when the process may.
+    #[arg(long, value_parser = clap::value_parser!(i32).range(1..=99))]
+    pub rt_priority: Option<i32>,
     #[command(flatten)]
     pub faults: FaultArgs,
 }
@@ -94,6 +97,7 @@ pub fn run_hal(args: HalArgs) -> anyhow::Result<Report> {
         robot: args.robot.unwrap_or_else(|| profile.name.clone()),
         duration: args.duration_s.map(Duration::from_secs_f64),
         core: args.core,
+        rt_priority: args.rt_priority,
     };
     let mut backend = SimBackend::new(&profile);
     run(&profile, &mut backend, &opts)

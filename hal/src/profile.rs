@@ -74,10 +74,11 @@ pub struct Profile {
 
 #[derive(Debug, thiserror::Error)]
 pub enum ProfileError {
-    #[error("reading profile {path}: {source}")]
-    Read { path: String, source: std::io::Error },
-    #[error("parsing profile {path}: {source}")]
-    Parse { path: String, source: Box<toml::de::Error> },
+    // The cause is in the message and deliberately not a `source`, so `{:#}` does not print it twice.
+    #[error("reading profile {path}: {error}")]
+    Read { path: String, error: std::io::Error },
+    #[error("parsing profile {path}: {error}")]
+    Parse { path: String, error: Box<toml::de::Error> },
     #[error("profile {name:?}: {msg}")]
     Invalid { name: String, msg: String },
 }
@@ -85,14 +86,14 @@ pub enum ProfileError {
 impl Profile {
     pub fn load(path: &Path) -> Result<Self, ProfileError> {
         let text = std::fs::read_to_string(path)
-            .map_err(|source| ProfileError::Read { path: path.display().to_string(), source })?;
+            .map_err(|error| ProfileError::Read { path: path.display().to_string(), error })?;
         Self::parse(&text, &path.display().to_string())
     }
 
     /// Parse and validate; `origin` names the source in errors.
     pub fn parse(text: &str, origin: &str) -> Result<Self, ProfileError> {
         let p: Profile =
-            toml::from_str(text).map_err(|e| ProfileError::Parse { path: origin.to_owned(), source: Box::new(e) })?;
+            toml::from_str(text).map_err(|e| ProfileError::Parse { path: origin.to_owned(), error: Box::new(e) })?;
         p.validate()?;
         Ok(p)
     }

@@ -24,6 +24,9 @@ pub struct RunOptions {
     pub duration: Option<Duration>,
     /// Pin the loop thread to this core.
     pub core: Option<usize>,
+    /// Run the loop thread at this SCHED_FIFO priority (a robot's own control loop is real-time); a refusal
+    /// is logged as a warning and the loop runs at normal priority.
+    pub rt_priority: Option<i32>,
 }
 
 /// Loop timing and safety counters, printed at exit.
@@ -77,6 +80,17 @@ pub fn run(profile: &Profile, backend: &mut dyn Backend, opts: &RunOptions) -> a
     if let Some(core) = opts.core {
         let ok = core_affinity::set_for_current(core_affinity::CoreId { id: core });
         anyhow::ensure!(ok, "could not pin the HAL loop to core {core}");
+    }
+    if let Some(p) = opts.rt_priority {
+        let param = libc::sched_param { sched_priority: p };
+        // SAFETY: plain syscall on the calling thread with a valid parameter struct.
+        if unsafe { libc::pthread_setschedparam(libc::pthread_self(), libc::SCHED_FIFO, &param) } != 0 {
+            warn!(
+                priority = p,
+                "SCHED_FIFO refused: the HAL loop runs at normal priority (allow it with LimitRTPRIO in the unit, \
+                 or CAP_SYS_NICE)"
+            );
+        }
     }
     let ns = RobotNamespace::new(&opts.robot)?;
     let (node, cleaned) = create_node(&format!("mars-hal-{}", opts.robot))?;

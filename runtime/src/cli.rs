@@ -98,7 +98,15 @@ pub fn demo(args: DemoArgs) -> anyhow::Result<u8> {
     // A namespace of its own, so a demo never meets another run's HAL or controller.
     let robot = args.marsd.robot.clone().unwrap_or_else(|| format!("{}-demo-{}", cfg.robot, std::process::id()));
     let mut hal = Command::new(&exe);
-    hal.args(["hal", "--profile"]).arg(&cfg.profile).args(["--robot", &robot, "--core", &args.hal_core.to_string()]);
+    // The HAL is a robot's own control loop: real-time, above the servo loop it shares a core with.
+    hal.args(["hal", "--profile"]).arg(&cfg.profile).args([
+        "--robot",
+        &robot,
+        "--core",
+        &args.hal_core.to_string(),
+        "--rt-priority",
+        "85",
+    ]);
     let mut hal = Reaped(hal.spawn().context("starting the HAL process")?);
     let mut marsd = Command::new(&exe);
     marsd.arg("marsd").arg("--config").arg(&args.marsd.config).args(["--robot", &robot]);

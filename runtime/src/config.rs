@@ -7,10 +7,11 @@ use serde::Deserialize;
 
 #[derive(Debug, thiserror::Error)]
 pub enum ConfigError {
-    #[error("cannot read config {path}: {source}")]
-    Read { path: String, source: std::io::Error },
-    #[error("config {path}: {source}")]
-    Parse { path: String, source: Box<toml::de::Error> },
+    // The cause is in the message and deliberately not a `source`, so `{:#}` does not print it twice.
+    #[error("cannot read config {path}: {error}")]
+    Read { path: String, error: std::io::Error },
+    #[error("config {path}: {error}")]
+    Parse { path: String, error: Box<toml::de::Error> },
     #[error("config {path}: {key}: {msg}")]
     Invalid { path: String, key: &'static str, msg: String },
 }
@@ -131,7 +132,7 @@ fn default_policy_priority() -> i32 {
 impl DaemonConfig {
     pub fn load(path: &Path) -> Result<Self, ConfigError> {
         let text = std::fs::read_to_string(path)
-            .map_err(|source| ConfigError::Read { path: path.display().to_string(), source })?;
+            .map_err(|error| ConfigError::Read { path: path.display().to_string(), error })?;
         Self::parse(&text, &path.display().to_string())
     }
 
@@ -139,7 +140,7 @@ impl DaemonConfig {
     /// directory, like every path on the command line).
     pub fn parse(text: &str, origin: &str) -> Result<Self, ConfigError> {
         let cfg: Self =
-            toml::from_str(text).map_err(|e| ConfigError::Parse { path: origin.to_owned(), source: Box::new(e) })?;
+            toml::from_str(text).map_err(|e| ConfigError::Parse { path: origin.to_owned(), error: Box::new(e) })?;
         cfg.validate(origin)?;
         Ok(cfg)
     }

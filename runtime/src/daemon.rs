@@ -135,8 +135,8 @@ pub fn run(p: Prepared, hook: TickHook) -> anyhow::Result<Outcome> {
         })
         .context("spawning the servo thread")?;
     opened_rx.recv().context("the servo thread died while opening the wire")??;
-    // Signals only set flags (registered after the wire is open: iceoryx2 installs its own handlers when a
-    // node is created, and signal-hook chains to a handler that was there before it); the main thread turns them into a safe stop. A second SIGINT/SIGTERM while
+    // Signals only set flags (registered after the wire is open: `ServoWire::open` makes iceoryx2 install its
+    // own handlers, which replace whatever is there, and signal-hook chains to a handler installed before it); the main thread turns them into a safe stop. A second SIGINT/SIGTERM while
     // stopping exits at once (status 1); the HAL then brakes on command loss.
     let term = Arc::new(AtomicBool::new(false));
     for sig in [signal_hook::consts::SIGTERM, signal_hook::consts::SIGINT] {
@@ -192,7 +192,8 @@ fn supervise(
     let watchdog = sd_notify::watchdog_enabled();
     let mut last_ping = Instant::now();
     let (mut last_ticks, mut last_beats) = (0, 0);
-    let (mut ready_sent, mut trip_logged, mut stop_logged, mut no_hal) = (false, false, false, false);
+    let (mut ready_sent, mut stop_logged, mut no_hal) = (false, false, false);
+    let mut logged_trip = None;
     while !servo.is_finished() {
         std::thread::sleep(Duration::from_millis(2));
         if term.load(Ordering::Acquire) && !status.stop_requested.load(Ordering::Acquire) {
@@ -217,9 +218,9 @@ fn supervise(
             status.stop_requested.store(true, Ordering::Release);
         }
         if let Some(trip) = status.trip()
-            && !trip_logged
+            && logged_trip != Some(trip)
         {
-            trip_logged = true;
+            logged_trip = Some(trip);
             error!(reason = %trip, "watchdog trip: stopping the arm with a jerk-limited brake and holding");
         }
         // systemd's watchdog is fed only while the servo loop makes progress and nothing tripped.

@@ -162,8 +162,11 @@ impl ServoTick {
     }
 
     fn stop_with(&mut self, cause: StopCause) {
-        // The first cause is the one reported.
-        if self.stop.is_none() {
+        // The first cause is the one reported — except that a dead HAL explains the stale state it caused
+        // (the liveness watch needs 10–20 ms, as long as the state-gap limit).
+        if self.stop.is_none()
+            || (self.stop == Some(StopCause::Trip(Trip::StaleState)) && cause == StopCause::Trip(Trip::HalDied))
+        {
             self.stop = Some(cause);
         }
         self.phase = match self.phase {
@@ -233,6 +236,9 @@ impl ServoTick {
         }
         match input.request {
             Some(Request::Trip(t)) => self.stop_with(StopCause::Trip(t)),
+            // After a SIGTERM/SIGINT the policy thread ends its loop and asks to finish; its request can arrive in
+            // the very tick that first sees the signal, and is handled first: the signal is still the cause.
+            Some(Request::Finish) if input.stop_requested => self.stop_with(StopCause::Signal),
             Some(Request::Finish) => self.stop_with(StopCause::Finished),
             Some(Request::MoveTo { episode, pose, gripper }) if self.stop.is_none() => {
                 self.episode = episode;

@@ -38,6 +38,11 @@ impl ServoWire {
         if cleaned > 0 {
             tracing::info!("cleaned up {cleaned} dead iceoryx2 node(s)");
         }
+        // iceoryx2 installs its SIGINT/SIGTERM handlers lazily, at the first termination check of any node or
+        // WaitSet in the process, and replaces (does not chain to) the handler in place. Trigger that here,
+        // before `daemon::run` registers its handlers (which chain to iceoryx2's): left to the liveness watch
+        // thread's first WaitSet call, it could come after them and silently disable SIGTERM/SIGINT.
+        let _ = node.wait(Duration::ZERO);
         Ok(Self {
             states: StateReader::new(&node, &ns)?,
             commands: CommandWriter::new(&node, &ns)?,

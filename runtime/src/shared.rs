@@ -99,8 +99,11 @@ impl Status {
         Trip::from_code(self.trip.load(Ordering::Acquire))
     }
 
-    /// Records the first trip only: the first fault is the cause, later ones are consequences.
+    /// Records the first trip only: the first fault is the cause, later ones are consequences — except a dead
+    /// HAL, which replaces the stale state it caused.
     pub fn set_trip(&self, t: Trip) {
-        let _ = self.trip.compare_exchange(0, t.code(), Ordering::AcqRel, Ordering::Acquire);
+        if self.trip.compare_exchange(0, t.code(), Ordering::AcqRel, Ordering::Acquire).is_err() && t == Trip::HalDied {
+            let _ = self.trip.compare_exchange(Trip::StaleState.code(), t.code(), Ordering::AcqRel, Ordering::Acquire);
+        }
     }
 }

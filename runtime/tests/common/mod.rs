@@ -1,0 +1,660 @@
+//! Shared rig of the multi-process HIL tests: the mock HAL (`mars-hil hal`) and `marsd` as real child processes,
+//! killed when dropped; a recorder thread in the test process that reads the robot's state and command services;
+//! and a limit checker of its own (independent of `mars_runtime::limits` and of the HAL's safety filter).
+//!
+//! Every test uses its own robot id (pid + test name), so the tests run in parallel without meeting each other's
+//! iceoryx2 services.
+
+#![allow(dead_code)] // each test binary uses a different part of this module
+
+use std::fs::File;
+use std::os::unix::process::CommandExt;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, ExitStatus, Stdio};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use mars_ipc::node::create_node;
+use mars_ipc::{CommandReader, JointCommand, RobotNamespace, RobotState, StateReader, status};
+
+/// The workspace root: the configs name their files relative to it, so every child runs there.
+pub fn root() -> PathBuf {
+    Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/..")).canonicalize().expect("workspace root")
+}
+
+/// A robot id no other test (or test run) uses: `t<pid>-<name>` (a valid iceoryx2 service-name part).
+pub fn robot(name: &str) -> String {
+    let id = format!("t{}-{name}", std::process::id());
+    RobotNamespace::new(&id).unwrap_or_else(|e| panic!("bad robot id {id:?}: {e}"));
+    id
+}
+
+pub fn monotonic_ns() -> u64 {
+    mars_ipc::clock::monotonic_ns()
+}
+
+/// A scratch directory, removed when dropped unless the test failed (then its path is printed).
+pub struct TempDir(pub PathBuf);
+
+impl TempDir {
+    pub fn new(name: &str) -> Self {
+        let dir = std::env::temp_dir().join(format!("mars-hil-test-{}-{name}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        Self(dir)
+    }
+
+    pub fn path(&self) -> &Path {
+        &self.0
+    }
+
+    pub fn join(&self, p: &str) -> PathBuf {
+        self.0.join(p)
+    }
+}
+
+impl Drop for TempDir {
+    fn drop(&mut self) {
+        if std::thread::panicking() {
+            eprintln!("kept {} for inspection", self.0.display());
+        } else {
+            let _ = std::fs::remove_dir_all(&self.0);
+        }
+    }
+}
+
+/// The shipped daemon config with `key = value` lines replaced (`edits`: (key, new value as TOML)); `extra` is
+/// inserted before the first section. Each edited key must occur exactly once in the file.
+pub fn config_text(edits: &[(&str, &str)], extra: &str) -> String {
+    let text = std::fs::read_to_string(root().join("configs/marsd.toml")).unwrap();
+    let mut lines: Vec<String> = text.lines().map(str::to_owned).collect();
+    for (key, value) in edits {
+        let hits: Vec<usize> = (0..lines.len())
+            .filter(|&i| {
+                let l = lines[i].trim_start();
+                l.strip_prefix(key).is_some_and(|rest| rest.trim_start().starts_with('='))
+            })
+            .collect();
+        assert_eq!(hits.len(), 1, "key {key} must occur once in configs/marsd.toml");
+        lines[hits[0]] = format!("{key} = {value}");
+    }
+    if !extra.is_empty() {
+        let first_section = lines.iter().position(|l| l.starts_with('[')).unwrap();
+        lines.insert(first_section, extra.to_owned());
+    }
+    lines.join("\n") + "\n"
+}
+
+/// Writes [`config_text`] into `dir` and returns its path.
+pub fn write_config(dir: &TempDir, name: &str, edits: &[(&str, &str)], extra: &str) -> PathBuf {
+    let path = dir.join(name);
+    std::fs::write(&path, config_text(edits, extra)).unwrap();
+    path
+}
+
+/// Scheduling of a child. The test runs niced (a shared 2-core CI machine); the processes under test are
+/// real-time processes, so their niceness goes back to 0 (possible as root, ignored otherwise), and the HAL — a
+/// robot's own controller, which is real-time on every real robot — gets SCHED_FIFO 50 when allowed (below
+/// marsd's servo 80 and policy 70, and not pinned, so it never shares a core with a busy higher-priority
+/// thread). Without this a niced, normal-priority HAL on a loaded machine can miss 20 ms of frames, and marsd
+/// then (rightly) trips on stale state: a test of the machine, not of marsd.
+fn realtime_child(cmd: &mut Command, fifo: Option<i32>) {
+    // SAFETY: only async-signal-safe calls (setpriority, sched_setscheduler) between fork and exec.
+    unsafe {
+        cmd.pre_exec(move || {
+            libc::setpriority(libc::PRIO_PROCESS, 0, 0);
+            if let Some(p) = fifo {
+                let param = libc::sched_param { sched_priority: p };
+                libc::sched_setscheduler(0, libc::SCHED_FIFO, &param);
+            }
+            Ok(())
+        });
+    }
+}
+
+/// A child process, SIGKILLed when dropped; its stdout and stderr go to files (printed if the test fails).
+pub struct Proc {
+    pub child: Child,
+    pub name: String,
+    pub stdout: PathBuf,
+    pub stderr: PathBuf,
+    pub status: Option<ExitStatus>,
+}
+
+impl Proc {
+    fn spawn(mut cmd: Command, name: &str, logs: &Path) -> Self {
+        let stdout = logs.join(format!("{name}.stdout"));
+        let stderr = logs.join(format!("{name}.stderr"));
+        cmd.current_dir(root())
+            .env("RUST_LOG", "info")
+            .env_remove("IOX2_LOG_LEVEL")
+            .stdin(Stdio::null())
+            .stdout(File::create(&stdout).unwrap())
+            .stderr(File::create(&stderr).unwrap());
+        let child = cmd.spawn().unwrap_or_else(|e| panic!("starting {name}: {e}"));
+        Self { child, name: name.to_owned(), stdout, stderr, status: None }
+    }
+
+    pub fn pid(&self) -> libc::pid_t {
+        self.child.id() as libc::pid_t
+    }
+
+    pub fn signal(&self, sig: libc::c_int) {
+        assert!(self.status.is_none(), "{} already exited", self.name);
+        // SAFETY: kill(2) on our own, not yet reaped child.
+        let rc = unsafe { libc::kill(self.pid(), sig) };
+        assert_eq!(rc, 0, "kill({}, {sig})", self.name);
+    }
+
+    /// The exit status, or `None` if it is still running after `timeout` (polled every 0.5 ms).
+    pub fn wait_timeout(&mut self, timeout: Duration) -> Option<ExitStatus> {
+        let end = Instant::now() + timeout;
+        loop {
+            if let Some(s) = self.status {
+                return Some(s);
+            }
+            if let Some(s) = self.child.try_wait().unwrap() {
+                self.status = Some(s);
+                return Some(s);
+            }
+            if Instant::now() >= end {
+                return None;
+            }
+            std::thread::sleep(Duration::from_micros(500));
+        }
+    }
+
+    /// The exit code; panics (with the logs) if it did not exit within `timeout` or died of a signal.
+    pub fn exit_code(&mut self, timeout: Duration) -> i32 {
+        match self.wait_timeout(timeout) {
+            Some(s) => s.code().unwrap_or_else(|| panic!("{} died of a signal: {s:?}\n{}", self.name, self.logs())),
+            None => panic!("{} still running after {timeout:?}\n{}", self.name, self.logs()),
+        }
+    }
+
+    pub fn running(&mut self) -> bool {
+        self.wait_timeout(Duration::ZERO).is_none()
+    }
+
+    pub fn stderr_text(&self) -> String {
+        std::fs::read_to_string(&self.stderr).unwrap_or_default()
+    }
+
+    pub fn stdout_text(&self) -> String {
+        std::fs::read_to_string(&self.stdout).unwrap_or_default()
+    }
+
+    pub fn logs(&self) -> String {
+        let tail = |s: String| {
+            let lines: Vec<&str> = s.lines().collect();
+            lines[lines.len().saturating_sub(40)..].join("\n")
+        };
+        format!(
+            "--- {} stderr ---\n{}\n--- {} stdout ---\n{}",
+            self.name,
+            tail(self.stderr_text()),
+            self.name,
+            tail(self.stdout_text())
+        )
+    }
+}
+
+impl Drop for Proc {
+    fn drop(&mut self) {
+        if self.status.is_none() && matches!(self.child.try_wait(), Ok(None)) {
+            let _ = self.child.kill();
+        }
+        let _ = self.child.wait();
+        if std::thread::panicking() {
+            eprintln!("{}", self.logs());
+        }
+    }
+}
+
+/// `mars-hil hal --profile configs/fr3.toml --robot <robot> [extra]` (the `mars-hal` process).
+pub fn spawn_hal(robot: &str, extra: &[&str], logs: &TempDir) -> Proc {
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_mars-hil"));
+    cmd.args(["hal", "--profile", "configs/fr3.toml", "--robot", robot]).args(extra);
+    realtime_child(&mut cmd, Some(50));
+    Proc::spawn(cmd, "mars-hal", logs.path())
+}
+
+/// `marsd --config <config> --robot <robot> --episodes <n> --out <logs>/out [extra]`.
+pub fn spawn_marsd(robot: &str, config: &Path, episodes: usize, extra: &[&str], logs: &TempDir) -> Proc {
+    spawn_marsd_named("marsd", robot, config, episodes, extra, logs)
+}
+
+pub fn spawn_marsd_named(
+    name: &str,
+    robot: &str,
+    config: &Path,
+    episodes: usize,
+    extra: &[&str],
+    logs: &TempDir,
+) -> Proc {
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_marsd"));
+    cmd.arg("--config")
+        .arg(config)
+        .args(["--robot", robot, "--episodes", &episodes.to_string()])
+        .arg("--out")
+        .arg(logs.join(&format!("{name}-out")))
+        .args(extra);
+    realtime_child(&mut cmd, None);
+    Proc::spawn(cmd, name, logs.path())
+}
+
+pub fn shipped_config() -> PathBuf {
+    root().join("configs/marsd.toml")
+}
+
+/// `summary.json` of a marsd run spawned by [`spawn_marsd_named`].
+pub fn summary(logs: &TempDir, name: &str) -> serde_json::Value {
+    let path = logs.join(&format!("{name}-out/summary.json"));
+    let text = std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("reading {}: {e}", path.display()));
+    serde_json::from_str(&text).unwrap()
+}
+
+pub fn u64_at(v: &serde_json::Value, pointer: &str) -> u64 {
+    v.pointer(pointer).and_then(serde_json::Value::as_u64).unwrap_or_else(|| panic!("{pointer} in {v:#}"))
+}
+
+pub fn f64_at(v: &serde_json::Value, pointer: &str) -> f64 {
+    v.pointer(pointer).and_then(serde_json::Value::as_f64).unwrap_or_else(|| panic!("{pointer} in {v:#}"))
+}
+
+/// A percentile of a latency channel of the summary (µs for time channels), e.g. ("wake_jitter", "p99").
+pub fn latency(v: &serde_json::Value, channel: &str, field: &str) -> f64 {
+    let channels = v.pointer("/latency/channels").and_then(|c| c.as_array()).expect("latency channels");
+    let c = channels.iter().find(|c| c["channel"] == channel).unwrap_or_else(|| panic!("no channel {channel}"));
+    c[field].as_f64().unwrap_or_else(|| panic!("{channel}.{field}"))
+}
+
+/// Everything the test process read from the robot's services, with its receive time (CLOCK_MONOTONIC ns).
+#[derive(Default)]
+pub struct Recorded {
+    pub states: Vec<(RobotState, u64)>,
+    pub commands: Vec<(JointCommand, u64)>,
+    pub errors: u64,
+}
+
+/// A thread of the test process that subscribes to the robot's state and command services and records every
+/// frame (iceoryx2 ports belong to the thread that opened them, so the thread opens its own).
+pub struct Recorder {
+    stop: Arc<AtomicBool>,
+    pub data: Arc<Mutex<Recorded>>,
+    handle: Option<JoinHandle<()>>,
+}
+
+impl Recorder {
+    pub fn start(robot: &str) -> Self {
+        let stop = Arc::new(AtomicBool::new(false));
+        let data = Arc::new(Mutex::new(Recorded::default()));
+        let (ready_tx, ready_rx) = std::sync::mpsc::channel();
+        let (robot, stop2, data2) = (robot.to_owned(), stop.clone(), data.clone());
+        let handle = std::thread::Builder::new()
+            .name(format!("rec-{robot}"))
+            .spawn(move || {
+                // Back to niceness 0 for this thread (the test runs niced): it must keep up with 1 kHz frames
+                // (iceoryx2 keeps 16 per subscriber).
+                // SAFETY: setpriority on this thread's own tid.
+                unsafe { libc::setpriority(libc::PRIO_PROCESS, libc::gettid() as libc::id_t, 0) };
+                let ns = RobotNamespace::new(&robot).unwrap();
+                let (node, _) = create_node(&format!("test-rec-{robot}")).unwrap();
+                let states = StateReader::new(&node, &ns).unwrap();
+                let commands = CommandReader::new(&node, &ns).unwrap();
+                ready_tx.send(()).unwrap();
+                let mut s_buf = Vec::with_capacity(64);
+                let mut c_buf = Vec::with_capacity(64);
+                let mut errors = 0;
+                while !stop2.load(Ordering::Acquire) {
+                    loop {
+                        match states.receive() {
+                            Ok(Some(s)) => s_buf.push((s, monotonic_ns())),
+                            Ok(None) => break,
+                            Err(_) => errors += 1,
+                        }
+                    }
+                    loop {
+                        match commands.receive() {
+                            Ok(Some(c)) => c_buf.push((c, monotonic_ns())),
+                            Ok(None) => break,
+                            Err(_) => errors += 1,
+                        }
+                    }
+                    if !s_buf.is_empty() || !c_buf.is_empty() || errors > 0 {
+                        let mut d = data2.lock().unwrap();
+                        d.states.append(&mut s_buf);
+                        d.commands.append(&mut c_buf);
+                        d.errors += errors;
+                        errors = 0;
+                    }
+                    std::thread::sleep(Duration::from_micros(200));
+                }
+            })
+            .unwrap();
+        ready_rx.recv_timeout(Duration::from_secs(30)).expect("the recorder did not open its ports");
+        Self { stop, data, handle: Some(handle) }
+    }
+
+    pub fn states_len(&self) -> usize {
+        self.data.lock().unwrap().states.len()
+    }
+
+    pub fn commands_len(&self) -> usize {
+        self.data.lock().unwrap().commands.len()
+    }
+
+    /// The first state frame at index ≥ `from` for which `pred` holds, with its index; `None` after `timeout`.
+    pub fn wait_state(
+        &self,
+        from: usize,
+        timeout: Duration,
+        pred: impl FnMut(&RobotState) -> bool,
+    ) -> Option<(usize, RobotState)> {
+        self.wait_state_while(from, timeout, || true, pred)
+    }
+
+    /// [`Self::wait_state`] that also gives up as soon as `go_on` returns false (polled every millisecond).
+    pub fn wait_state_while(
+        &self,
+        from: usize,
+        timeout: Duration,
+        mut go_on: impl FnMut() -> bool,
+        mut pred: impl FnMut(&RobotState) -> bool,
+    ) -> Option<(usize, RobotState)> {
+        let end = Instant::now() + timeout;
+        let mut i = from;
+        loop {
+            {
+                let d = self.data.lock().unwrap();
+                while i < d.states.len() {
+                    if pred(&d.states[i].0) {
+                        return Some((i, d.states[i].0));
+                    }
+                    i += 1;
+                }
+            }
+            if Instant::now() >= end || !go_on() {
+                return None;
+            }
+            std::thread::sleep(Duration::from_millis(1));
+        }
+    }
+
+    /// Like [`Self::wait_state`], panicking with `what` on timeout.
+    pub fn expect_state(
+        &self,
+        what: &str,
+        from: usize,
+        timeout: Duration,
+        pred: impl FnMut(&RobotState) -> bool,
+    ) -> (usize, RobotState) {
+        self.wait_state(from, timeout, pred).unwrap_or_else(|| panic!("timed out after {timeout:?} waiting for {what}"))
+    }
+
+    /// Waits until the robot is being moved in an episode: a session active for at least 2.5 s (past the first
+    /// reset to the start pose) and some joint's applied setpoint faster than 0.1 rad/s. Returns that frame, or
+    /// `None` after `timeout` or as soon as `go_on` returns false.
+    pub fn wait_moving(&self, timeout: Duration, go_on: impl FnMut() -> bool) -> Option<(usize, RobotState)> {
+        let mut active_since: Option<u64> = None;
+        self.wait_state_while(0, timeout, go_on, |s| {
+            if s.session == 0 || !s.is(status::ACTIVE) {
+                return false;
+            }
+            let t0 = *active_since.get_or_insert(s.timestamp_ns);
+            s.timestamp_ns - t0 > 2_500_000_000 && s.applied_velocity[..7].iter().any(|v| v.abs() > 0.1)
+        })
+    }
+
+    /// Stops the thread and returns everything it recorded.
+    pub fn finish(mut self) -> Recorded {
+        self.stop.store(true, Ordering::Release);
+        if let Some(h) = self.handle.take() {
+            h.join().unwrap();
+        }
+        std::mem::take(&mut *self.data.lock().unwrap())
+    }
+}
+
+impl Drop for Recorder {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::Release);
+        if let Some(h) = self.handle.take() {
+            let _ = h.join();
+        }
+    }
+}
+
+/// The FR3's limits, read from configs/fr3.toml by the test itself.
+#[derive(Debug, Clone)]
+pub struct Limits {
+    pub n: usize,
+    pub dt: f64,
+    pub q_min: Vec<f64>,
+    pub q_max: Vec<f64>,
+    pub dq: Vec<f64>,
+    pub ddq: Vec<f64>,
+    pub jerk: Vec<f64>,
+    pub home: Vec<f64>,
+}
+
+/// Relative tolerance of every limit check.
+pub const REL_TOL: f64 = 1e-6;
+
+impl Limits {
+    pub fn fr3() -> Self {
+        let text = std::fs::read_to_string(root().join("configs/fr3.toml")).unwrap();
+        let t: toml::Table = toml::from_str(&text).unwrap();
+        let v = |k: &str| -> Vec<f64> {
+            t[k].as_array().unwrap_or_else(|| panic!("{k}")).iter().map(|x| x.as_float().unwrap()).collect()
+        };
+        let n = t["joints"].as_integer().unwrap() as usize;
+        let rate = t["rate_hz"].as_float().unwrap();
+        let l = Self {
+            n,
+            dt: 1.0 / rate,
+            q_min: v("q_min"),
+            q_max: v("q_max"),
+            dq: v("dq_max"),
+            ddq: v("ddq_max"),
+            jerk: v("jerk_max"),
+            home: v("home"),
+        };
+        assert!([&l.q_min, &l.q_max, &l.dq, &l.ddq, &l.jerk].iter().all(|x| x.len() == n));
+        assert_eq!(l.dt, 1e-3, "the checks assume the 1 kHz FR3 profile");
+        l
+    }
+
+    fn within(value: f64, limit: f64) -> bool {
+        value.abs() <= limit * (1.0 + REL_TOL)
+    }
+
+    fn in_range(&self, j: usize, q: f64) -> bool {
+        let (lo, hi) = (self.q_min[j], self.q_max[j]);
+        q >= lo - REL_TOL * lo.abs().max(1.0) && q <= hi + REL_TOL * hi.abs().max(1.0)
+    }
+}
+
+/// What [`check_applied`] looked at, and the largest |value| / limit seen per quantity.
+#[derive(Debug, Default, Clone, Copy)]
+pub struct AppliedStats {
+    pub frames: usize,
+    pub velocity_samples: usize,
+    pub acceleration_samples: usize,
+    pub jerk_samples: usize,
+    pub max_ratio: [f64; 3],
+}
+
+/// Checks the applied setpoint stream (`applied_position` of each frame for which `include` holds) against
+/// the position limits, and by finite differences over runs of consecutive `seq`s (dt = one period) against the
+/// velocity, acceleration and jerk limits. Returns the first violation as an error.
+pub fn check_applied(
+    frames: &[(RobotState, u64)],
+    lim: &Limits,
+    include: impl Fn(&RobotState) -> bool,
+) -> Result<AppliedStats, String> {
+    let n = lim.n;
+    let mut st = AppliedStats::default();
+    // The run of consecutive included frames so far (last four positions suffice), newest last.
+    let mut run: Vec<&RobotState> = Vec::with_capacity(4);
+    for (s, _) in frames {
+        if !include(s) {
+            run.clear();
+            continue;
+        }
+        if run.last().is_some_and(|p| s.seq != p.seq + 1) {
+            run.clear();
+        }
+        if run.len() == 4 {
+            run.remove(0);
+        }
+        run.push(s);
+        st.frames += 1;
+        for j in 0..n {
+            let q = s.applied_position[j];
+            if !q.is_finite() || !lim.in_range(j, q) {
+                return Err(format!(
+                    "seq {}: joint {j} applied position {q} outside [{}, {}]",
+                    s.seq, lim.q_min[j], lim.q_max[j]
+                ));
+            }
+        }
+        let dt = lim.dt;
+        let q = |k: usize, j: usize| run[run.len() - 1 - k].applied_position[j];
+        let k = run.len();
+        for j in 0..n {
+            let checks: [(usize, &str, f64, f64); 3] = [
+                (2, "velocity", if k >= 2 { (q(0, j) - q(1, j)) / dt } else { 0.0 }, lim.dq[j]),
+                (
+                    3,
+                    "acceleration",
+                    if k >= 3 { (q(0, j) - 2.0 * q(1, j) + q(2, j)) / (dt * dt) } else { 0.0 },
+                    lim.ddq[j],
+                ),
+                (
+                    4,
+                    "jerk",
+                    if k >= 4 { (q(0, j) - 3.0 * q(1, j) + 3.0 * q(2, j) - q(3, j)) / (dt * dt * dt) } else { 0.0 },
+                    lim.jerk[j],
+                ),
+            ];
+            for (i, (need, what, value, limit)) in checks.into_iter().enumerate() {
+                if k < need {
+                    continue;
+                }
+                st.max_ratio[i] = st.max_ratio[i].max(value.abs() / limit);
+                if !Limits::within(value, limit) {
+                    return Err(format!(
+                        "seq {}: joint {j} applied {what} {value} exceeds {limit} (session {}, status {:#b}, hold {})",
+                        s.seq, s.session, s.status, s.hold_reason
+                    ));
+                }
+            }
+        }
+        if k >= 2 {
+            st.velocity_samples += 1;
+        }
+        if k >= 3 {
+            st.acceleration_samples += 1;
+        }
+        if k >= 4 {
+            st.jerk_samples += 1;
+        }
+    }
+    Ok(st)
+}
+
+/// The frames of a controller session: non-zero session, followed (ACTIVE) or braked/held (HOLDING).
+pub fn in_session(s: &RobotState) -> bool {
+    s.session != 0 && (s.is(status::ACTIVE) || s.is(status::HOLDING))
+}
+
+/// Checks every command: the right joint count, finite, positions within the position limits, the velocity and
+/// acceleration fields within dq_max / ddq_max. Returns the number checked.
+pub fn check_commands(commands: &[(JointCommand, u64)], lim: &Limits) -> Result<usize, String> {
+    for (c, _) in commands {
+        if c.num_joints as usize != lim.n {
+            return Err(format!("command {}: {} joints", c.seq, c.num_joints));
+        }
+        if !c.gripper.is_finite() {
+            return Err(format!("command {}: gripper {}", c.seq, c.gripper));
+        }
+        for j in 0..lim.n {
+            let (q, v, a) = (c.position[j], c.velocity[j], c.acceleration[j]);
+            if !(q.is_finite() && v.is_finite() && a.is_finite()) {
+                return Err(format!("command {}: joint {j} not finite: q {q} v {v} a {a}", c.seq));
+            }
+            if !lim.in_range(j, q) {
+                return Err(format!(
+                    "command {}: joint {j} position {q} outside [{}, {}]",
+                    c.seq, lim.q_min[j], lim.q_max[j]
+                ));
+            }
+            if !Limits::within(v, lim.dq[j]) {
+                return Err(format!("command {}: joint {j} velocity {v} exceeds {}", c.seq, lim.dq[j]));
+            }
+            if !Limits::within(a, lim.ddq[j]) {
+                return Err(format!("command {}: joint {j} acceleration {a} exceeds {}", c.seq, lim.ddq[j]));
+            }
+        }
+    }
+    Ok(commands.len())
+}
+
+/// The first line of `text` containing every one of `needles`.
+pub fn find_line<'a>(text: &'a str, needles: &[&str]) -> Option<&'a str> {
+    text.lines().find(|l| needles.iter().all(|n| l.contains(n)))
+}
+
+/// Seconds since UTC midnight of a tracing log line's timestamp (`2026-11-21T11:51:57.722514Z ...`).
+pub fn log_time_of_day(line: &str) -> Option<f64> {
+    let t = line.get(11..26)?;
+    let (h, m, s) =
+        (t.get(0..2)?.parse::<f64>().ok()?, t.get(3..5)?.parse::<f64>().ok()?, t.get(6..)?.parse::<f64>().ok()?);
+    Some(h * 3600.0 + m * 60.0 + s)
+}
+
+/// Seconds since UTC midnight now (wall clock, the clock of the log lines).
+pub fn now_time_of_day() -> f64 {
+    let d = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap();
+    (d.as_secs() % 86_400) as f64 + f64::from(d.subsec_nanos()) * 1e-9
+}
+
+/// The largest gap between the HAL's stamps of consecutive recorded frames: (ms, seq after it, UTC time of day
+/// of its end in s). A gap far above one period means the HAL itself did not run.
+pub fn largest_frame_gap(states: &[(RobotState, u64)]) -> (f64, u64, f64) {
+    let offset = now_time_of_day() - monotonic_ns() as f64 * 1e-9;
+    states
+        .windows(2)
+        .filter(|w| w[1].0.seq == w[0].0.seq + 1)
+        .map(|w| {
+            let gap = w[1].0.timestamp_ns.saturating_sub(w[0].0.timestamp_ns) as f64 * 1e-6;
+            (gap, w[1].0.seq, (offset + w[1].0.timestamp_ns as f64 * 1e-9).rem_euclid(86_400.0))
+        })
+        .fold((0.0, 0, 0.0), |m, g| if g.0 > m.0 { g } else { m })
+}
+
+/// `hh:mm:ss.mmm` of a UTC time of day in seconds.
+pub fn clock_text(tod: f64) -> String {
+    let ms = (tod * 1e3).round() as u64;
+    format!("{:02}:{:02}:{:02}.{:03}", ms / 3_600_000, ms / 60_000 % 60, ms / 1000 % 60, ms % 1000)
+}
+
+/// Major page faults of a process so far (/proc/<pid>/stat field 12).
+pub fn major_faults(pid: libc::pid_t) -> Option<u64> {
+    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
+    stat.rsplit_once(')')?.1.split_whitespace().nth(9)?.parse().ok()
+}
+
+/// CPU time the hypervisor took from this VM so far, summed over its CPUs (ms; /proc/stat's `steal`). A run
+/// whose HAL or servo loop stalled while this grew was stalled from outside the machine.
+pub fn steal_ms() -> f64 {
+    let stat = std::fs::read_to_string("/proc/stat").unwrap_or_default();
+    let ticks =
+        stat.lines().find(|l| l.starts_with("cpu ")).and_then(|l| l.split_whitespace().nth(8)?.parse::<f64>().ok());
+    // SAFETY: sysconf has no preconditions.
+    let hz = unsafe { libc::sysconf(libc::_SC_CLK_TCK) } as f64;
+    ticks.map_or(0.0, |t| t * 1e3 / hz.max(1.0))
+}

@@ -1,0 +1,548 @@
+//! Hardware-in-the-loop tests with real processes: the mock FR3 HAL (`mars-hil hal`, the `mars-hal` process)
+//! and `marsd`, talking over iceoryx2, while the test process listens on the robot's state and command services
+//! and checks, with a limit checker of its own, what the joints were actually told to do.
+//!
+//! Each test uses its own robot id and temp dir and kills its children when dropped, so the tests are
+//! independent and run in parallel (`--test-threads=2` on a 2-core CI machine: the demo test takes ~70 s, the
+//! rest together about as long).
+
+mod common;
+
+use std::time::{Duration, Instant};
+
+use common::*;
+use mars_ipc::{HoldReason, RobotNamespace, RobotState, StateWriter, status};
+
+/// Generous: the first start may include iceoryx2 setup and the checkpoint's warm-up on a loaded machine.
+const START: Duration = Duration::from_secs(30);
+
+fn hold_reason(s: &RobotState) -> Option<HoldReason> {
+    HoldReason::from_u32(s.hold_reason)
+}
+
+/// Starts the HAL and waits for its first frame (so marsd never races the HAL's service creation).
+fn hal_with_recorder(robot: &str, extra: &[&str], logs: &TempDir) -> (Proc, Recorder) {
+    let rec = Recorder::start(robot);
+    let hal = spawn_hal(robot, extra, logs);
+    rec.expect_state("the HAL's first state frame", 0, START, |_| true);
+    (hal, rec)
+}
+
+/// The session id marsd used: the only non-zero session in the frames, and in every command.
+fn marsd_session(r: &Recorded) -> u64 {
+    let sessions: std::collections::BTreeSet<u64> =
+        r.states.iter().map(|(s, _)| s.session).filter(|&s| s != 0).collect();
+    assert_eq!(sessions.len(), 1, "frames show sessions {sessions:?}");
+    let s = *sessions.first().unwrap();
+    assert!(r.commands.iter().all(|(c, _)| c.session == s), "a command of another session");
+    s
+}
+
+fn assert_limits(r: &Recorded, lim: &Limits, what: &str) -> AppliedStats {
+    let st = check_applied(&r.states, lim, in_session).unwrap_or_else(|e| panic!("{what}: applied stream: {e}"));
+    let checked = check_commands(&r.commands, lim).unwrap_or_else(|e| panic!("{what}: command stream: {e}"));
+    eprintln!(
+        "{what}: {} session frames ({} jerk samples; max |v|/v_max {:.3}, |a|/a_max {:.3}, |j|/j_max {:.3}), \
+         {checked} commands checked, all within limits",
+        st.frames, st.jerk_samples, st.max_ratio[0], st.max_ratio[1], st.max_ratio[2]
+    );
+    st
+}
+
+/// Whether a failed run is explained by the machine, not marsd: marsd stopped on a timing trip (stale state,
+/// tick overruns) or its servo missed more than `missed_limit` periods, while the HAL — a separate SCHED_FIFO
+/// process free to run on either core — itself published no frame for ≥ 15 ms (the VM stalled; this CI VM's
+/// hypervisor does that every few minutes, see /proc/stat `steal`). Returns the evidence, printed before the
+/// scenario runs again (once).
+fn machine_stall_explains(r: &Recorded, s: &serde_json::Value, missed_limit: u64) -> Option<String> {
+    let timing_trip = ["no usable state frame", "servo ticks overran"]
+        .iter()
+        .any(|t| s["trip"].as_str().is_some_and(|trip| trip.contains(t)));
+    let missed = u64_at(s, "/deadline_misses/servo_missed_periods");
+    let (gap, seq, at) = largest_frame_gap(&r.states);
+    ((timing_trip || missed > missed_limit) && gap >= 15.0).then(|| {
+        format!(
+            "the HAL itself published nothing for {gap:.1} ms (before its frame {seq}, at {}), and marsd reacted as \
+             configured (trip {}, {missed} servo periods missed)",
+            clock_text(at),
+            s["trip"]
+        )
+    })
+}
+
+/// Test 1: The shipped config, 10 episodes: success, both grasps, no limit violation anywhere, no allocation in the
+/// servo tick, and the applied and command streams the test recorded within every limit of configs/fr3.toml.
+#[test]
+fn demo_episodes_succeed_in_both_modes_within_limits() {
+    for attempt in 1..=2 {
+        if demo_attempt(attempt) {
+            return;
+        }
+    }
+    panic!("two runs in a row were spoiled by stalls of the whole VM (see above)");
+}
+
+/// One run of test 1; false if a whole-VM stall explains its failure (first attempt only).
+fn demo_attempt(attempt: u32) -> bool {
+    let logs = TempDir::new(&format!("demo{attempt}"));
+    let robot = robot(&format!("demo{attempt}"));
+    let (mut hal, rec) = hal_with_recorder(&robot, &[], &logs);
+    let (started, steal0) = (Instant::now(), steal_ms());
+    let mut marsd = spawn_marsd(&robot, &shipped_config(), 10, &[], &logs);
+    let code = marsd.exit_code(Duration::from_secs(240));
+    eprintln!("10 episodes took {:.1} s", started.elapsed().as_secs_f64());
+    std::thread::sleep(Duration::from_millis(100)); // the HAL's frames after the final hold command
+    let r = rec.finish();
+    let (gap, gap_seq, gap_at) = largest_frame_gap(&r.states);
+    let steal = steal_ms() - steal0;
+    eprintln!(
+        "largest gap between the HAL's frames: {gap:.1} ms (before seq {gap_seq}, at {}); VM steal time {steal:.0} ms; HAL major faults {:?}",
+        clock_text(gap_at),
+        major_faults(hal.pid())
+    );
+    assert!(hal.running(), "the HAL died\n{}", hal.logs());
+    let s = summary(&logs, "marsd");
+    eprintln!("{}", marsd.stdout_text());
+    if code != 0
+        && attempt == 1
+        && let Some(why) = machine_stall_explains(&r, &s, u64::MAX)
+    {
+        eprintln!("attempt 1 is inconclusive: {why}; running it again");
+        return false;
+    }
+    assert_eq!(code, 0, "marsd failed\n{}", marsd.logs());
+    assert_eq!(s["stop"], "finished");
+    assert!(s["trip"].is_null(), "trip {}", s["trip"]);
+    assert_eq!(u64_at(&s, "/episodes"), 10);
+    let successes = u64_at(&s, "/successes");
+    assert!(successes >= 9, "only {successes}/10 episodes succeeded");
+    let modes = s["modes"].as_array().unwrap();
+    let count = |name: &str| modes.iter().find(|m| m[0] == name).map(|m| m[1].as_u64().unwrap()).unwrap();
+    assert!(count("rim") > 0 && count("handle") > 0, "modes {modes:?}: both grasps must be used");
+    assert_eq!(u64_at(&s, "/limit_violations/final_check"), 0);
+    assert_eq!(u64_at(&s, "/limit_violations/hal_rejected"), 0);
+    assert_eq!(u64_at(&s, "/servo_allocations/system"), 0, "the servo tick allocated");
+    assert!(u64_at(&s, "/servo_ticks_counted") > 10_000);
+
+    let lim = Limits::fr3();
+    let session = marsd_session(&r);
+    let st = assert_limits(&r, &lim, "demo");
+    // The checks above are meaningful only if the recorder saw (nearly) the whole run.
+    let session_frames = r.states.iter().filter(|(f, _)| f.session == session).count() as f64;
+    let (used, sent) = (u64_at(&s, "/frames/used") as f64, u64_at(&s, "/commands_sent") as f64);
+    assert!(session_frames > 0.95 * used, "recorded {session_frames} session frames, marsd used {used}");
+    assert!(st.jerk_samples as f64 > 0.9 * session_frames, "{st:?} of {session_frames} frames");
+    assert!(r.commands.len() as f64 > 0.95 * sent, "recorded {} of {sent} commands", r.commands.len());
+    assert_eq!(r.errors, 0);
+    // marsd ended its session with a hold command once at rest.
+    let last = r.states.last().unwrap().0;
+    assert!(last.is(status::HOLDING) && last.is(status::AT_REST), "status {:#b}", last.status);
+    assert_eq!(hold_reason(&last), Some(HoldReason::ControllerRequested));
+    true
+}
+
+/// HAL + marsd (episodes 0) + recorder, with the arm moving in an episode.
+struct Moving {
+    logs: TempDir,
+    hal: Proc,
+    rec: Recorder,
+    marsd: Proc,
+    /// The frame that showed the motion.
+    frame: RobotState,
+}
+
+/// Starts the rig and waits for motion. If marsd stops before the arm moves because of a timing trip (stale
+/// state, tick overruns: the machine stalled), nothing was tested yet: the evidence is printed
+/// and the rig is started once more. Any other early stop fails the test.
+fn start_moving(name: &str) -> Moving {
+    for attempt in 1..=2 {
+        let logs = TempDir::new(&format!("{name}{attempt}"));
+        let robot = robot(&format!("{name}{attempt}"));
+        let (hal, rec) = hal_with_recorder(&robot, &[], &logs);
+        let mut marsd = spawn_marsd(&robot, &shipped_config(), 0, &[], &logs);
+        if let Some((_, frame)) = rec.wait_moving(START, || marsd.running()) {
+            return Moving { logs, hal, rec, marsd, frame };
+        }
+        let code = marsd.exit_code(Duration::from_secs(5));
+        let s = summary(&logs, "marsd");
+        let r = rec.finish();
+        let timing_trip = ["no usable state frame", "servo ticks overran"]
+            .iter()
+            .any(|t| s["trip"].as_str().is_some_and(|trip| trip.contains(t)));
+        assert!(attempt == 1 && code == 3 && timing_trip, "marsd stopped before the arm moved\n{}", marsd.logs());
+        let (gap, _, at) = largest_frame_gap(&r.states);
+        eprintln!(
+            "{name}: marsd tripped before the arm moved ({}; {} servo periods missed; the HAL's longest gap between \
+             frames {gap:.1} ms at {}): starting again",
+            s["trip"],
+            u64_at(&s, "/deadline_misses/servo_missed_periods"),
+            clock_text(at)
+        );
+    }
+    unreachable!()
+}
+
+/// Test 2: SIGKILL marsd while the arm moves: the HAL brakes on its own (liveness watch or command timeout) within
+/// ~100 ms, comes to rest, and the applied stream stays within limits through the stop.
+#[test]
+fn sigkill_of_marsd_makes_the_hal_brake_to_rest_within_limits() {
+    let Moving { logs: _logs, mut hal, rec, mut marsd, frame: moving } = start_moving("kill-marsd");
+    let v = moving.applied_velocity[..7].iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    let killed_at = monotonic_ns();
+    marsd.signal(libc::SIGKILL);
+    let from = rec.states_len();
+    assert!(marsd.wait_timeout(Duration::from_secs(5)).is_some());
+    let (_, held) = rec.expect_state("the HAL holding after the SIGKILL", from, Duration::from_secs(3), |s| {
+        s.is(status::HOLDING) && s.timestamp_ns > killed_at
+    });
+    let reaction_ms = (held.timestamp_ns - killed_at) as f64 * 1e-6;
+    let reason = hold_reason(&held);
+    assert_eq!(held.session, moving.session);
+    assert!(matches!(reason, Some(HoldReason::ControllerLost | HoldReason::CommandTimeout)), "hold reason {reason:?}");
+    let (_, rest) = rec.expect_state("the HAL at rest", from, Duration::from_secs(3), |s| {
+        s.is(status::HOLDING) && s.is(status::AT_REST)
+    });
+    let rest_ms = (rest.timestamp_ns - killed_at) as f64 * 1e-6;
+    std::thread::sleep(Duration::from_millis(200));
+    let r = rec.finish();
+    eprintln!(
+        "SIGKILL of marsd at {v:.3} rad/s: HAL holding ({reason:?}) after {reaction_ms:.1} ms (HAL clock), \
+         at rest after {rest_ms:.1} ms"
+    );
+    assert!(reaction_ms < 100.0, "the HAL took {reaction_ms:.1} ms to stop following a dead controller");
+    assert!(rest_ms < 2000.0);
+    // It stays held where it stopped.
+    let after: Vec<&RobotState> = r.states.iter().map(|(s, _)| s).filter(|s| s.seq > rest.seq).collect();
+    assert!(after.len() > 50);
+    for s in &after {
+        let drift = (0..7).map(|j| (s.applied_position[j] - rest.applied_position[j]).abs()).fold(0.0, f64::max);
+        assert!(s.is(status::HOLDING) && s.is(status::AT_REST) && drift < 1e-4, "seq {}: drift {drift}", s.seq);
+    }
+    let st = assert_limits(&r, &Limits::fr3(), "SIGKILL marsd");
+    assert!(st.jerk_samples > 500);
+    assert!(hal.running());
+}
+
+/// Test 3: SIGKILL the HAL while the arm moves: marsd sees it die (iceoryx2 liveness), stops, names the HAL in its
+/// log, reports the trip and exits 3 within 1 s.
+#[test]
+fn sigkill_of_the_hal_makes_marsd_trip_and_exit_3() {
+    let Moving { logs, hal, rec, mut marsd, .. } = start_moving("kill-hal");
+    let commands_before = rec.commands_len();
+    let (killed_at, killed_tod) = (Instant::now(), now_time_of_day());
+    hal.signal(libc::SIGKILL);
+    let status = marsd.wait_timeout(Duration::from_secs(10));
+    let exit_after = killed_at.elapsed();
+    let r = rec.finish();
+    let status = status.unwrap_or_else(|| panic!("marsd still running 10 s after the HAL died\n{}", marsd.logs()));
+    let err = marsd.stderr_text();
+    let trip_text = "the HAL process died or left (iceoryx2 liveness)";
+    let line = find_line(&err, &["watchdog trip", trip_text]);
+    let logged_ms = line.and_then(log_time_of_day).map(|t| (t - killed_tod) * 1e3);
+    eprintln!(
+        "SIGKILL of the HAL: marsd logged the trip {} ms and exited {:.1} ms after the kill; {} commands sent \
+         meanwhile",
+        logged_ms.map_or("?".into(), |t| format!("{t:.1}")),
+        exit_after.as_secs_f64() * 1e3,
+        r.commands.len() - commands_before
+    );
+    assert_eq!(status.code(), Some(3), "{status:?}\n{}", marsd.logs());
+    let s = summary(&logs, "marsd");
+    // Two detectors race here: the liveness watch (HalDied, typically 13-18 ms after the kill on this machine)
+    // and the stale-state gap (StaleState, 20 ms). The first trip is the one reported, so a late liveness
+    // verdict makes marsd blame the frames instead of naming the dead HAL: that is a finding, not noise.
+    assert!(
+        line.is_some(),
+        "marsd did not name the dead HAL: it reported trip {} (liveness lost the race against \
+         watchdog.max_state_gap_ms)\n{err}",
+        s["trip"]
+    );
+    assert!(exit_after < Duration::from_secs(1), "marsd took {exit_after:?} to exit");
+    assert_eq!(s["stop"], "trip");
+    assert_eq!(s["trip"], trip_text);
+    check_commands(&r.commands, &Limits::fr3()).unwrap();
+}
+
+/// Test 4: A slow engine (every ODE step busy-waits 15 ms; the lead is 80 ms): the deadline caps K, every chunk is
+/// still on time, and the servo loop on its own core keeps its 1 kHz rate.
+#[test]
+fn slow_engine_caps_k_and_the_servo_keeps_its_rate() {
+    for attempt in 1..=2 {
+        if slow_engine_attempt(attempt) {
+            return;
+        }
+    }
+    panic!("two runs in a row were spoiled by stalls of the whole VM (see above)");
+}
+
+/// The servo periods test 4 allows to be missed.
+const SLOW_MISSED_LIMIT: u64 = 50;
+
+/// One run of test 4; false if a whole-VM stall explains its failure (first attempt only).
+fn slow_engine_attempt(attempt: u32) -> bool {
+    let logs = TempDir::new(&format!("slow{attempt}"));
+    let robot = robot(&format!("slow{attempt}"));
+    let (hal, rec) = hal_with_recorder(&robot, &[], &logs);
+    let steal0 = steal_ms();
+    let mut marsd = spawn_marsd(&robot, &shipped_config(), 2, &["--engine-step-delay-ms", "15"], &logs);
+    let code = marsd.exit_code(Duration::from_secs(120));
+    let r = rec.finish();
+    let (gap, gap_seq, gap_at) = largest_frame_gap(&r.states);
+    let steal = steal_ms() - steal0;
+    eprintln!(
+        "largest gap between the HAL's frames: {gap:.1} ms (before seq {gap_seq}, at {}); VM steal time {steal:.0} ms; HAL major faults {:?}",
+        clock_text(gap_at),
+        major_faults(hal.pid())
+    );
+    let s = summary(&logs, "marsd");
+    eprintln!("{}", marsd.stdout_text());
+    if attempt == 1
+        && let Some(why) = machine_stall_explains(&r, &s, SLOW_MISSED_LIMIT)
+    {
+        eprintln!("attempt 1 is inconclusive: {why}; running it again");
+        return false;
+    }
+    // Whatever the episodes' outcome (a capped K may fail the task), a slow engine is no fault: the deadline
+    // cap keeps every chunk on time, so the run ends normally, without a trip.
+    assert_eq!(code, 0, "{}", marsd.logs());
+    assert_eq!(s["stop"], "finished");
+    assert!(s["trip"].is_null(), "trip {}", s["trip"]);
+    assert_eq!(u64_at(&s, "/episodes"), 2);
+    // (80 - 2) ms of budget / 15 ms per step: at most 5 steps, and the policy asks for more at times.
+    let (capped, used_max, calls) = (u64_at(&s, "/k/capped"), f64_at(&s, "/k/used_max"), u64_at(&s, "/k/calls"));
+    assert!(capped > 0, "K was never capped in {calls} calls");
+    assert!((1.0..=5.0).contains(&used_max), "K used up to {used_max} with 15 ms steps in an 80 ms lead");
+    assert_eq!(u64_at(&s, "/deadline_misses/over_budget"), 0, "one 15 ms step always fits 78 ms");
+    assert_eq!(u64_at(&s, "/deadline_misses/late_chunks"), 0);
+    let missed = u64_at(&s, "/deadline_misses/servo_missed_periods");
+    let p99 = latency(&s, "wake_jitter", "p99");
+    // The policy spins ~75 ms per call at SCHED_FIFO 70 on its own core: had it taken the servo's core, every
+    // call would cost the servo ~75 periods (over 1000 in this run). What remains is the machine's own stalls
+    // (a 10-15 ms VM-wide stall costs 10-15 periods; seen on this CI VM a few times a minute under load).
+    assert!(missed <= SLOW_MISSED_LIMIT, "the servo loop missed {missed} periods");
+    assert!(p99 < 1000.0, "servo wake-up jitter p99 {p99} µs");
+    assert_eq!(u64_at(&s, "/limit_violations/final_check"), 0);
+    assert_eq!(u64_at(&s, "/limit_violations/hal_rejected"), 0);
+    assert_limits(&r, &Limits::fr3(), "slow engine");
+    true
+}
+
+/// Test 5a: A NaN sensor: marsd refuses the frames, trips on the missing usable state and brakes; no NaN ever
+/// reaches the command stream, which stays within limits.
+#[test]
+fn nan_frames_are_refused_and_marsd_trips_on_stale_state() {
+    let logs = TempDir::new("nan");
+    let robot = robot("nan");
+    let (_hal, rec) = hal_with_recorder(&robot, &["--nan-joint", "3", "--nan-at-tick", "3000"], &logs);
+    let mut marsd = spawn_marsd(&robot, &shipped_config(), 0, &[], &logs);
+    let code = marsd.exit_code(Duration::from_secs(60));
+    std::thread::sleep(Duration::from_millis(100));
+    let r = rec.finish();
+    let s = summary(&logs, "marsd");
+    assert_eq!(code, 3, "{}", marsd.logs());
+    assert!(u64_at(&s, "/frames/used") > 100, "marsd never handshook before the NaNs: {}", s["frames"]);
+    let refused = u64_at(&s, "/frames/non_finite") + u64_at(&s, "/frames/sensor_fault");
+    assert!(refused > 0, "frames {}", s["frames"]);
+    let trip = "no usable state frame from the HAL within the allowed gap";
+    assert_eq!(s["trip"], trip);
+    assert!(find_line(&marsd.stderr_text(), &["watchdog trip", trip]).is_some(), "{}", marsd.logs());
+    // The NaN frames were seen by the test too, and marsd's commands never carried one.
+    assert!(r.states.iter().any(|(f, _)| f.position[3].is_nan()));
+    assert!(!r.commands.is_empty());
+    assert_limits(&r, &Limits::fr3(), "NaN sensor");
+    // marsd ended its session with a hold command after braking.
+    let last = r.commands.last().unwrap().0;
+    assert_eq!(last.mode, mars_ipc::CommandMode::Hold as u32);
+}
+
+/// Test 5b: Every frame published 5 ms late (older than stale_state_ms = 3 when read): marsd never finds a usable
+/// frame, never commands, and gives up after the handshake timeout with status 4.
+#[test]
+fn late_frames_are_never_used_and_marsd_exits_4_without_commanding() {
+    let logs = TempDir::new("late");
+    let robot = robot("late");
+    let cfg = write_config(&logs, "marsd.toml", &[("handshake_timeout_s", "2.0")], "");
+    let (_hal, rec) = hal_with_recorder(&robot, &["--late-every", "1", "--late-ms", "5"], &logs);
+    let started = Instant::now();
+    let mut marsd = spawn_marsd(&robot, &cfg, 1, &[], &logs);
+    let code = marsd.exit_code(Duration::from_secs(60));
+    eprintln!("late frames: marsd exited {code} after {:.2} s", started.elapsed().as_secs_f64());
+    std::thread::sleep(Duration::from_millis(100));
+    let r = rec.finish();
+    assert_eq!(code, 4, "{}", marsd.logs());
+    assert!(find_line(&marsd.stderr_text(), &["no usable state frame from a HAL within"]).is_some());
+    let s = summary(&logs, "marsd");
+    assert_eq!(u64_at(&s, "/frames/used"), 0);
+    assert!(u64_at(&s, "/frames/stale") > 100, "frames {}", s["frames"]);
+    assert_eq!(u64_at(&s, "/commands_sent"), 0);
+    assert!(r.commands.is_empty(), "{} commands on the wire", r.commands.len());
+    assert!(r.states.iter().all(|(f, _)| f.session == 0));
+}
+
+/// Test 5c: A fake HAL (this test process) publishing 6-joint frames for the 7-joint FR3: refused as wrong DOF, no
+/// command, status 4 after the handshake timeout.
+#[test]
+fn wrong_dof_frames_are_refused_and_marsd_exits_4_without_commanding() {
+    let logs = TempDir::new("dof");
+    let robot = robot("dof");
+    let cfg = write_config(&logs, "marsd.toml", &[("handshake_timeout_s", "2.0")], "");
+    let rec = Recorder::start(&robot);
+    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let fake = {
+        let (robot, stop) = (robot.clone(), stop.clone());
+        let home = Limits::fr3().home;
+        std::thread::spawn(move || {
+            let ns = RobotNamespace::new(&robot).unwrap();
+            let (node, _) = mars_ipc::node::create_node(&format!("test-fake-hal-{robot}")).unwrap();
+            let out = StateWriter::new(&node, &ns).unwrap();
+            let mut seq = 0;
+            while !stop.load(std::sync::atomic::Ordering::Acquire) {
+                seq += 1;
+                let mut s = RobotState {
+                    seq,
+                    timestamp_ns: monotonic_ns(),
+                    num_joints: 6,
+                    status: status::HOLDING | status::AT_REST,
+                    ..Default::default()
+                };
+                s.position[..6].copy_from_slice(&home[..6]);
+                s.applied_position[..6].copy_from_slice(&home[..6]);
+                out.send(&s).unwrap();
+                std::thread::sleep(Duration::from_millis(1));
+            }
+            seq
+        })
+    };
+    rec.expect_state("the fake HAL's first frame", 0, START, |_| true);
+    let mut marsd = spawn_marsd(&robot, &cfg, 1, &[], &logs);
+    let code = marsd.exit_code(Duration::from_secs(60));
+    stop.store(true, std::sync::atomic::Ordering::Release);
+    let published = fake.join().unwrap();
+    let r = rec.finish();
+    assert_eq!(code, 4, "{}", marsd.logs());
+    let s = summary(&logs, "marsd");
+    assert!(u64_at(&s, "/frames/wrong_dof") > 100, "frames {} ({published} published)", s["frames"]);
+    assert_eq!(u64_at(&s, "/frames/used"), 0);
+    assert_eq!(u64_at(&s, "/commands_sent"), 0);
+    assert!(r.commands.is_empty(), "{} commands on the wire", r.commands.len());
+}
+
+/// Test 6: Bad setups: refused before anything moves, with status 2 and an error naming the problem; a HAL on the
+/// same robot id never sees a command.
+#[test]
+fn bad_config_or_checkpoint_is_refused_with_status_2_and_nothing_moves() {
+    let logs = TempDir::new("bad");
+    let robot = robot("bad");
+    let (mut hal, rec) = hal_with_recorder(&robot, &[], &logs);
+    let good = shipped_config();
+    let unknown = write_config(&logs, "unknown.toml", &[], "bogus_knob = 1");
+    let lead = write_config(&logs, "lead.toml", &[("lead_ms", "0.0")], "");
+    let missing = logs.join("no-such-checkpoint");
+    let corrupt = logs.join("corrupt-checkpoint");
+    std::fs::create_dir_all(&corrupt).unwrap();
+    for f in ["model.safetensors", "policy.json"] {
+        std::fs::copy(root().join("assets/checkpoints/fr3_pick_cup/mars").join(f), corrupt.join(f)).unwrap();
+    }
+    let weights = corrupt.join("model.safetensors");
+    let len = std::fs::metadata(&weights).unwrap().len();
+    std::fs::OpenOptions::new().write(true).open(&weights).unwrap().set_len(len / 2).unwrap();
+    let (missing_s, corrupt_s) = (missing.display().to_string(), corrupt.display().to_string());
+    let cases: [(&str, &std::path::Path, Vec<&str>, Vec<&str>); 4] = [
+        ("unknown-key", &unknown, vec![], vec!["unknown field", "bogus_knob"]),
+        ("lead-zero", &lead, vec![], vec!["policy.lead_ms", "must be a positive number"]),
+        ("missing-checkpoint", &good, vec!["--checkpoint", &missing_s], vec!["checkpoint", &missing_s]),
+        ("corrupt-checkpoint", &good, vec!["--checkpoint", &corrupt_s], vec!["model.safetensors"]),
+    ];
+    for (name, cfg, extra, expect) in &cases {
+        let started = Instant::now();
+        let mut marsd = spawn_marsd_named(name, &robot, cfg, 1, extra, &logs);
+        let code = marsd.exit_code(Duration::from_secs(30));
+        let took = started.elapsed();
+        let err = marsd.stderr_text();
+        let line = find_line(&err, &["refusing to start"]).unwrap_or("");
+        eprintln!("{name}: exit {code} after {:.0} ms: {line}", took.as_secs_f64() * 1e3);
+        assert_eq!(code, 2, "{name}\n{}", marsd.logs());
+        assert!(!line.is_empty(), "{name}: no 'refusing to start' error:\n{err}");
+        for e in expect {
+            assert!(err.contains(e), "{name}: the error does not name {e:?}:\n{err}");
+        }
+        assert!(took < Duration::from_secs(10), "{name}: took {took:?}");
+        assert!(!logs.join(&format!("{name}-out/summary.json")).exists(), "{name} wrote a report");
+    }
+    std::thread::sleep(Duration::from_millis(100));
+    let r = rec.finish();
+    assert!(hal.running());
+    assert!(r.commands.is_empty(), "{} commands on the wire", r.commands.len());
+    assert!(r.states.len() > 100);
+    assert!(r.states.iter().all(|(f, _)| f.session == 0 && hold_reason(f) == Some(HoldReason::NoSession)));
+}
+
+/// Test 7: SIGTERM while the arm moves: a jerk-limited stop, a hold command that ends the session, status 0.
+#[test]
+fn sigterm_brings_the_arm_to_rest_and_exits_0() {
+    let Moving { logs, mut hal, rec, mut marsd, frame: moving } = start_moving("term");
+    let from = rec.states_len();
+    let signalled = Instant::now();
+    let signalled_ns = monotonic_ns();
+    marsd.signal(libc::SIGTERM);
+    let status = marsd.wait_timeout(Duration::from_secs(10));
+    let took = signalled.elapsed();
+    let held = rec.wait_state(from, Duration::from_secs(2), |s| s.is(status::HOLDING) && s.is(status::AT_REST));
+    std::thread::sleep(Duration::from_millis(100));
+    let r = rec.finish();
+    let status = status.unwrap_or_else(|| panic!("marsd still running 10 s after SIGTERM\n{}", marsd.logs()));
+    let stop_ms = held.map(|(_, h)| (h.timestamp_ns.saturating_sub(signalled_ns)) as f64 * 1e-6);
+    eprintln!(
+        "SIGTERM: arm at rest and held {} ms after the signal (HAL clock); marsd exited {:.0} ms after it",
+        stop_ms.map_or("?".into(), |t| format!("{t:.1}")),
+        took.as_secs_f64() * 1e3
+    );
+    assert_eq!(status.code(), Some(0), "{status:?}\n{}", marsd.logs());
+    assert!(took < Duration::from_secs(2), "marsd took {took:?} to stop");
+    let s = summary(&logs, "marsd");
+    assert_eq!(s["stop"], "signal");
+    assert!(s["trip"].is_null());
+    let (_, held) = held.expect("the HAL never showed HOLDING and AT_REST after the SIGTERM");
+    assert_eq!(held.session, moving.session);
+    assert_eq!(hold_reason(&held), Some(HoldReason::ControllerRequested));
+    let last = r.states.last().unwrap().0;
+    assert!(last.is(status::HOLDING) && last.is(status::AT_REST) && last.session == moving.session);
+    assert_eq!(hold_reason(&last), Some(HoldReason::ControllerRequested));
+    assert_eq!(r.commands.last().unwrap().0.mode, mars_ipc::CommandMode::Hold as u32);
+    assert_limits(&r, &Limits::fr3(), "SIGTERM");
+    assert!(hal.running());
+}
+
+/// The deterministic half of test 7's race (seen once in ~15 runs there: summary `stop` said "finished" after a
+/// SIGTERM): the policy thread's `Finish` request and the signal flag reach the servo tick together.
+#[test]
+fn a_finish_request_in_the_tick_that_sees_the_signal_still_reports_the_signal() {
+    use mars_runtime::servo::{ServoTick, StopCause, TickInput};
+    use mars_runtime::shared::Request;
+    let cfg = mars_runtime::config::DaemonConfig::load(&shipped_config()).unwrap();
+    let profile = mars_hal::profile::Profile::load(&root().join("configs/fr3.toml")).unwrap();
+    let mut tick = ServoTick::new(&cfg, &profile, 7).unwrap();
+    let frame = |seq: u64| {
+        let mut f = RobotState { seq, timestamp_ns: monotonic_ns(), num_joints: 7, ..Default::default() };
+        f.position[..7].copy_from_slice(&profile.home);
+        f.applied_position[..7].copy_from_slice(&profile.home);
+        f
+    };
+    fn input(f: &RobotState, request: Option<Request>, stop_requested: bool) -> TickInput<'_> {
+        TickInput {
+            now_ns: monotonic_ns(),
+            missed: 0,
+            frame: Some(f),
+            chunk: None,
+            request,
+            stop_requested,
+            hal_gone: false,
+        }
+    }
+    let f1 = frame(1);
+    tick.tick(&input(&f1, None, false));
+    assert_eq!(tick.stop_cause(), None);
+    let f2 = frame(2);
+    tick.tick(&input(&f2, Some(Request::Finish), true));
+    assert_eq!(tick.stop_cause(), Some(StopCause::Signal));
+}
