@@ -5,6 +5,7 @@
 //! [`handoff`]; the servo tick smooths it with [`smoothing`] (ruckig) and the command leaves in [`servo`].
 
 pub mod alloc_count;
+pub mod bench;
 pub mod chunk;
 pub mod cli;
 pub mod config;

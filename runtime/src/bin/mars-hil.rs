@@ -35,6 +35,12 @@ enum Command {
         #[command(flatten)]
         args: mars_runtime::cli::DemoArgs,
     },
+    /// The benchmark, in one run: servo wake-up jitter next to cyclictest, tick compute and allocations per
+    /// tick, MARS vs FM on the task; prints a markdown table and writes it to <out>/results.md.
+    Bench {
+        #[command(flatten)]
+        args: mars_runtime::bench::BenchArgs,
+    },
     /// The controller daemon (the same as the `marsd` binary; the demo starts it this way).
     Marsd {
         #[command(flatten)]
@@ -80,6 +86,7 @@ fn main() -> std::process::ExitCode {
             Ok(code) => return std::process::ExitCode::from(code),
             Err(e) => Err(e),
         },
+        Command::Bench { args } => mars_runtime::bench::run(args),
         Command::Marsd { args } => return mars_runtime::cli::marsd(args),
         Command::Hal { args } => mars_hal::cli::run_hal(args).map(|report| println!("{report}")),
         Command::Demos { task, n, seed, out } => cli::demos(&task.task, &task.profile, n, seed, &out),

@@ -1,0 +1,934 @@
+//! `mars-hil bench`: the controller's benchmark, measured in one run and written as a markdown table.
+//!
+//! 1. Servo-loop wake-up jitter next to `cyclictest` (rt-tests): the HIL demo with MARS, then `cyclictest` on
+//!    the otherwise idle machine for as many wake-ups at the same rate, SCHED_FIFO priority and core, with
+//!    mlockall — the best the same kernel does for a loop that does nothing.
+//! 2. The servo tick's compute time and its heap allocations per tick (system allocator and RT pool).
+//! 3. MARS vs FM (and optionally A2A) on the FR3 task: the same demo, episodes and seed, one checkpoint each.
+//!
+//! The machine is shared and noisy, so the output also says what else used the CPUs during each phase.
+//! Every number is read from this run's `summary.json` files and cyclictest's output; nothing is hard-coded.
+
+use std::collections::HashMap;
+use std::fmt::Write as _;
+use std::io::{Read, Write};
+use std::os::fd::{FromRawFd, OwnedFd};
+use std::path::PathBuf;
+use std::process::Command;
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, bail};
+use serde_json::Value;
+
+use crate::cli::{DemoArgs, MarsdArgs};
+
+#[derive(clap::Args, Debug, Clone)]
+pub struct BenchArgs {
+    /// Daemon configuration (TOML): servo core, priority and rate are taken from it (and its profile).
+    #[arg(long, default_value = "configs/marsd.toml")]
+    pub config: PathBuf,
+    /// Episodes per policy (the same seed for every policy: the config's `seed`).
+    #[arg(long, default_value_t = 5)]
+    pub episodes: usize,
+    /// Where each run's report and `results.md` go.
+    #[arg(long, default_value = "runs/bench")]
+    pub out: PathBuf,
+    /// Directory holding one checkpoint per policy, named as in --policies.
+    #[arg(long, default_value = "assets/checkpoints/fr3_pick_cup")]
+    pub checkpoints: PathBuf,
+    /// Policies to compare (`mars` is required: its run is the one measured against cyclictest).
+    #[arg(long, value_delimiter = ',', default_value = "mars,fm")]
+    pub policies: Vec<String>,
+    /// CPU core of the HAL's loop (default: the demo's).
+    #[arg(long)]
+    pub hal_core: Option<usize>,
+    /// Skip cyclictest (marsd's numbers only).
+    #[arg(long)]
+    pub no_cyclictest: bool,
+    /// Let cyclictest hold /dev/cpu_dma_latency at 0 µs (its default). Off by default: marsd does not touch
+    /// power management, so cyclictest runs with `--default-system` and both see the same system settings.
+    #[arg(long)]
+    pub cyclictest_pm_qos: bool,
+}
+
+/// A phase during which other processes used more than this share of the CPUs is flagged as disturbed.
+const DISTURBED: f64 = 0.05;
+
+/// The summary.json of one policy's run, and what the run's log said.
+struct PolicyRun {
+    name: String,
+    checkpoint: PathBuf,
+    dir: PathBuf,
+    exit: Option<u8>,
+    error: Option<String>,
+    summary: Option<Value>,
+    rt: RtLog,
+    load: PhaseLoad,
+}
+
+impl PolicyRun {
+    fn channel(&self, channel: &str) -> Option<&Value> {
+        self.summary.as_ref()?["latency"]["channels"].as_array()?.iter().find(|c| c["channel"] == channel)
+    }
+
+    /// A channel's statistic (`p50`, `p99.9`, `max`, `mean`, `count`, …).
+    fn stat(&self, channel: &str, key: &str) -> Option<f64> {
+        self.channel(channel)?[key].as_f64()
+    }
+
+    fn get(&self, pointer: &str) -> Option<&Value> {
+        self.summary.as_ref()?.pointer(pointer)
+    }
+
+    fn num(&self, pointer: &str) -> Option<f64> {
+        self.get(pointer)?.as_f64()
+    }
+}
+
+/// The real-time setup marsd logged for its loop threads ("real-time setup thread=… sched_fifo=… …").
+#[derive(Default, Clone)]
+struct RtLog {
+    servo: Option<String>,
+    policy: Option<String>,
+    /// Warnings about refused real-time requests, verbatim.
+    refusals: Vec<String>,
+}
+
+fn parse_rt_log(log: &str) -> RtLog {
+    let mut rt = RtLog::default();
+    for line in log.lines() {
+        if line.contains("real-time setup") {
+            let value = |key: &str| -> String {
+                let Some(i) = line.find(&format!("{key}=")) else { return "?".into() };
+                let rest = &line[i + key.len() + 1..];
+                // `Denied { errno: 1 }` holds spaces; everything else is one token.
+                let end = if rest.starts_with("Denied {") || rest.starts_with("Failed {") {
+                    rest.find('}').map_or(rest.len(), |e| e + 1)
+                } else {
+                    rest.find(char::is_whitespace).unwrap_or(rest.len())
+                };
+                rest[..end].to_string()
+            };
+            let text = format!(
+                "core {}, SCHED_FIFO {}, mlockall {}",
+                value("core"),
+                value("sched_fifo"),
+                value("memory_locked")
+            );
+            if line.contains("thread=\"servo\"") || line.contains("thread=servo") {
+                rt.servo = Some(text);
+            } else if line.contains("thread=\"policy\"") || line.contains("thread=policy") {
+                rt.policy = Some(text);
+            }
+        } else if line.contains("WARN") && line.contains("mars_runtime::rt") {
+            rt.refusals.push(line.trim().to_string());
+        }
+    }
+    rt
+}
+
+/// What else used the CPUs during one phase (sampled from /proc), and how much CPU the hypervisor stole.
+#[derive(Default, Clone)]
+struct PhaseLoad {
+    wall_s: f64,
+    /// CPU seconds of every process outside this benchmark (this process and the HAL, marsd and cyclictest
+    /// it starts), among those that lived through at least one sample.
+    other_cpu_s: f64,
+    /// The busiest of them, grouped by name (name, CPU seconds).
+    top: Vec<(String, f64)>,
+    steal_s: f64,
+    /// Share of the time some runnable task waited for a CPU (PSI, this benchmark's own tasks included).
+    cpu_pressure: Option<f64>,
+}
+
+/// Per process (pid, start time): name, CPU seconds when first seen (0 if it started after the phase did),
+/// CPU seconds when last seen.
+type Seen = HashMap<(u32, u64), (String, f64, f64)>;
+
+/// Samples every process's CPU time (keyed by pid and start time) until finished.
+struct LoadProbe {
+    started: Instant,
+    steal: f64,
+    pressure_us: Option<f64>,
+    stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
+    sampler: std::thread::JoinHandle<Seen>,
+}
+
+fn clock_tick_s() -> f64 {
+    // SAFETY: sysconf has no preconditions.
+    let hz = unsafe { libc::sysconf(libc::_SC_CLK_TCK) };
+    1.0 / if hz > 0 { hz as f64 } else { 100.0 }
+}
+
+/// Steal seconds of all cores since boot, from /proc/stat.
+fn steal_s() -> f64 {
+    let text = std::fs::read_to_string("/proc/stat").unwrap_or_default();
+    let Some(line) = text.lines().find(|l| l.starts_with("cpu ")) else { return 0.0 };
+    line.split_whitespace().nth(8).and_then(|s| s.parse::<f64>().ok()).unwrap_or(0.0) * clock_tick_s()
+}
+
+/// Total µs some task waited for a CPU, from /proc/pressure/cpu.
+fn cpu_pressure_us() -> Option<f64> {
+    let text = std::fs::read_to_string("/proc/pressure/cpu").ok()?;
+    let some = text.lines().find(|l| l.starts_with("some"))?;
+    some.split_whitespace().find_map(|f| f.strip_prefix("total="))?.parse().ok()
+}
+
+/// Every other process's CPU seconds so far: (pid, start time) → (name, seconds). Skips this process and its
+/// children.
+fn other_processes() -> HashMap<(u32, u64), (String, f64)> {
+    let me = std::process::id();
+    let mut out = HashMap::new();
+    let Ok(dir) = std::fs::read_dir("/proc") else { return out };
+    for entry in dir.flatten() {
+        let Some(pid) = entry.file_name().to_str().and_then(|s| s.parse::<u32>().ok()) else { continue };
+        let Ok(stat) = std::fs::read_to_string(entry.path().join("stat")) else { continue };
+        let (Some(open), Some(close)) = (stat.find('('), stat.rfind(')')) else { continue };
+        // A kernel worker's name says what it works on at the moment: keep the worker's name only.
+        let name = stat[open + 1..close].split('-').next().unwrap_or_default().to_string();
+        let rest: Vec<&str> = stat[close + 1..].split_whitespace().collect();
+        let field = |i: usize| rest.get(i).and_then(|s| s.parse::<u64>().ok()).unwrap_or(0);
+        // After the name: state(0) ppid(1) … utime(11) stime(12) … starttime(19).
+        if pid == me || field(1) == u64::from(me) {
+            continue;
+        }
+        out.insert((pid, field(19)), (name, (field(11) + field(12)) as f64 * clock_tick_s()));
+    }
+    out
+}
+
+impl LoadProbe {
+    fn start() -> Self {
+        let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let flag = stop.clone();
+        let first = other_processes();
+        let sampler = std::thread::spawn(move || {
+            let mut seen: Seen = first.into_iter().map(|(k, (n, t))| (k, (n, t, t))).collect();
+            loop {
+                let last = flag.load(std::sync::atomic::Ordering::Acquire);
+                for (k, (n, t)) in other_processes() {
+                    seen.entry(k).and_modify(|e| e.2 = t).or_insert((n, 0.0, t));
+                }
+                if last {
+                    return seen;
+                }
+                std::thread::sleep(Duration::from_millis(250));
+            }
+        });
+        Self { started: Instant::now(), steal: steal_s(), pressure_us: cpu_pressure_us(), stop, sampler }
+    }
+
+    fn finish(self) -> PhaseLoad {
+        let wall_s = self.started.elapsed().as_secs_f64();
+        self.stop.store(true, std::sync::atomic::Ordering::Release);
+        let seen = self.sampler.join().unwrap_or_default();
+        let mut by_name: HashMap<String, f64> = HashMap::new();
+        for (name, first, last) in seen.into_values() {
+            *by_name.entry(name).or_default() += (last - first).max(0.0);
+        }
+        let other_cpu_s = by_name.values().sum();
+        let mut top: Vec<(String, f64)> = by_name.into_iter().filter(|(_, t)| *t >= 0.1).collect();
+        top.sort_by(|a, b| b.1.total_cmp(&a.1));
+        top.truncate(5);
+        let cpu_pressure = match (self.pressure_us, cpu_pressure_us()) {
+            (Some(a), Some(b)) if wall_s > 0.0 => Some((b - a) * 1e-6 / wall_s),
+            _ => None,
+        };
+        PhaseLoad { wall_s, other_cpu_s, top, steal_s: steal_s() - self.steal, cpu_pressure }
+    }
+}
+
+impl PhaseLoad {
+    fn describe(&self, cores: usize) -> String {
+        let cap = self.wall_s * cores as f64;
+        let mut s = format!(
+            "{:.0} s: other processes used {:.1} CPU-s of {:.0} ({:.0} %)",
+            self.wall_s,
+            self.other_cpu_s,
+            cap,
+            100.0 * self.other_cpu_s / cap.max(1e-9)
+        );
+        if !self.top.is_empty() {
+            let top: Vec<String> = self.top.iter().map(|(n, t)| format!("{n} {t:.1} s")).collect();
+            let _ = write!(s, " ({})", top.join(", "));
+        }
+        let _ = write!(s, "; steal {:.1} s", self.steal_s);
+        if let Some(p) = self.cpu_pressure {
+            let _ = write!(s, "; CPU pressure (a runnable task waiting, ours included) {:.0} % of the time", 100.0 * p);
+        }
+        s
+    }
+}
+
+/// Runs `f` with this process's stderr (fd 2, inherited by the processes it spawns) copied into a string as
+/// well as to the real stderr, so marsd's log can be read after the demo.
+fn tee_stderr<T>(f: impl FnOnce() -> T) -> anyhow::Result<(T, String)> {
+    let mut fds = [0; 2];
+    // SAFETY: plain pipe(2)/dup(2)/dup2(2) on descriptors this function owns; fd 2 is restored below.
+    if unsafe { libc::pipe2(fds.as_mut_ptr(), libc::O_CLOEXEC) } != 0 {
+        bail!("pipe: {}", std::io::Error::last_os_error());
+    }
+    let (read_end, write_end) = unsafe { (OwnedFd::from_raw_fd(fds[0]), OwnedFd::from_raw_fd(fds[1])) };
+    let saved = unsafe { libc::fcntl(2, libc::F_DUPFD_CLOEXEC, 3) };
+    if saved < 0 {
+        bail!("dup of stderr: {}", std::io::Error::last_os_error());
+    }
+    let saved = unsafe { OwnedFd::from_raw_fd(saved) };
+    let echo = saved.try_clone().context("dup of stderr")?;
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::Builder::new().name("bench-stderr".into()).spawn(move || {
+        let mut pipe = std::fs::File::from(read_end);
+        let mut echo = std::fs::File::from(echo);
+        let (mut buf, mut all) = ([0u8; 8192], Vec::new());
+        while let Ok(n) = pipe.read(&mut buf) {
+            if n == 0 {
+                break;
+            }
+            let _ = echo.write_all(&buf[..n]);
+            all.extend_from_slice(&buf[..n]);
+        }
+        let _ = tx.send(all);
+    })?;
+    // fd 2 becomes the pipe (dup2 clears close-on-exec, so children inherit it).
+    if unsafe { libc::dup2(std::os::fd::AsRawFd::as_raw_fd(&write_end), 2) } < 0 {
+        bail!("redirecting stderr: {}", std::io::Error::last_os_error());
+    }
+    drop(write_end);
+    let result = f();
+    let _ = std::io::stderr().flush();
+    unsafe { libc::dup2(std::os::fd::AsRawFd::as_raw_fd(&saved), 2) };
+    // EOF once every writer is gone (the demo waits for its children); a straggler holding the pipe only
+    // costs the log's tail.
+    let log = rx.recv_timeout(Duration::from_secs(10)).unwrap_or_default();
+    Ok((result, String::from_utf8_lossy(&log).into_owned()))
+}
+
+fn run_policy(args: &BenchArgs, name: &str, robot: &str) -> PolicyRun {
+    let checkpoint = args.checkpoints.join(name);
+    let dir = args.out.join(name);
+    let summary_path = dir.join("summary.json");
+    let _ = std::fs::remove_file(&summary_path);
+    eprintln!("== bench: {name} ({}), {} episodes → {}", checkpoint.display(), args.episodes, dir.display());
+    let demo = DemoArgs {
+        marsd: MarsdArgs {
+            config: args.config.clone(),
+            robot: Some(format!("{robot}-bench-{}-{name}", std::process::id())),
+            episodes: Some(args.episodes),
+            out: Some(dir.clone()),
+            checkpoint: Some(checkpoint.clone()),
+            engine_step_delay_ms: None,
+        },
+        hal_core: args.hal_core.unwrap_or_else(demo_hal_core),
+    };
+    let probe = LoadProbe::start();
+    let teed = tee_stderr(|| crate::cli::demo(demo));
+    let load = probe.finish();
+    let mut run = PolicyRun {
+        name: name.to_string(),
+        checkpoint,
+        dir: dir.clone(),
+        exit: None,
+        error: None,
+        summary: None,
+        rt: RtLog::default(),
+        load,
+    };
+    match teed {
+        Ok((result, log)) => {
+            run.rt = parse_rt_log(&log);
+            let _ = std::fs::create_dir_all(&dir);
+            let _ = std::fs::write(dir.join("marsd.log"), &log);
+            match result {
+                Ok(code) => run.exit = Some(code),
+                Err(e) => run.error = Some(format!("{e:#}")),
+            }
+        }
+        Err(e) => run.error = Some(format!("{e:#}")),
+    }
+    match std::fs::read_to_string(&summary_path) {
+        Ok(text) => match serde_json::from_str(&text) {
+            Ok(v) => run.summary = Some(v),
+            Err(e) => add_error(&mut run.error, format!("{}: {e}", summary_path.display())),
+        },
+        Err(e) => add_error(&mut run.error, format!("no {} ({e})", summary_path.display())),
+    }
+    run
+}
+
+/// `mars-hil demo`'s default --hal-core.
+fn demo_hal_core() -> usize {
+    #[derive(clap::Parser)]
+    struct Demo {
+        #[command(flatten)]
+        args: DemoArgs,
+    }
+    <Demo as clap::Parser>::try_parse_from(["demo"]).map_or(0, |d| d.args.hal_core)
+}
+
+fn add_error(slot: &mut Option<String>, msg: String) {
+    *slot = Some(match slot.take() {
+        Some(prev) => format!("{prev}; {msg}"),
+        None => msg,
+    });
+}
+
+/// cyclictest's result: its wake-up latencies (ns) as a sparse histogram plus what did not fit.
+struct Cyclic {
+    cmdline: String,
+    version: String,
+    cycles: u64,
+    /// (latency ns, count), ascending.
+    hist: Vec<(u64, u64)>,
+    /// Wake-ups later than the histogram bound.
+    overflows: u64,
+    bound_ns: u64,
+    min_ns: u64,
+    max_ns: u64,
+    avg_ns: f64,
+    /// Warnings cyclictest printed (a refused SCHED_FIFO or mlockall shows up here).
+    warnings: Vec<String>,
+    load: PhaseLoad,
+}
+
+impl Cyclic {
+    /// The latency at quantile `q` the way HdrHistogram reports it (the smallest value with at least
+    /// ceil(q·n) samples at or below it), in µs; `None` when it falls among the overflows.
+    fn quantile_us(&self, q: f64) -> Option<f64> {
+        let rank = ((q * self.cycles as f64).ceil() as u64).max(1);
+        let mut seen = 0;
+        for &(v, n) in &self.hist {
+            seen += n;
+            if seen >= rank {
+                return Some(v as f64 * 1e-3);
+            }
+        }
+        None
+    }
+
+    /// Wake-ups at least one period late (the ones marsd counts as skipped periods instead).
+    fn at_least(&self, ns: u64) -> u64 {
+        self.hist.iter().filter(|(v, _)| *v >= ns).map(|(_, n)| n).sum::<u64>() + self.overflows
+    }
+}
+
+/// `cyclictest` at marsd's servo rate, priority and core, with mlockall, for `loops` wake-ups.
+fn run_cyclictest(
+    args: &BenchArgs,
+    loops: u64,
+    period_us: u64,
+    priority: i32,
+    core: Option<usize>,
+) -> anyhow::Result<Cyclic> {
+    let json = std::fs::canonicalize(&args.out)?.join("cyclictest.json");
+    let _ = std::fs::remove_file(&json);
+    // One period: later wake-ups are what marsd counts as skipped periods; cyclictest counts them as histogram
+    // overflows (keeping the exact max). Its histogram holds at most 10^6 buckets (ns with -N).
+    let bound_ns = (period_us * 1000).min(1_000_000);
+    let mut cmd = Command::new("cyclictest");
+    cmd.args(["-m", "-p", &priority.to_string()]);
+    if let Some(c) = core {
+        cmd.args(["-a", &c.to_string()]);
+    }
+    cmd.args(["-t", "1", "-i", &period_us.to_string(), "-l", &loops.to_string(), "-q", "-N"]);
+    cmd.args(["-h", &bound_ns.to_string(), "--histfile=/dev/null"]).arg(format!("--json={}", json.display()));
+    if !args.cyclictest_pm_qos {
+        cmd.arg("--default-system");
+    }
+    let cmdline = format!(
+        "cyclictest {}",
+        cmd.get_args().map(|a| a.to_string_lossy().into_owned()).collect::<Vec<_>>().join(" ")
+    );
+    eprintln!(
+        "== bench: {cmdline}  ({loops} wake-ups ≈ {:.0} s, idle machine)",
+        loops as f64 * period_us as f64 * 1e-6
+    );
+    let probe = LoadProbe::start();
+    let output = match cmd.output() {
+        Ok(o) => o,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+            bail!("cyclictest is not installed (Debian/Ubuntu: `apt-get install rt-tests`)")
+        }
+        Err(e) => bail!("cannot start cyclictest: {e}"),
+    };
+    let load = probe.finish();
+    let text = |b: &[u8]| String::from_utf8_lossy(b).into_owned();
+    let (stdout, stderr) = (text(&output.stdout), text(&output.stderr));
+    let warnings: Vec<String> = stderr
+        .lines()
+        .chain(stdout.lines())
+        .map(str::trim)
+        .filter(|l| !l.is_empty() && !l.starts_with("T:") && !l.starts_with("# Histogram"))
+        .map(str::to_string)
+        .collect();
+    if !output.status.success() {
+        bail!("{cmdline} failed ({}): {}", output.status, warnings.join(" | "));
+    }
+    let v: Value = serde_json::from_str(
+        &std::fs::read_to_string(&json)
+            .with_context(|| format!("cyclictest wrote no {} (it needs rt-tests ≥ 2.0 for --json)", json.display()))?,
+    )
+    .with_context(|| format!("parsing {}", json.display()))?;
+    let t = &v["thread"]["0"];
+    let mut hist: Vec<(u64, u64)> = t["histogram"]
+        .as_object()
+        .context("cyclictest's JSON has no histogram for thread 0")?
+        .iter()
+        .filter_map(|(k, n)| Some((k.parse().ok()?, n.as_u64()?)))
+        .collect();
+    hist.sort_unstable();
+    let cycles = t["cycles"].as_u64().unwrap_or(0);
+    let counted: u64 = hist.iter().map(|(_, n)| n).sum();
+    Ok(Cyclic {
+        cmdline,
+        version: v["rt_test_version:"].as_str().or(v["rt_test_version"].as_str()).unwrap_or("?").to_string(),
+        cycles,
+        hist,
+        overflows: cycles.saturating_sub(counted),
+        bound_ns,
+        min_ns: t["min"].as_u64().unwrap_or(0),
+        max_ns: t["max"].as_u64().unwrap_or(0),
+        avg_ns: t["avg"].as_f64().unwrap_or(0.0),
+        warnings,
+        load,
+    })
+}
+
+fn f0(v: Option<f64>) -> String {
+    v.map_or("–".into(), |v| format!("{v:.0}"))
+}
+
+fn f1(v: Option<f64>) -> String {
+    v.map_or("–".into(), |v| format!("{v:.1}"))
+}
+
+fn f2(v: Option<f64>) -> String {
+    v.map_or("–".into(), |v| format!("{v:.2}"))
+}
+
+fn ratio(a: Option<f64>, b: Option<f64>) -> String {
+    match (a, b) {
+        (Some(a), Some(b)) if b > 0.0 => format!("{:.2}×", a / b),
+        _ => "–".into(),
+    }
+}
+
+fn first_line(cmd: &str, args: &[&str]) -> Option<String> {
+    let out = Command::new(cmd).args(args).output().ok()?;
+    let s = String::from_utf8_lossy(&out.stdout);
+    s.lines().next().map(|l| l.trim().to_string()).filter(|l| !l.is_empty())
+}
+
+fn read_trim(path: &str) -> Option<String> {
+    std::fs::read_to_string(path).ok().map(|s| s.trim().to_string()).filter(|s| !s.is_empty())
+}
+
+/// Whether a fresh thread of this process may use SCHED_FIFO at `priority` (the thread ends right after).
+fn probe_sched_fifo(priority: i32) -> String {
+    std::thread::spawn(move || format!("{:?}", crate::rt::try_sched_fifo(priority)))
+        .join()
+        .unwrap_or_else(|_| "?".into())
+}
+
+/// Runs the benchmark and prints (and writes) the results.
+pub fn run(args: BenchArgs) -> anyhow::Result<()> {
+    anyhow::ensure!(args.episodes > 0, "--episodes must be at least 1");
+    anyhow::ensure!(
+        args.policies.iter().any(|p| p == "mars"),
+        "--policies must include mars (its run is the one measured against cyclictest)"
+    );
+    let cfg = crate::config::DaemonConfig::load(&args.config)?;
+    let profile = mars_hal::profile::Profile::load(&cfg.profile)?;
+    let period_us = (profile.period_s() * 1e6).round() as u64;
+    std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
+    let started = first_line("date", &["-u", "+%Y-%m-%d %H:%M UTC"]).unwrap_or_else(|| "?".into());
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+
+    // MARS first: its run is the one cyclictest is compared with.
+    let mut order: Vec<&String> = args.policies.iter().filter(|p| *p == "mars").collect();
+    order.extend(args.policies.iter().filter(|p| *p != "mars"));
+    let runs: Vec<PolicyRun> = order.iter().map(|p| run_policy(&args, p, &cfg.robot)).collect();
+    let mars = &runs[0];
+
+    let wake_count = mars.stat("wake_jitter", "count").map(|c| c as u64).filter(|&c| c > 0);
+    let cyclic = if args.no_cyclictest {
+        Err(anyhow::anyhow!("skipped (--no-cyclictest)"))
+    } else {
+        // As many wake-ups as marsd's servo loop measured (so the same duration), 30 s if it measured none.
+        let loops = wake_count.unwrap_or(30_000_000 / period_us.max(1));
+        run_cyclictest(&args, loops, period_us, cfg.servo.priority, cfg.servo.core)
+    };
+
+    let mut md = String::new();
+    let w = &mut md;
+    let cmdline: Vec<String> = std::env::args().collect();
+    let _ = writeln!(w, "# marsd benchmark\n");
+    let _ = writeln!(
+        w,
+        "`{}` — {started}; config `{}`, {} episodes per policy, seed {}, servo {} Hz.\n",
+        cmdline.join(" "),
+        args.config.display(),
+        args.episodes,
+        cfg.seed,
+        profile.rate_hz
+    );
+
+    // Machine facts.
+    let _ = writeln!(w, "## Machine\n\n| | |\n|---|---|");
+    let online = unsafe { libc::sysconf(libc::_SC_NPROCESSORS_ONLN) };
+    let cpu = std::fs::read_to_string("/proc/cpuinfo")
+        .ok()
+        .and_then(|s| {
+            s.lines()
+                .find(|l| l.starts_with("model name"))
+                .and_then(|l| l.split(':').nth(1))
+                .map(|s| s.trim().to_string())
+        })
+        .unwrap_or_else(|| "?".into());
+    let _ = writeln!(w, "| nproc | {cores} usable of {online} online ({cpu}) |");
+    let kernel = format!(
+        "{} {}",
+        read_trim("/proc/sys/kernel/osrelease").unwrap_or_default(),
+        read_trim("/proc/sys/kernel/version").unwrap_or_default()
+    );
+    let preempt_rt = read_trim("/sys/kernel/realtime").is_some_and(|s| s == "1") || kernel.contains("PREEMPT_RT");
+    let _ = writeln!(w, "| kernel | {kernel} ({}) |", if preempt_rt { "PREEMPT_RT" } else { "not PREEMPT_RT" });
+    let rtprio = unsafe {
+        let mut r: libc::rlimit = std::mem::zeroed();
+        libc::getrlimit(libc::RLIMIT_RTPRIO, &mut r);
+        if r.rlim_cur == libc::RLIM_INFINITY { "unlimited".to_string() } else { r.rlim_cur.to_string() }
+    };
+    let _ = writeln!(
+        w,
+        "| this user | uid {}, RLIMIT_RTPRIO {rtprio}; a fresh thread asking SCHED_FIFO {}: {} |",
+        unsafe { libc::getuid() },
+        cfg.servo.priority,
+        probe_sched_fifo(cfg.servo.priority)
+    );
+    for r in &runs {
+        let servo = r.rt.servo.clone().unwrap_or_else(|| "not in the log".into());
+        let policy = r.rt.policy.clone().unwrap_or_else(|| "not in the log".into());
+        let _ = writeln!(
+            w,
+            "| marsd ({}) real-time setup, from its log | servo thread: {servo}; policy thread: {policy} |",
+            r.name
+        );
+        for refusal in &r.rt.refusals {
+            let _ = writeln!(w, "| marsd ({}) warning | {} |", r.name, refusal.replace('|', "/"));
+        }
+    }
+    let _ = writeln!(
+        w,
+        "| demo layout | servo loop on core {}, policy loop on core {}, mock HAL on core {} |",
+        cfg.servo.core.map_or("–".into(), |c| c.to_string()),
+        cfg.policy.core.map_or("–".into(), |c| c.to_string()),
+        args.hal_core.unwrap_or_else(demo_hal_core)
+    );
+    for r in &runs {
+        let _ = writeln!(w, "| load during the {} demo | {} |", r.name, r.load.describe(cores));
+    }
+    let mut phases: Vec<(String, &PhaseLoad)> =
+        runs.iter().map(|r| (format!("the {} demo", r.name), &r.load)).collect();
+    if let Ok(c) = &cyclic {
+        let _ = writeln!(w, "| load during cyclictest | {} |", c.load.describe(cores));
+        phases.push(("cyclictest".into(), &c.load));
+    }
+    let disturbed: Vec<String> = phases
+        .iter()
+        .filter(|(_, l)| l.other_cpu_s > DISTURBED * l.wall_s * cores as f64)
+        .map(|(name, _)| name.clone())
+        .collect();
+    if !disturbed.is_empty() {
+        let _ = writeln!(
+            w,
+            "\n**Disturbed:** other processes used more than {:.0} % of the CPUs during {}; rerun on a quiet machine.",
+            100.0 * DISTURBED,
+            disturbed.join(", ")
+        );
+    }
+
+    // 1. Wake-up jitter.
+    let _ = writeln!(w, "\n## 1. Servo-loop wake-up jitter vs cyclictest (µs)\n");
+    let _ =
+        writeln!(w, "| | wake-ups | p50 | p99 | p99.9 | max | ≥ 1 period late |\n|---|---:|---:|---:|---:|---:|---:|");
+    let mj = |k: &str| mars.stat("wake_jitter", k);
+    let missed = mars.num("/deadline_misses/servo_missed_periods");
+    let _ = writeln!(
+        w,
+        "| marsd servo loop (MARS run: HAL, policy and servo running) | {} | {} | {} | {} | {} | {} periods skipped |",
+        mj("count").map_or("–".into(), |c| format!("{c:.0}")),
+        f1(mj("p50")),
+        f1(mj("p99")),
+        f1(mj("p99.9")),
+        f1(mj("max")),
+        missed.map_or("–".into(), |m| format!("{m:.0}"))
+    );
+    match &cyclic {
+        Ok(c) => {
+            let q = |p: f64| c.quantile_us(p);
+            let over = |v: Option<f64>| v.map_or(format!("> {:.0}", c.bound_ns as f64 * 1e-3), |v| format!("{v:.1}"));
+            let _ = writeln!(
+                w,
+                "| cyclictest (after the demos: no HAL, no marsd) | {} | {} | {} | {} | {:.1} | {} wake-ups |",
+                c.cycles,
+                over(q(0.5)),
+                over(q(0.99)),
+                over(q(0.999)),
+                c.max_ns as f64 * 1e-3,
+                c.at_least(period_us * 1000)
+            );
+            let _ = writeln!(
+                w,
+                "| ratio marsd / cyclictest | | {} | {} | {} | {} | |",
+                ratio(mj("p50"), q(0.5)),
+                ratio(mj("p99"), q(0.99)),
+                ratio(mj("p99.9"), q(0.999)),
+                ratio(mj("max"), Some(c.max_ns as f64 * 1e-3))
+            );
+            let _ = writeln!(
+                w,
+                "\ncyclictest {} (min {:.1} µs, mean {:.1} µs, {} wake-ups past the {} µs histogram bound): `{}`.",
+                c.version,
+                c.min_ns as f64 * 1e-3,
+                c.avg_ns * 1e-3,
+                c.overflows,
+                c.bound_ns / 1000,
+                c.cmdline
+            );
+            let pm = if args.cyclictest_pm_qos {
+                "cyclictest held /dev/cpu_dma_latency at 0 µs (marsd does not)"
+            } else {
+                "`--default-system`: cyclictest leaves power management alone, as marsd does"
+            };
+            let _ = writeln!(
+                w,
+                "It ran after the demos, with none of the benchmark's other processes (no HAL, no marsd; the load \
+                 row above says what else ran), for the same number of wake-ups, at the same period ({period_us} µs), \
+                 SCHED_FIFO priority ({}), core ({}) and with mlockall; {pm}.",
+                cfg.servo.priority,
+                cfg.servo.core.map_or("unpinned".into(), |c| c.to_string())
+            );
+            if !c.warnings.is_empty() {
+                let _ = writeln!(w, "cyclictest said: {}", c.warnings.join(" / "));
+            }
+        }
+        Err(e) => {
+            let _ = writeln!(w, "| cyclictest | **did not run: {e:#}** | | | | | |");
+        }
+    }
+    let _ = writeln!(
+        w,
+        "\nBoth measure lateness past the absolute deadline of a clock_nanosleep(TIMER_ABSTIME) loop. marsd's loop \
+         moves its deadline to the latest one passed when it wakes more than a period late (the skipped periods \
+         are counted), so its max stays below a period; cyclictest's max is the full lateness."
+    );
+
+    // 2. The tick.
+    let _ = writeln!(w, "\n## 2. Servo tick (MARS run)\n");
+    let _ = writeln!(
+        w,
+        "| tick compute p50 (µs) | p99 | p99.99 | max | ticks counted after warm-up | system-allocator calls / tick \
+         | pooled blocks / tick |\n|---:|---:|---:|---:|---:|---:|---:|"
+    );
+    let ticks = mars.num("/servo_ticks_counted");
+    let per_tick = |key: &str| match (mars.num(&format!("/servo_allocations/{key}")), ticks) {
+        (Some(n), Some(t)) if t > 0.0 => format!("{:.3} ({n:.0} in all)", n / t),
+        (None, _) if mars.summary.is_some() => "not measured".into(),
+        _ => "–".into(),
+    };
+    let _ = writeln!(
+        w,
+        "| {} | {} | {} | {} | {} | {} | {} |",
+        f1(mars.stat("tick_compute", "p50")),
+        f1(mars.stat("tick_compute", "p99")),
+        f1(mars.stat("tick_compute", "p99.99")),
+        f1(mars.stat("tick_compute", "max")),
+        ticks.map_or("–".into(), |t| format!("{t:.0}")),
+        per_tick("system"),
+        per_tick("pooled")
+    );
+
+    // 3. Policies.
+    let _ = writeln!(w, "\n## 3. MARS vs the baselines on the FR3 task (HIL demo, same episodes and seed)\n");
+    let others: Vec<&PolicyRun> = runs.iter().skip(1).collect();
+    let mut header = String::from("| |");
+    let mut rule = String::from("|---|");
+    for r in &runs {
+        let _ = write!(header, " {} |", r.name.to_uppercase());
+        rule.push_str("---:|");
+    }
+    for o in &others {
+        let _ = write!(header, " MARS/{} |", o.name.to_uppercase());
+        rule.push_str("---:|");
+    }
+    let _ = writeln!(w, "{header}\n{rule}");
+    type Cell = Box<dyn Fn(&PolicyRun) -> (String, Option<f64>)>;
+    let rows: Vec<(&str, Cell, bool)> = vec![
+        (
+            "success",
+            Box::new(|r| match (r.num("/successes"), r.num("/episodes")) {
+                (Some(s), Some(e)) => (format!("{s:.0}/{e:.0}"), None),
+                _ => ("–".into(), None),
+            }),
+            false,
+        ),
+        (
+            "modes",
+            Box::new(|r| {
+                let modes = r.get("/modes").and_then(Value::as_array).map(|m| {
+                    m.iter()
+                        .filter_map(|p| Some(format!("{} {}", p[0].as_str()?, p[1].as_u64()?)))
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                });
+                (modes.unwrap_or_else(|| "–".into()), None)
+            }),
+            false,
+        ),
+        ("γ", Box::new(|r| (f2(r.num("/gamma")), None)), false),
+        (
+            "stop",
+            Box::new(|r| {
+                let stop = r.get("/stop").and_then(Value::as_str).unwrap_or("–").to_string();
+                let text = match (r.get("/trip").and_then(Value::as_str), &r.error) {
+                    (Some(t), _) => format!("{stop}: {t}"),
+                    (None, Some(e)) => format!("{stop} ({e})"),
+                    _ => stop,
+                };
+                (text.replace('|', "/"), None)
+            }),
+            false,
+        ),
+        ("policy calls", Box::new(|r| (r.num("/k/calls").map_or("–".into(), |v| format!("{v:.0}")), None)), false),
+        (
+            "K requested mean",
+            Box::new(|r| {
+                let v = r.num("/k/requested_mean");
+                (f2(v), v)
+            }),
+            true,
+        ),
+        ("K requested p50", Box::new(|r| (f0(r.stat("k_requested", "p50")), r.stat("k_requested", "p50"))), false),
+        ("K requested max", Box::new(|r| (f0(r.stat("k_requested", "max")), None)), false),
+        (
+            "K used mean",
+            Box::new(|r| {
+                let v = r.num("/k/used_mean");
+                (f2(v), v)
+            }),
+            true,
+        ),
+        ("K used max", Box::new(|r| (f0(r.num("/k/used_max")), None)), false),
+        (
+            "calls capped by the deadline",
+            Box::new(|r| (r.num("/k/capped").map_or("–".into(), |v| format!("{v:.0}")), None)),
+            false,
+        ),
+        (
+            "inference p50 (µs)",
+            Box::new(|r| {
+                let v = r.stat("inference", "p50");
+                (f1(v), v)
+            }),
+            true,
+        ),
+        (
+            "inference p99 (µs)",
+            Box::new(|r| {
+                let v = r.stat("inference", "p99");
+                (f1(v), v)
+            }),
+            true,
+        ),
+        (
+            "late chunks / over budget",
+            Box::new(|r| match (r.num("/deadline_misses/late_chunks"), r.num("/deadline_misses/over_budget")) {
+                (Some(a), Some(b)) => (format!("{a:.0} / {b:.0}"), None),
+                _ => ("–".into(), None),
+            }),
+            false,
+        ),
+        (
+            "limit violations (final check + HAL rejected)",
+            Box::new(|r| match (r.num("/limit_violations/final_check"), r.num("/limit_violations/hal_rejected")) {
+                (Some(a), Some(b)) => (format!("{:.0}", a + b), None),
+                _ => ("–".into(), None),
+            }),
+            false,
+        ),
+        ("servo wake jitter p99 (µs)", Box::new(|r| (f1(r.stat("wake_jitter", "p99")), None)), false),
+    ];
+    for (label, cell, with_ratio) in &rows {
+        let mut line = format!("| {label} |");
+        for r in &runs {
+            let _ = write!(line, " {} |", cell(r).0);
+        }
+        for o in &others {
+            let text = if *with_ratio { ratio(cell(mars).1, cell(o).1) } else { String::new() };
+            let _ = write!(line, " {text} |");
+        }
+        let _ = writeln!(w, "{line}");
+    }
+    let _ = writeln!(w, "\nCheckpoints and each run's summary.json, latency table, histogram log and plots:");
+    for r in &runs {
+        let exit = r.exit.map_or("–".into(), |c| c.to_string());
+        let _ = writeln!(
+            w,
+            "- {}: `{}` → `{}/` (marsd exit status {exit})",
+            r.name,
+            r.checkpoint.display(),
+            r.dir.display()
+        );
+    }
+
+    println!("\n{md}");
+    let path = args.out.join("results.md");
+    std::fs::write(&path, &md).with_context(|| format!("writing {}", path.display()))?;
+    println!("wrote {}", path.display());
+    if runs.iter().any(|r| r.summary.is_none()) {
+        bail!("a policy's run produced no summary (see the table)");
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn reads_the_real_time_setup_from_marsd_log() {
+        let log = concat!(
+            "2026-11-21T11:52:02.664206Z  INFO mars_runtime::rt: real-time setup thread=\"servo\" core=Some(1) ",
+            "sched_fifo=Applied memory_locked=Denied { errno: 12 }\n",
+            "2026-11-21T11:52:02.665173Z  INFO mars_runtime::rt: real-time setup thread=\"policy\" core=None ",
+            "sched_fifo=Denied { errno: 1 } memory_locked=NotRequested\n",
+            "2026-11-21T11:52:02.665173Z  WARN mars_runtime::rt: SCHED_FIFO priority 70 refused thread=\"policy\"",
+        );
+        let rt = parse_rt_log(log);
+        assert_eq!(rt.servo.as_deref(), Some("core Some(1), SCHED_FIFO Applied, mlockall Denied { errno: 12 }"));
+        assert_eq!(rt.policy.as_deref(), Some("core None, SCHED_FIFO Denied { errno: 1 }, mlockall NotRequested"));
+        assert_eq!(rt.refusals.len(), 1);
+    }
+
+    #[test]
+    fn cyclictest_quantiles_count_overflows() {
+        let c = Cyclic {
+            cmdline: String::new(),
+            version: String::new(),
+            cycles: 1000,
+            hist: vec![(10_000, 500), (20_000, 490), (900_000, 9)],
+            overflows: 1,
+            bound_ns: 1_000_000,
+            min_ns: 10_000,
+            max_ns: 2_000_000,
+            avg_ns: 0.0,
+            warnings: Vec::new(),
+            load: PhaseLoad::default(),
+        };
+        assert_eq!(c.quantile_us(0.5), Some(10.0));
+        assert_eq!(c.quantile_us(0.99), Some(20.0));
+        assert_eq!(c.quantile_us(0.999), Some(900.0));
+        assert_eq!(c.quantile_us(0.9999), None);
+        assert_eq!(c.at_least(1_000_000), 1);
+        assert_eq!(c.at_least(900_000), 10);
+    }
+}
