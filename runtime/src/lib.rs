@@ -1,8 +1,12 @@
 //! `marsd`, the controller daemon, as a library (so tests and benchmarks drive the code the binary runs).
 //!
-//! Data flow: a state frame enters in [`servo`] (from the HAL over iceoryx2), is checked, feeds the
-//! [`policy_loop`] through a lock-free snapshot; the policy loop's time-stamped chunk comes back through
-//! [`handoff`]; the servo tick smooths it with [`smoothing`] (ruckig) and the command leaves in [`servo`].
+//! Data flow: a state frame enters in [`servo_loop`] (from the HAL over iceoryx2) and is judged by [`frame`];
+//! the servo thread shares the newest usable state with the [`policy_loop`] through [`shared`]; the policy
+//! loop's time-stamped chunk ([`chunk`]) comes back the same way; [`servo`] turns it into a reference, smooths
+//! it with ruckig ([`smoothing`]), checks it ([`limits`]) and the command leaves in [`servo_loop`]. Around
+//! them: [`watchdog`], [`daemon`] (setup, signals, systemd), [`latency`] + [`plots`] + [`report`], [`rt`]
+//! (pinning, SCHED_FIFO, the ticker), [`alloc_count`], the HIL [`task`], and the `mars-hil` tools ([`cli`],
+//! [`bench`]).
 
 pub mod alloc_count;
 pub mod bench;

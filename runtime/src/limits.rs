@@ -138,7 +138,7 @@ mod tests {
         let mut q2 = q.clone();
         q2[1] += 2e-5; // from rest: 20 rad/s² at once
         assert_eq!(c.admit(&q2), Err(Violation::Acceleration { joint: 1 }));
-        let mut out = home.clone();
+        let mut out = q.clone(); // continues the accepted stream on every other joint
         out[3] = p.q_max[3] + 0.01;
         assert_eq!(c.admit(&out), Err(Violation::Position { joint: 3 }));
         out[3] = f64::NAN;
