@@ -114,8 +114,11 @@ fn demo_attempt(attempt: u32) -> bool {
     assert_eq!(s["stop"], "finished");
     assert!(s["trip"].is_null(), "trip {}", s["trip"]);
     assert_eq!(u64_at(&s, "/episodes"), 10);
+    // The policy samples its grasp at the fork, and an episode can time out between the grasps: in-process the
+    // checkpoint succeeds 97–98 % (100 episodes), through the HIL 9–10 of 10 per run. At 8 of 10 a run fails by
+    // chance well under 1 % of the time at that rate, while a broken daemon (or policy) still fails it.
     let successes = u64_at(&s, "/successes");
-    assert!(successes >= 9, "only {successes}/10 episodes succeeded");
+    assert!(successes >= 8, "only {successes}/10 episodes succeeded");
     let modes = s["modes"].as_array().unwrap();
     let count = |name: &str| modes.iter().find(|m| m[0] == name).map(|m| m[1].as_u64().unwrap()).unwrap();
     assert!(count("rim") > 0 && count("handle") > 0, "modes {modes:?}: both grasps must be used");
