@@ -196,12 +196,24 @@ fn draw_k(root: &Area, totals: &Totals) -> anyhow::Result<()> {
 
 /// Episodes in the plane of two joints, each step coloured by its chunk's ‖w‖∞, starts as black dots and
 /// ends as circles in the colour of the episode's grasp mode: the two modes show as two branches.
-pub fn plot_episodes(traces: &[EpisodeTrace], joint_x: usize, joint_y: usize, path: &Path) -> anyhow::Result<()> {
+pub fn plot_episodes(
+    traces: &[EpisodeTrace],
+    mode_names: &[String],
+    joint_x: usize,
+    joint_y: usize,
+    path: &Path,
+) -> anyhow::Result<()> {
     ensure!(joint_x < 7 && joint_y < 7, "joints are 0..7, not ({joint_x}, {joint_y})");
-    to_png(path, EPISODES_SIZE, |root| draw_episodes(root, traces, joint_x, joint_y))
+    to_png(path, EPISODES_SIZE, |root| draw_episodes(root, traces, mode_names, joint_x, joint_y))
 }
 
-fn draw_episodes(root: &Area, traces: &[EpisodeTrace], jx: usize, jy: usize) -> anyhow::Result<()> {
+fn draw_episodes(
+    root: &Area,
+    traces: &[EpisodeTrace],
+    mode_names: &[String],
+    jx: usize,
+    jy: usize,
+) -> anyhow::Result<()> {
     let (map, bar) = root.split_horizontally(EPISODES_SIZE.0 - 110);
     let xy = |q: &[f64; 7]| (q[jx], q[jy]);
     let pts = || traces.iter().flat_map(|t| t.q.iter().map(xy)).filter(|p| p.0.is_finite() && p.1.is_finite());
@@ -249,7 +261,10 @@ fn draw_episodes(root: &Area, traces: &[EpisodeTrace], jx: usize, jy: usize) -> 
             continue;
         }
         let color = mode.map_or(RGBColor(128, 128, 128), palette);
-        let name = mode.map_or("no mode".to_string(), |m| format!("mode {m}"));
+        let name = match mode {
+            Some(m) => mode_names.get(m).cloned().unwrap_or_else(|| format!("mode {m}")),
+            None => "no grasp".to_string(),
+        };
         chart
             .draw_series(ends.iter().map(|&p| Circle::new(p, 7, color.stroke_width(3))))
             .map_err(err)?

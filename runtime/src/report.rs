@@ -139,6 +139,7 @@ impl Summary {
     /// Writes `summary.json`, `latency.txt` and the PNG plots into `dir`; returns the paths written.
     pub fn write(&self, dir: &Path, p: &PolicyReport) -> anyhow::Result<Vec<PathBuf>> {
         let mut written = Vec::new();
+        let mode_names: Vec<String> = self.modes.iter().map(|(name, _)| name.clone()).collect();
         let json = dir.join("summary.json");
         std::fs::write(&json, serde_json::to_string_pretty(self)?)
             .with_context(|| format!("writing {}", json.display()))?;
@@ -152,7 +153,7 @@ impl Summary {
             ("latency.png", Box::new(|path| crate::plots::plot_latency(&self.latency, path))),
             ("k.png", Box::new(|path| crate::plots::plot_k(&self.latency, path))),
             // Joints 0 and 6 are where the two grasps differ most.
-            ("episodes.png", Box::new(|path| crate::plots::plot_episodes(&p.traces, 0, 6, path))),
+            ("episodes.png", Box::new(|path| crate::plots::plot_episodes(&p.traces, &mode_names, 0, 6, path))),
         ];
         for (name, draw) in plots {
             let path = dir.join(name);

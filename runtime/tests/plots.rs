@@ -72,7 +72,7 @@ fn all_plots_render_with_the_bundled_font() {
     assert_png(&dir.join("latency.png"), LATENCY_SIZE);
     plot_k(&totals, &dir.join("k.png")).unwrap();
     assert_png(&dir.join("k.png"), K_SIZE);
-    plot_episodes(&two_branches(), 0, 1, &dir.join("episodes.png")).unwrap();
+    plot_episodes(&two_branches(), &["rim".into(), "handle".into()], 0, 1, &dir.join("episodes.png")).unwrap();
     assert_png(&dir.join("episodes.png"), EPISODES_SIZE);
     if !keep {
         std::fs::remove_dir_all(&dir).ok();
@@ -85,10 +85,10 @@ fn empty_inputs_still_render_and_bad_joints_error() {
     let none = Totals::from_histograms(std::iter::empty::<(Channel, Histogram<u64>)>());
     plot_latency(&none, &dir.join("latency.png")).unwrap();
     plot_k(&none, &dir.join("k.png")).unwrap();
-    plot_episodes(&[], 0, 1, &dir.join("episodes.png")).unwrap();
+    plot_episodes(&[], &[], 0, 1, &dir.join("episodes.png")).unwrap();
     let short = EpisodeTrace { mode: None, q: vec![[0.1; 7]], w_inf: vec![] };
-    plot_episodes(&[short], 2, 3, &dir.join("one_point.png")).unwrap();
-    assert!(plot_episodes(&[], 0, 7, &dir.join("bad.png")).is_err());
+    plot_episodes(&[short], &[], 2, 3, &dir.join("one_point.png")).unwrap();
+    assert!(plot_episodes(&[], &[], 0, 7, &dir.join("bad.png")).is_err());
     if !keep {
         std::fs::remove_dir_all(&dir).ok();
     }
