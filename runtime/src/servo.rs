@@ -351,6 +351,13 @@ impl ServoTick {
         out
     }
 
+    /// Re-attributes a stale-state stop to the HAL's death, found out after the loop had already stopped.
+    pub fn blame_hal_death(&mut self) {
+        if self.stop == Some(StopCause::Trip(Trip::StaleState)) {
+            self.stop = Some(StopCause::Trip(Trip::HalDied));
+        }
+    }
+
     /// Commands the HAL refused and clamped since the handshake, as of its newest usable frame: the robot
     /// side's own verdict on this controller's command stream.
     pub fn hal_limit_counts(&self) -> (u64, u64) {

@@ -103,6 +103,10 @@ fn phase_lock(ticker: &mut Ticker, frame_ns: u64, deadline_ns: u64, period_ns: u
     ticker.shift((err as f64 * PHASE_GAIN) as i64);
 }
 
+/// How long a stopped loop waits for the liveness watch to explain a stale-state stop (its verdict takes
+/// 10–20 ms: the heartbeat deadline plus iceoryx2's dead-node clean-up).
+const LIVENESS_GRACE: Duration = Duration::from_millis(100);
+
 /// Called once per tick with the tick index, after the tick's work (tests use it to count allocations on this
 /// thread; `marsd` passes a no-op).
 pub type TickHook = fn(u64);
@@ -194,6 +198,19 @@ pub fn run_servo(
         hook(tick.counters.ticks);
         if tick.phase() == Phase::Finished {
             break;
+        }
+    }
+    // Frames stop 20 ms after a HAL dies, but its liveness verdict can take as long: if the loop stopped on
+    // stale state, give the watch a moment (outside the loop, nothing is commanded any more) to say whether the
+    // HAL died — the report should name the cause, not the symptom.
+    if matches!(tick.stop_cause(), Some(StopCause::Trip(crate::watchdog::Trip::StaleState))) {
+        let until = std::time::Instant::now() + LIVENESS_GRACE;
+        while std::time::Instant::now() < until && wire.hal.losses() == losses_at_start {
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        if wire.hal.losses() != losses_at_start {
+            tick.blame_hal_death();
+            ch.status.set_trip(crate::watchdog::Trip::HalDied);
         }
     }
     let allocations_after_warmup = allocs_at_warmup.zip(crate::alloc_count::thread_counts()).map(|(start, end)| {
