@@ -251,9 +251,9 @@ fn sigkill_of_the_hal_makes_marsd_trip_and_exit_3() {
     );
     assert_eq!(status.code(), Some(3), "{status:?}\n{}", marsd.logs());
     let s = summary(&logs, "marsd");
-    // Two detectors race here: the liveness watch (HalDied, typically 13-18 ms after the kill on this machine)
-    // and the stale-state gap (StaleState, 20 ms). The first trip is the one reported, so a late liveness
-    // verdict makes marsd blame the frames instead of naming the dead HAL: that is a finding, not noise.
+    // Two detectors race here: the liveness watch (HalDied, typically 13-21 ms after the kill on this machine)
+    // and the stale-state gap (StaleState, 20 ms). A dead HAL replaces a stale-state trip, also after the loop
+    // stopped (it waits for the verdict), so marsd must name the HAL whichever detector fired first.
     assert!(
         line.is_some(),
         "marsd did not name the dead HAL: it reported trip {} (liveness lost the race against \
