@@ -22,6 +22,12 @@ use serde_json::Value;
 
 use crate::cli::{DemoArgs, MarsdArgs};
 
+mod cyclictest;
+mod load;
+
+use cyclictest::run_cyclictest;
+use load::{LoadProbe, PhaseLoad};
+
 #[derive(clap::Args, Debug, Clone)]
 pub struct BenchArgs {
     /// Daemon configuration (TOML): servo core, priority and rate are taken from it (and its profile).
@@ -125,139 +131,6 @@ fn parse_rt_log(log: &str) -> RtLog {
         }
     }
     rt
-}
-
-/// What else used the CPUs during one phase (sampled from /proc), and how much CPU the hypervisor stole.
-#[derive(Default, Clone)]
-struct PhaseLoad {
-    wall_s: f64,
-    /// CPU seconds of every process outside this benchmark (this process and the HAL, marsd and cyclictest
-    /// it starts), among those that lived through at least one sample.
-    other_cpu_s: f64,
-    /// The busiest of them, grouped by name (name, CPU seconds).
-    top: Vec<(String, f64)>,
-    steal_s: f64,
-    /// Share of the time some runnable task waited for a CPU (PSI, this benchmark's own tasks included).
-    cpu_pressure: Option<f64>,
-}
-
-/// Per process (pid, start time): name, CPU seconds when first seen (0 if it started after the phase did),
-/// CPU seconds when last seen.
-type Seen = HashMap<(u32, u64), (String, f64, f64)>;
-
-/// Samples every process's CPU time (keyed by pid and start time) until finished.
-struct LoadProbe {
-    started: Instant,
-    steal: f64,
-    pressure_us: Option<f64>,
-    stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
-    sampler: std::thread::JoinHandle<Seen>,
-}
-
-fn clock_tick_s() -> f64 {
-    // SAFETY: sysconf has no preconditions.
-    let hz = unsafe { libc::sysconf(libc::_SC_CLK_TCK) };
-    1.0 / if hz > 0 { hz as f64 } else { 100.0 }
-}
-
-/// Steal seconds of all cores since boot, from /proc/stat.
-fn steal_s() -> f64 {
-    let text = std::fs::read_to_string("/proc/stat").unwrap_or_default();
-    let Some(line) = text.lines().find(|l| l.starts_with("cpu ")) else { return 0.0 };
-    line.split_whitespace().nth(8).and_then(|s| s.parse::<f64>().ok()).unwrap_or(0.0) * clock_tick_s()
-}
-
-/// Total µs some task waited for a CPU, from /proc/pressure/cpu.
-fn cpu_pressure_us() -> Option<f64> {
-    let text = std::fs::read_to_string("/proc/pressure/cpu").ok()?;
-    let some = text.lines().find(|l| l.starts_with("some"))?;
-    some.split_whitespace().find_map(|f| f.strip_prefix("total="))?.parse().ok()
-}
-
-/// Every other process's CPU seconds so far: (pid, start time) → (name, seconds). Skips this process and its
-/// children.
-fn other_processes() -> HashMap<(u32, u64), (String, f64)> {
-    let me = std::process::id();
-    let mut out = HashMap::new();
-    let Ok(dir) = std::fs::read_dir("/proc") else { return out };
-    for entry in dir.flatten() {
-        let Some(pid) = entry.file_name().to_str().and_then(|s| s.parse::<u32>().ok()) else { continue };
-        let Ok(stat) = std::fs::read_to_string(entry.path().join("stat")) else { continue };
-        let (Some(open), Some(close)) = (stat.find('('), stat.rfind(')')) else { continue };
-        // A kernel worker's name says what it works on at the moment: keep the worker's name only.
-        let name = stat[open + 1..close].split('-').next().unwrap_or_default().to_string();
-        let rest: Vec<&str> = stat[close + 1..].split_whitespace().collect();
-        let field = |i: usize| rest.get(i).and_then(|s| s.parse::<u64>().ok()).unwrap_or(0);
-        // After the name: state(0) ppid(1) … utime(11) stime(12) … starttime(19).
-        if pid == me || field(1) == u64::from(me) {
-            continue;
-        }
-        out.insert((pid, field(19)), (name, (field(11) + field(12)) as f64 * clock_tick_s()));
-    }
-    out
-}
-
-impl LoadProbe {
-    fn start() -> Self {
-        let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
-        let flag = stop.clone();
-        let first = other_processes();
-        let sampler = std::thread::spawn(move || {
-            let mut seen: Seen = first.into_iter().map(|(k, (n, t))| (k, (n, t, t))).collect();
-            loop {
-                let last = flag.load(std::sync::atomic::Ordering::Acquire);
-                for (k, (n, t)) in other_processes() {
-                    seen.entry(k).and_modify(|e| e.2 = t).or_insert((n, 0.0, t));
-                }
-                if last {
-                    return seen;
-                }
-                std::thread::sleep(Duration::from_millis(250));
-            }
-        });
-        Self { started: Instant::now(), steal: steal_s(), pressure_us: cpu_pressure_us(), stop, sampler }
-    }
-
-    fn finish(self) -> PhaseLoad {
-        let wall_s = self.started.elapsed().as_secs_f64();
-        self.stop.store(true, std::sync::atomic::Ordering::Release);
-        let seen = self.sampler.join().unwrap_or_default();
-        let mut by_name: HashMap<String, f64> = HashMap::new();
-        for (name, first, last) in seen.into_values() {
-            *by_name.entry(name).or_default() += (last - first).max(0.0);
-        }
-        let other_cpu_s = by_name.values().sum();
-        let mut top: Vec<(String, f64)> = by_name.into_iter().filter(|(_, t)| *t >= 0.1).collect();
-        top.sort_by(|a, b| b.1.total_cmp(&a.1));
-        top.truncate(5);
-        let cpu_pressure = match (self.pressure_us, cpu_pressure_us()) {
-            (Some(a), Some(b)) if wall_s > 0.0 => Some((b - a) * 1e-6 / wall_s),
-            _ => None,
-        };
-        PhaseLoad { wall_s, other_cpu_s, top, steal_s: steal_s() - self.steal, cpu_pressure }
-    }
-}
-
-impl PhaseLoad {
-    fn describe(&self, cores: usize) -> String {
-        let cap = self.wall_s * cores as f64;
-        let mut s = format!(
-            "{:.0} s: other processes used {:.1} CPU-s of {:.0} ({:.0} %)",
-            self.wall_s,
-            self.other_cpu_s,
-            cap,
-            100.0 * self.other_cpu_s / cap.max(1e-9)
-        );
-        if !self.top.is_empty() {
-            let top: Vec<String> = self.top.iter().map(|(n, t)| format!("{n} {t:.1} s")).collect();
-            let _ = write!(s, " ({})", top.join(", "));
-        }
-        let _ = write!(s, "; steal {:.1} s", self.steal_s);
-        if let Some(p) = self.cpu_pressure {
-            let _ = write!(s, "; CPU pressure (a runnable task waiting, ours included) {:.0} % of the time", 100.0 * p);
-        }
-        s
-    }
 }
 
 /// Runs `f` with this process's stderr (fd 2, inherited by the processes it spawns) copied into a string as
@@ -370,127 +243,6 @@ fn add_error(slot: &mut Option<String>, msg: String) {
         Some(prev) => format!("{prev}; {msg}"),
         None => msg,
     });
-}
-
-/// cyclictest's result: its wake-up latencies (ns) as a sparse histogram plus what did not fit.
-struct Cyclic {
-    cmdline: String,
-    version: String,
-    cycles: u64,
-    /// (latency ns, count), ascending.
-    hist: Vec<(u64, u64)>,
-    /// Wake-ups later than the histogram bound.
-    overflows: u64,
-    bound_ns: u64,
-    min_ns: u64,
-    max_ns: u64,
-    avg_ns: f64,
-    /// Warnings cyclictest printed (a refused SCHED_FIFO or mlockall shows up here).
-    warnings: Vec<String>,
-    load: PhaseLoad,
-}
-
-impl Cyclic {
-    /// The latency at quantile `q` the way HdrHistogram reports it (the smallest value with at least
-    /// ceil(q·n) samples at or below it), in µs; `None` when it falls among the overflows.
-    fn quantile_us(&self, q: f64) -> Option<f64> {
-        let rank = ((q * self.cycles as f64).ceil() as u64).max(1);
-        let mut seen = 0;
-        for &(v, n) in &self.hist {
-            seen += n;
-            if seen >= rank {
-                return Some(v as f64 * 1e-3);
-            }
-        }
-        None
-    }
-
-    /// Wake-ups at least one period late (the ones marsd counts as skipped periods instead).
-    fn at_least(&self, ns: u64) -> u64 {
-        self.hist.iter().filter(|(v, _)| *v >= ns).map(|(_, n)| n).sum::<u64>() + self.overflows
-    }
-}
-
-/// `cyclictest` at marsd's servo rate, priority and core, with mlockall, for `loops` wake-ups.
-fn run_cyclictest(
-    args: &BenchArgs,
-    loops: u64,
-    period_us: u64,
-    priority: i32,
-    core: Option<usize>,
-) -> anyhow::Result<Cyclic> {
-    let json = std::fs::canonicalize(&args.out)?.join("cyclictest.json");
-    let _ = std::fs::remove_file(&json);
-    // One period: later wake-ups are what marsd counts as skipped periods; cyclictest counts them as histogram
-    // overflows (keeping the exact max). Its histogram holds at most 10^6 buckets (ns with -N).
-    let bound_ns = (period_us * 1000).min(1_000_000);
-    let mut cmd = Command::new("cyclictest");
-    cmd.args(["-m", "-p", &priority.to_string()]);
-    if let Some(c) = core {
-        cmd.args(["-a", &c.to_string()]);
-    }
-    cmd.args(["-t", "1", "-i", &period_us.to_string(), "-l", &loops.to_string(), "-q", "-N"]);
-    cmd.args(["-h", &bound_ns.to_string(), "--histfile=/dev/null"]).arg(format!("--json={}", json.display()));
-    if !args.cyclictest_pm_qos {
-        cmd.arg("--default-system");
-    }
-    let cmdline = format!(
-        "cyclictest {}",
-        cmd.get_args().map(|a| a.to_string_lossy().into_owned()).collect::<Vec<_>>().join(" ")
-    );
-    eprintln!(
-        "== bench: {cmdline}  ({loops} wake-ups ≈ {:.0} s, idle machine)",
-        loops as f64 * period_us as f64 * 1e-6
-    );
-    let probe = LoadProbe::start();
-    let output = match cmd.output() {
-        Ok(o) => o,
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
-            bail!("cyclictest is not installed (Debian/Ubuntu: `apt-get install rt-tests`)")
-        }
-        Err(e) => bail!("cannot start cyclictest: {e}"),
-    };
-    let load = probe.finish();
-    let text = |b: &[u8]| String::from_utf8_lossy(b).into_owned();
-    let (stdout, stderr) = (text(&output.stdout), text(&output.stderr));
-    let warnings: Vec<String> = stderr
-        .lines()
-        .chain(stdout.lines())
-        .map(str::trim)
-        .filter(|l| !l.is_empty() && !l.starts_with("T:") && !l.starts_with("# Histogram"))
-        .map(str::to_string)
-        .collect();
-    if !output.status.success() {
-        bail!("{cmdline} failed ({}): {}", output.status, warnings.join(" | "));
-    }
-    let v: Value = serde_json::from_str(
-        &std::fs::read_to_string(&json)
-            .with_context(|| format!("cyclictest wrote no {} (it needs rt-tests ≥ 2.0 for --json)", json.display()))?,
-    )
-    .with_context(|| format!("parsing {}", json.display()))?;
-    let t = &v["thread"]["0"];
-    let mut hist: Vec<(u64, u64)> = t["histogram"]
-        .as_object()
-        .context("cyclictest's JSON has no histogram for thread 0")?
-        .iter()
-        .filter_map(|(k, n)| Some((k.parse().ok()?, n.as_u64()?)))
-        .collect();
-    hist.sort_unstable();
-    let cycles = t["cycles"].as_u64().unwrap_or(0);
-    let counted: u64 = hist.iter().map(|(_, n)| n).sum();
-    Ok(Cyclic {
-        cmdline,
-        version: v["rt_test_version:"].as_str().or(v["rt_test_version"].as_str()).unwrap_or("?").to_string(),
-        cycles,
-        hist,
-        overflows: cycles.saturating_sub(counted),
-        bound_ns,
-        min_ns: t["min"].as_u64().unwrap_or(0),
-        max_ns: t["max"].as_u64().unwrap_or(0),
-        avg_ns: t["avg"].as_f64().unwrap_or(0.0),
-        warnings,
-        load,
-    })
 }
 
 fn f0(v: Option<f64>) -> String {
@@ -892,6 +644,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
 
 #[cfg(test)]
 mod tests {
+    use super::cyclictest::Cyclic;
     use super::*;
 
     #[test]
