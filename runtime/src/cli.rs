@@ -9,7 +9,6 @@ use std::time::{Duration, Instant};
 use anyhow::Context;
 
 use crate::daemon::{self, exit};
-use crate::servo_loop::no_hook;
 
 #[derive(clap::Args, Debug, Clone)]
 pub struct MarsdArgs {
@@ -59,7 +58,7 @@ pub fn marsd(args: MarsdArgs) -> ExitCode {
             return ExitCode::from(exit::BAD_SETUP);
         }
     };
-    match daemon::run(prepared, no_hook) {
+    match daemon::run(prepared) {
         Ok(outcome) => ExitCode::from(outcome.exit),
         Err(e) => {
             tracing::error!("{e:#}");

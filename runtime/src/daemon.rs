@@ -23,7 +23,7 @@ use crate::latency::{Channel, Collector};
 use crate::policy_loop::{PolicyChannels, PolicyLoop};
 use crate::report::Summary;
 use crate::servo::ServoTick;
-use crate::servo_loop::{ServoChannels, ServoReport, ServoWire, TickHook, run_servo};
+use crate::servo_loop::{ServoChannels, ServoReport, ServoWire, run_servo};
 use crate::shared::{Observed, Status};
 use crate::task::pick_cup::PickCup;
 
@@ -91,7 +91,7 @@ pub struct Outcome {
 }
 
 /// Runs the loops to the end and writes the report into `cfg.out`.
-pub fn run(p: Prepared, hook: TickHook) -> anyhow::Result<Outcome> {
+pub fn run(p: Prepared) -> anyhow::Result<Outcome> {
     let Prepared { cfg, profile, task, engine } = p;
     let mode_names: Vec<String> = task.cfg.grasps.iter().map(|g| g.name.clone()).collect();
     std::fs::create_dir_all(&cfg.out).with_context(|| format!("creating {}", cfg.out.display()))?;
@@ -131,13 +131,14 @@ pub fn run(p: Prepared, hook: TickHook) -> anyhow::Result<Outcome> {
                 }
             };
             crate::rt::setup_realtime("servo", servo_core, Some(servo_prio), lock);
-            Some(run_servo(tick, wire, servo_ch, servo_rec, period, interval, hook))
+            Some(run_servo(tick, wire, servo_ch, servo_rec, period, interval))
         })
         .context("spawning the servo thread")?;
     opened_rx.recv().context("the servo thread died while opening the wire")??;
-    // Signals only set flags (registered after the wire is open: `ServoWire::open` makes iceoryx2 install its
-    // own handlers, which replace whatever is there, and signal-hook chains to a handler installed before it); the main thread turns them into a safe stop. A second SIGINT/SIGTERM while
-    // stopping exits at once (status 1); the HAL then brakes on command loss.
+    // Signals only set flags; the main thread turns them into a safe stop. A second SIGINT/SIGTERM while
+    // stopping exits at once (status 1); the HAL then brakes on command loss. Registered after the wire is
+    // open: `ServoWire::open` makes iceoryx2 install its own handlers, which replace whatever is there, and
+    // signal-hook chains to a handler installed before it.
     let term = Arc::new(AtomicBool::new(false));
     for sig in [signal_hook::consts::SIGTERM, signal_hook::consts::SIGINT] {
         signal_hook::flag::register_conditional_shutdown(sig, 1, term.clone())?;

@@ -107,12 +107,6 @@ fn phase_lock(ticker: &mut Ticker, frame_ns: u64, deadline_ns: u64, period_ns: u
 /// 10–20 ms: the heartbeat deadline plus iceoryx2's dead-node clean-up).
 const LIVENESS_GRACE: Duration = Duration::from_millis(100);
 
-/// Called once per tick with the tick index, after the tick's work (tests use it to count allocations on this
-/// thread; `marsd` passes a no-op).
-pub type TickHook = fn(u64);
-
-pub fn no_hook(_: u64) {}
-
 pub fn run_servo(
     mut tick: ServoTick,
     mut wire: ServoWire,
@@ -120,7 +114,6 @@ pub fn run_servo(
     mut rec: Recorder,
     period: Duration,
     interval: Duration,
-    hook: TickHook,
 ) -> ServoReport {
     let mut ticker = Ticker::new(period);
     let period_ns = period.as_nanos() as u64;
@@ -195,7 +188,6 @@ pub fn run_servo(
         if tick.counters.ticks == ALLOC_WARMUP_TICKS {
             allocs_at_warmup = crate::alloc_count::thread_counts();
         }
-        hook(tick.counters.ticks);
         if tick.phase() == Phase::Finished {
             break;
         }

@@ -73,7 +73,7 @@ fn servo_tick_makes_no_heap_allocation_over_two_episodes() {
     cfg.robot = robot;
     cfg.episodes = 2;
     let prepared = daemon::prepare(cfg).unwrap();
-    let outcome = daemon::run(prepared, mars_runtime::servo_loop::no_hook).unwrap();
+    let outcome = daemon::run(prepared).unwrap();
     let s = &outcome.summary; // (daemon::run printed it)
     assert_eq!(outcome.exit, daemon::exit::OK, "trip {:?}", s.trip);
     assert_eq!(s.episodes, 2);
