@@ -7,8 +7,7 @@ use anyhow::Context;
 use hdrhistogram::Histogram;
 use mars_ipc::liveness::{Heartbeat, PeerWatch, Side};
 use mars_ipc::node::create_node;
-use mars_ipc::wire::WireError;
-use mars_ipc::{CommandMode, CommandReader, HoldReason, MAX_JOINTS, RobotNamespace, RobotState, StateWriter, status};
+use mars_ipc::{CommandMode, FrameReceiveError, CommandReader, HoldReason, MAX_JOINTS, RobotNamespace, RobotState, StateWriter, status};
 use tracing::{info, warn};
 
 use crate::backend::Backend;
@@ -153,7 +152,7 @@ pub fn run(profile: &Profile, backend: &mut dyn Backend, opts: &RunOptions) -> a
                         }
                     }
                 },
-                Err(WireError::Schema { mismatch, .. }) => {
+                Err(FrameReceiveError::Schema(mismatch)) => {
                     schema_refusals += 1;
                     if schema_refusals == 1 {
                         events.send(LoopEvent::WrongSchema(mismatch));

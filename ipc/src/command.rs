@@ -41,8 +41,12 @@ pub struct JointCommand {
     pub position: [f64; MAX_JOINTS],
     pub velocity: [f64; MAX_JOINTS],
     pub acceleration: [f64; MAX_JOINTS],
-    /// Gripper opening target (m).
+    /// Gripper opening target (m): a width to move to, not a stream. The HAL moves the gripper there at
+    /// `gripper_speed` (capped by the profile) and passes a new target to the backend only when it changes, as
+    /// a Franka Hand takes one move action at a time.
     pub gripper: f64,
+    /// Speed of the move to `gripper` (m/s); 0 asks for the profile's maximum.
+    pub gripper_speed: f64,
     /// A [`CommandMode`] as `u32`.
     pub mode: u32,
     pub num_joints: u32,
@@ -59,6 +63,7 @@ impl Default for JointCommand {
             velocity: [0.0; MAX_JOINTS],
             acceleration: [0.0; MAX_JOINTS],
             gripper: 0.0,
+            gripper_speed: 0.0,
             mode: CommandMode::Position as u32,
             num_joints: 0,
         }

@@ -28,4 +28,7 @@ pub use liveness::{ControllerLiveness, HalLiveness, Heartbeat, Peer, PeerWatch, 
 pub use names::{NameError, RobotNamespace};
 pub use schema::{FrameHeader, SCHEMA_VERSION, SchemaMismatch};
 pub use state::{HoldReason, MAX_JOINTS, RobotState, fault, status};
-pub use wire::{CommandReader, CommandWriter, ImageReader, ImageWriter, StateReader, StateWriter, WireError};
+pub use wire::{
+    CommandReader, CommandWriter, FrameReceiveError, FrameSendError, ImageReader, ImageWriter, StateReader, StateWriter,
+    WireError,
+};

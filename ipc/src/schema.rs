@@ -10,7 +10,9 @@ use iceoryx2::prelude::ZeroCopySend;
 /// The version of the frame layouts in this crate.
 /// v2: `HoldReason::ControllerLost` and the `fault` bits of `RobotState`.
 /// v3: `RobotState::applied_velocity` / `applied_acceleration`.
-pub const SCHEMA_VERSION: u32 = 3;
+/// v4: late / last-resort / backend-error counters, `status::LAST_RESORT` and `BACKEND_ERROR`,
+/// `HoldReason::HalError`, `RobotState::gripper_target`, `JointCommand::gripper_speed`.
+pub const SCHEMA_VERSION: u32 = 4;
 
 /// The iceoryx2 user header of state and command frames.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ZeroCopySend)]

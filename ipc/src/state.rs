@@ -13,6 +13,13 @@ pub mod status {
     pub const HOLDING: u32 = 1 << 1;
     /// The joints are at rest (every |velocity| of the applied setpoint below 1e-3 rad/s).
     pub const AT_REST: u32 = 1 << 2;
+    /// The HAL's safety filter had to use a last resort this tick (a position guard stopped a joint at its
+    /// limit, or no setpoint satisfied every limit at once): see `RobotState::position_guard_hits` and
+    /// `RobotState::infeasible_steps`. A controller or a user must see this; it should never happen.
+    pub const LAST_RESORT: u32 = 1 << 3;
+    /// The HAL is braking or holding because its backend (the robot's driver) reported errors; see
+    /// `RobotState::backend_errors`.
+    pub const BACKEND_ERROR: u32 = 1 << 4;
 }
 
 /// Bits of [`RobotState::fault`]: a frame with any of them set carries measurements a controller must not
@@ -40,6 +47,9 @@ pub enum HoldReason {
     ControllerRequested = 3,
     /// The controller's process died or closed its heartbeat (seen through [`crate::liveness`]).
     ControllerLost = 4,
+    /// The HAL's backend (the robot's driver) or its own ports failed repeatedly: it braked to rest and holds
+    /// until it recovers and a controller starts a new session.
+    HalError = 5,
 }
 
 impl HoldReason {
@@ -51,6 +61,7 @@ impl HoldReason {
             2 => Some(Self::CommandTimeout),
             3 => Some(Self::ControllerRequested),
             4 => Some(Self::ControllerLost),
+            5 => Some(Self::HalError),
             _ => None,
         }
     }
@@ -84,10 +95,23 @@ pub struct RobotState {
     pub applied_acceleration: [f64; MAX_JOINTS],
     /// Gripper opening (m).
     pub gripper: f64,
+    /// The width the gripper is moving to (m): the last admitted target, reached at the profile's gripper speed.
+    pub gripper_target: f64,
     /// Commands refused since start (NaN, wrong joint count, wrong schema, out of limits under `reject`).
     pub rejected_commands: u64,
     /// Commands clamped into the limits since start (under `clamp`).
     pub clamped_commands: u64,
+    /// Commands that reached the HAL after the tick they answered for had passed (their `state_seq` was not
+    /// the newest frame's): counted apart from out-of-limit commands, since the cause is timing, not content.
+    pub late_commands: u64,
+    /// Ticks in which the safety filter's position guard stopped a joint at its limit, breaking the
+    /// acceleration/jerk limits on purpose (a last resort; expected to stay 0).
+    pub position_guard_hits: u64,
+    /// Ticks in which no setpoint satisfied every limit at once and the filter took the middle of the
+    /// (empty) feasible interval (a last resort; expected to stay 0).
+    pub infeasible_steps: u64,
+    /// Errors of the backend or of the HAL's own ports since start (each one brakes the arm to rest).
+    pub backend_errors: u64,
     /// [`status`] bits.
     pub status: u32,
     /// Fault bits of the backend (0: none).
@@ -111,8 +135,13 @@ impl Default for RobotState {
             applied_velocity: [0.0; MAX_JOINTS],
             applied_acceleration: [0.0; MAX_JOINTS],
             gripper: 0.0,
+            gripper_target: 0.0,
             rejected_commands: 0,
             clamped_commands: 0,
+            late_commands: 0,
+            position_guard_hits: 0,
+            infeasible_steps: 0,
+            backend_errors: 0,
             status: 0,
             fault: 0,
             hold_reason: HoldReason::NoSession as u32,
@@ -144,6 +173,7 @@ mod tests {
             HoldReason::CommandTimeout,
             HoldReason::ControllerRequested,
             HoldReason::ControllerLost,
+            HoldReason::HalError,
         ] {
             assert_eq!(HoldReason::from_u32(r as u32), Some(r));
         }

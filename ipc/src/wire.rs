@@ -39,6 +39,28 @@ pub enum WireError {
     BadImage { service: String, expected: Option<usize>, found: usize },
 }
 
+/// Why a frame could not be received: `Copy` and allocation-free, since real-time loops call `receive` every
+/// tick and must be able to count and classify a failure without touching the heap. The service is known to
+/// the caller (it owns the reader).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+pub enum FrameReceiveError {
+    /// A frame from a build with another schema version (consumed; the next call goes on).
+    #[error("{0}")]
+    Schema(SchemaMismatch),
+    /// iceoryx2 could not hand out a frame (too many held, or the connection to a publisher failed).
+    #[error("iceoryx2 receive failed: {0}")]
+    Port(iceoryx2::port::ReceiveError),
+}
+
+/// Why a frame could not be sent: `Copy` and allocation-free, like [`FrameReceiveError`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+pub enum FrameSendError {
+    #[error("iceoryx2 loan failed: {0}")]
+    Loan(iceoryx2::port::LoanError),
+    #[error("iceoryx2 send failed: {0}")]
+    Send(iceoryx2::port::SendError),
+}
+
 fn svc_err(service: &ServiceName, e: impl core::fmt::Debug) -> WireError {
     WireError::Service { service: service.as_str().to_owned(), reason: format!("{e:?}") }
 }
@@ -94,15 +116,20 @@ macro_rules! frame_ports {
             }
 
             /// Write `frame` straight into shared memory and deliver it; returns how many readers got it.
-            pub fn send(&self, frame: &$payload) -> Result<usize, WireError> {
+            pub fn send(&self, frame: &$payload) -> Result<usize, FrameSendError> {
                 self.send_with_header(frame, FrameHeader::default())
             }
 
             /// [`Self::send`] with an explicit header: only for exercising the receivers' refusal path.
-            pub fn send_with_header(&self, frame: &$payload, header: FrameHeader) -> Result<usize, WireError> {
-                let mut sample = self.publisher.loan_uninit().map_err(|e| port_err(&self.name, e))?;
+            pub fn send_with_header(&self, frame: &$payload, header: FrameHeader) -> Result<usize, FrameSendError> {
+                let mut sample = self.publisher.loan_uninit().map_err(FrameSendError::Loan)?;
                 *sample.user_header_mut() = header;
-                sample.write_payload(*frame).send().map_err(|e| port_err(&self.name, e))
+                sample.write_payload(*frame).send().map_err(FrameSendError::Send)
+            }
+
+            /// The service this writer publishes on (for error messages outside the real-time path).
+            pub fn service(&self) -> &str {
+                self.name.as_str()
             }
         }
 
@@ -120,15 +147,20 @@ macro_rules! frame_ports {
                 Ok(Self { name, subscriber })
             }
 
-            /// The next frame, `Ok(None)` when none is waiting, or [`WireError::Schema`] for a frame from a
-            /// mismatched build (that frame is consumed; the next call goes on with the following one).
-            pub fn receive(&self) -> Result<Option<$payload>, WireError> {
-                let Some(sample) = self.subscriber.receive().map_err(|e| port_err(&self.name, e))? else {
+            /// The next frame, `Ok(None)` when none is waiting, or [`FrameReceiveError::Schema`] for a frame
+            /// from a mismatched build (that frame is consumed; the next call goes on with the following one).
+            /// Never allocates, also not on an error.
+            pub fn receive(&self) -> Result<Option<$payload>, FrameReceiveError> {
+                let Some(sample) = self.subscriber.receive().map_err(FrameReceiveError::Port)? else {
                     return Ok(None);
                 };
-                check_schema_version(sample.user_header().schema_version)
-                    .map_err(|mismatch| WireError::Schema { service: self.name.as_str().to_owned(), mismatch })?;
+                check_schema_version(sample.user_header().schema_version).map_err(FrameReceiveError::Schema)?;
                 Ok(Some(*sample.payload()))
+            }
+
+            /// The service this reader subscribes to (for error messages outside the real-time path).
+            pub fn service(&self) -> &str {
+                self.name.as_str()
             }
         }
     };
