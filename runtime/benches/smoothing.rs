@@ -1,10 +1,16 @@
 //! ns per servo tick of the ruckig smoother (7 DoF, FR3 limits, 1 kHz) against the official ruckig crate on the same
-//! target stream: a new target every tick (the servo's moving reference), so every tick re-plans.
+//! target stream: a new target every tick (the servo's moving reference), so every tick re-plans. Also counts
+//! heap allocations per update on both sides: Rust's through a counting global allocator, and every `malloc`
+//! call of the process (Rust's and the official crate's C++ core alike) through a `malloc` defined in this
+//! binary, which the dynamic linker binds ahead of glibc's for every library (the C++ core's `operator new`
+//! included); it forwards to glibc's `__libc_malloc`.
 //!
 //! `nice -n 19 cargo bench -p mars-runtime --bench smoothing`
 
+use std::alloc::{GlobalAlloc, Layout, System};
 use std::hint::black_box;
 use std::path::Path;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant;
 
 use mars_hal::profile::Profile;
@@ -39,6 +45,56 @@ fn targets(home: &[f64], dq_max: &[f64]) -> Vec<([f64; 7], [f64; 7])> {
         .collect()
 }
 
+static RUST_ALLOCATIONS: AtomicU64 = AtomicU64::new(0);
+static MALLOC_CALLS: AtomicU64 = AtomicU64::new(0);
+
+struct CountingRust;
+
+unsafe impl GlobalAlloc for CountingRust {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        RUST_ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
+        // SAFETY: forwarded unchanged.
+        unsafe { System.alloc(layout) }
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        // SAFETY: forwarded unchanged.
+        unsafe { System.dealloc(ptr, layout) }
+    }
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        RUST_ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
+        // SAFETY: forwarded unchanged.
+        unsafe { System.realloc(ptr, layout, new_size) }
+    }
+}
+
+#[global_allocator]
+static GLOBAL: CountingRust = CountingRust;
+
+unsafe extern "C" {
+    fn __libc_malloc(size: usize) -> *mut libc::c_void;
+}
+
+/// Every `malloc` of the process, counted (Rust's `System` allocator calls it too, for small alignments).
+///
+/// # Safety
+/// The C `malloc` contract; forwards to glibc's implementation, so glibc's `free` releases the block.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn malloc(size: usize) -> *mut libc::c_void {
+    MALLOC_CALLS.fetch_add(1, Ordering::Relaxed);
+    // SAFETY: glibc's own malloc, same contract.
+    unsafe { __libc_malloc(size) }
+}
+
+/// Allocations per call of `f` over `calls` calls: (Rust allocator, all `malloc` calls).
+fn allocations_per_call(calls: usize, mut f: impl FnMut(usize)) -> (f64, f64) {
+    let (r0, m0) = (RUST_ALLOCATIONS.load(Ordering::Relaxed), MALLOC_CALLS.load(Ordering::Relaxed));
+    for i in 0..calls {
+        f(i);
+    }
+    let (r1, m1) = (RUST_ALLOCATIONS.load(Ordering::Relaxed), MALLOC_CALLS.load(Ordering::Relaxed));
+    ((r1 - r0) as f64 / calls as f64, (m1 - m0) as f64 / calls as f64)
+}
+
 fn report(name: &str, mut ns: Vec<u64>) {
     ns.sort_unstable();
     let at = |f: f64| ns[((ns.len() - 1) as f64 * f) as usize];
@@ -66,6 +122,12 @@ fn main() {
         }
     }
     report("marsd Smoother::track (rsruckig, 8 slots)", ours);
+    let mut s = Smoother::new(7, p.period_s(), &Limits::from_profile(&p)).unwrap();
+    s.reset(&p.home);
+    let (rust, all) = allocations_per_call(stream.len(), |k| {
+        black_box(s.track(&stream[k].0, &stream[k].1).unwrap());
+    });
+    println!("{:<40} allocations per update: {rust:.2} Rust, {all:.2} malloc calls in all", "");
 
     let mut theirs = Vec::with_capacity(TICKS * ROUNDS);
     for _ in 0..ROUNDS {
@@ -88,4 +150,26 @@ fn main() {
         }
     }
     report("official ruckig 0.19 update+pass_to_input", theirs);
+    let mut otg = ruckig::Ruckig::new_direct(7, p.period_s());
+    let mut inp = ruckig::InputParameter::new(7);
+    let mut out = ruckig::OutputParameter::new_direct(7);
+    for i in 0..7 {
+        inp.current_position[i] = p.home[i];
+        inp.max_velocity[i] = DEFAULT_SAFETY_FACTOR * p.dq_max[i];
+        inp.max_acceleration[i] = DEFAULT_SAFETY_FACTOR * p.ddq_max[i];
+        inp.max_jerk[i] = DEFAULT_SAFETY_FACTOR * p.jerk_max[i];
+    }
+    let (rust, all) = allocations_per_call(stream.len(), |k| {
+        inp.target_position.copy_from_slice(&stream[k].0);
+        inp.target_velocity.copy_from_slice(&stream[k].1);
+        black_box(otg.update(&mut inp, &mut out));
+        out.pass_to_input(&mut inp);
+    });
+    println!("{:<40} allocations per update: {rust:.2} Rust, {all:.2} malloc calls in all", "");
+    // The malloc counter is live (a C-side allocation shows up even when Rust's counter does not move).
+    let (rust, all) = allocations_per_call(1, |_| {
+        // SAFETY: plain malloc/free pair.
+        unsafe { libc::free(black_box(libc::malloc(64))) };
+    });
+    assert_eq!((rust, all), (0.0, 1.0), "the malloc counter does not see C allocations");
 }
