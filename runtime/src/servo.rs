@@ -207,7 +207,11 @@ impl ServoTick {
                 } else {
                     &f.position[..self.n]
                 };
-                self.smoother.reset(start);
+                if self.smoother.reset(start).is_err() {
+                    // A position the smoother cannot start from (beyond any joint's range): command nothing.
+                    self.stop_with(StopCause::Trip(Trip::Smoothing));
+                    return out;
+                }
                 self.pose[..self.n].copy_from_slice(start);
                 self.gripper = f.gripper.clamp(self.g_lo, self.g_hi);
                 self.gripper_target = self.gripper;
