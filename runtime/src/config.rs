@@ -38,6 +38,10 @@ pub struct DaemonConfig {
     /// How long to wait for the first usable state frame before giving up (exit status 4), in seconds.
     #[serde(default = "default_handshake_timeout_s")]
     pub handshake_timeout_s: f64,
+    /// Episode traces kept for the episodes plot: the last this many (older ones are dropped, so a run of
+    /// `episodes = 0` holds bounded memory).
+    #[serde(default = "default_traces_kept")]
+    pub traces_kept: usize,
     pub servo: ServoConfig,
     pub policy: PolicyLoopConfig,
     pub watchdog: WatchdogConfig,
@@ -92,6 +96,9 @@ pub struct WatchdogConfig {
     pub max_consecutive_over_budget: u64,
     /// No usable state frame for this long trips (ms).
     pub max_state_gap_ms: f64,
+    /// Command sends that failed in a row before tripping (default 10).
+    #[serde(default = "default_max_consecutive_send_errors")]
+    pub max_consecutive_send_errors: u64,
 }
 
 #[derive(Debug, Clone, Deserialize)]
@@ -118,6 +125,12 @@ pub struct FaultConfig {
 
 fn default_handshake_timeout_s() -> f64 {
     10.0
+}
+fn default_traces_kept() -> usize {
+    20
+}
+fn default_max_consecutive_send_errors() -> u64 {
+    10
 }
 fn yes() -> bool {
     true
@@ -187,6 +200,7 @@ impl DaemonConfig {
             ("watchdog.max_consecutive_overruns", self.watchdog.max_consecutive_overruns),
             ("watchdog.max_consecutive_late_chunks", self.watchdog.max_consecutive_late_chunks),
             ("watchdog.max_consecutive_over_budget", self.watchdog.max_consecutive_over_budget),
+            ("watchdog.max_consecutive_send_errors", self.watchdog.max_consecutive_send_errors),
         ] {
             if v == 0 {
                 return bad(key, "must be at least 1".into());

@@ -27,6 +27,8 @@ pub enum Trip {
     LimitViolation,
     /// The smoother refused its input (non-finite target).
     Smoothing,
+    /// Sending commands to the HAL failed too many times in a row (`watchdog.max_consecutive_send_errors`).
+    SendErrors,
 }
 
 impl Trip {
@@ -40,6 +42,7 @@ impl Trip {
             Self::HalDied => 6,
             Self::LimitViolation => 7,
             Self::Smoothing => 8,
+            Self::SendErrors => 9,
             Self::HalHolding(r) => 100 + r as u32,
         }
     }
@@ -54,6 +57,7 @@ impl Trip {
             6 => Self::HalDied,
             7 => Self::LimitViolation,
             8 => Self::Smoothing,
+            9 => Self::SendErrors,
             c if c >= 100 => Self::HalHolding(HoldReason::from_u32(c - 100)?),
             _ => return None,
         })
@@ -72,6 +76,7 @@ impl std::fmt::Display for Trip {
             Self::HalHolding(r) => write!(f, "the HAL stopped following this controller ({r:?})"),
             Self::LimitViolation => write!(f, "a command failed the final limit check and was not sent"),
             Self::Smoothing => write!(f, "the jerk-limited smoother refused its input"),
+            Self::SendErrors => write!(f, "sending commands to the HAL failed too many times in a row"),
         }
     }
 }
@@ -153,6 +158,7 @@ mod tests {
             Trip::HalDied,
             Trip::LimitViolation,
             Trip::Smoothing,
+            Trip::SendErrors,
             Trip::HalHolding(HoldReason::CommandTimeout),
         ] {
             assert_eq!(Trip::from_code(t.code()), Some(t));
@@ -177,6 +183,7 @@ mod tests {
             max_consecutive_late_chunks: 2,
             max_consecutive_over_budget: 2,
             max_state_gap_ms: 10.0,
+            max_consecutive_send_errors: 2,
         };
         let mut w = ServoWatchdog::new(&cfg);
         assert_eq!(w.tick(100_000_000, 0, false), None, "no frame yet: the handshake timeout applies");
