@@ -85,8 +85,8 @@ mod tests {
             if e == 0 {
                 first_buffers = Some(t.q.as_ptr());
             }
-            if e == 3 {
-                // The ring was full: episode 3 writes into episode 0's buffers, allocating nothing.
+            if e == 4 {
+                // Pushing episode 3 dropped episode 0: episode 4 writes into its buffers, allocating nothing.
                 assert_eq!(Some(t.q.as_ptr()), first_buffers);
                 assert_eq!(t.q.len(), 1, "a reused trace starts empty");
             }
