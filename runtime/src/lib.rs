@@ -27,5 +27,6 @@ pub mod servo_loop;
 pub mod shared;
 pub mod smoothing;
 pub mod task;
+pub mod timeliness;
 pub mod traces;
 pub mod watchdog;

@@ -14,6 +14,7 @@ use crate::frame::FrameCheck;
 use crate::limits::LimitCheck;
 use crate::shared::{Observed, Phase, Request};
 use crate::smoothing::{Kinematics, Limits, Smoother, SmoothingError};
+use crate::timeliness::CommandTimeliness;
 use crate::watchdog::{ServoWatchdog, Trip};
 
 /// The gripper is not part of the jerk-limited joint trajectory: during a reset it moves at this speed (m/s).
@@ -69,9 +70,8 @@ pub struct ServoCounters {
     pub clamped_targets: u64,
     /// Commands that failed the final limit check (never sent). Must be 0.
     pub limit_violations: u64,
-    /// Commands that reached the HAL after its next tick: the first frame after the one a command answered
-    /// showed a `last_command_seq` short of it (the HAL held or smoothed that tick instead). A deadline miss of
-    /// its own: the tick finished, but too late for the HAL.
+    /// Commands that reached the HAL after its next tick (see [`crate::timeliness`]): a deadline miss of its
+    /// own — the tick finished, but too late for the HAL.
     pub late_commands: u64,
     /// Times the HAL had not applied the last command exactly (it arrived late, so the HAL smoothed the gap)
     /// and the trajectory continued from the HAL's applied setpoint.
@@ -147,9 +147,8 @@ pub struct ServoTick {
     followed: bool,
     /// The HAL's counters at the handshake: the HAL counts since it started.
     hal_counts_at_start: HalCounts,
-    /// (state frame seq, command seq) of the first command sent answering that frame: the HAL's next frame
-    /// must show it applied, or it came late.
-    awaiting: Option<(u64, u64)>,
+    /// Whether each command reached the HAL before its next tick.
+    timeliness: CommandTimeliness,
     /// The first command refused by the final check, for the report.
     pub first_violation: Option<crate::limits::Violation>,
     pub counters: ServoCounters,
@@ -189,7 +188,7 @@ impl ServoTick {
             last_state: RobotState::default(),
             followed: false,
             hal_counts_at_start: HalCounts::default(),
-            awaiting: None,
+            timeliness: CommandTimeliness::default(),
             first_violation: None,
             counters: ServoCounters::default(),
         })
@@ -268,7 +267,6 @@ impl ServoTick {
                 self.phase = if self.stop.is_some() { Phase::Stopping } else { Phase::Idle };
                 self.hal_counts_at_start = HalCounts::of(f);
             }
-            self.judge_timeliness(f);
             if f.session == self.session {
                 if f.is(status::ACTIVE) {
                     self.followed = true;
@@ -402,9 +400,7 @@ impl ServoTick {
             self.phase = Phase::Finished;
         }
         self.counters.commands_sent += 1;
-        if self.awaiting.is_none_or(|(frame, _)| cmd.state_seq > frame) {
-            self.awaiting = Some((cmd.state_seq, cmd.seq));
-        }
+        self.timeliness.sent(cmd.state_seq, cmd.seq);
         out.command = Some(cmd);
         out
     }
@@ -426,18 +422,11 @@ impl ServoTick {
         self.stop_with(StopCause::Trip(t));
     }
 
-    /// The first frame after the one a command answered tells whether the HAL had that command in time.
-    fn judge_timeliness(&mut self, f: &RobotState) {
-        let Some((frame, cmd)) = self.awaiting else { return };
-        if f.seq <= frame {
-            return;
-        }
-        self.awaiting = None;
-        // Only frames of this session say what happened to its commands (before the HAL took the session up,
-        // or after it stopped following, `last_command_seq` belongs to no command of ours).
-        if f.session == self.session && f.is(status::ACTIVE) && f.last_command_seq < cmd {
-            self.counters.late_commands += 1;
-        }
+    /// Every state frame the loop receives, in order (also those a newer one supersedes in the same tick):
+    /// the first one after a command's frame tells whether the HAL had the command in time.
+    pub fn note_frame_timing(&mut self, f: &RobotState) {
+        self.timeliness.frame(f, self.session);
+        self.counters.late_commands = self.timeliness.late();
     }
 
     /// If the HAL's applied setpoint is not the last command sent (a late command: the HAL held or smoothed

@@ -145,7 +145,10 @@ pub fn run_servo(
         let mut newest: Option<RobotState> = None;
         loop {
             match wire.states.receive() {
-                Ok(Some(s)) => newest = Some(s),
+                Ok(Some(s)) => {
+                    tick.note_frame_timing(&s);
+                    newest = Some(s);
+                }
                 Ok(None) => break,
                 // A frame of another schema version is refused and the next one read; a port error ends this
                 // tick's reading (the stale-state watchdog trips if it persists).
