@@ -90,3 +90,55 @@ fn beat_while_progressing(heartbeat: &mut Heartbeat, status: &Status, stop: &Ato
     }
     report
 }
+
+#[cfg(test)]
+mod tests {
+    use std::time::{Duration, Instant};
+
+    use mars_ipc::{Peer, PeerWatch};
+
+    use super::*;
+
+    /// Polls `cond` for up to `limit`.
+    fn within(limit: Duration, cond: impl Fn() -> bool) -> bool {
+        let until = Instant::now() + limit;
+        while Instant::now() < until {
+            if cond() {
+                return true;
+            }
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        cond()
+    }
+
+    #[test]
+    fn beats_only_while_the_servo_advances_and_leaves_on_finish() {
+        let robot = format!("t{}-heartbeat", std::process::id());
+        let ns = RobotNamespace::new(&robot).unwrap();
+        let hal_view = PeerWatch::controller(&ns).unwrap();
+        let status = Arc::new(Status::default());
+        let heartbeat = HeartbeatThread::start(&robot, status.clone()).unwrap();
+
+        // A servo that ticks: the HAL sees a live controller.
+        let ticking = Arc::new(AtomicBool::new(true));
+        let servo = {
+            let (status, ticking) = (status.clone(), ticking.clone());
+            std::thread::spawn(move || {
+                while ticking.load(Ordering::Acquire) {
+                    status.ticks.fetch_add(1, Ordering::Release);
+                    std::thread::sleep(Duration::from_millis(1));
+                }
+            })
+        };
+        assert!(within(Duration::from_secs(2), || hal_view.peer() == Peer::Alive), "{:?}", hal_view.peer());
+
+        // The servo stalls (its counter stops): no more beats, and the HAL's watch finds the deadline missed.
+        ticking.store(false, Ordering::Release);
+        servo.join().unwrap();
+        assert!(within(Duration::from_secs(2), || hal_view.peer() == Peer::Late), "{:?}", hal_view.peer());
+
+        let report = heartbeat.finish();
+        assert!(report.beats > 1 && report.withheld > 0 && report.errors == 0, "{report:?}");
+        assert!(within(Duration::from_secs(2), || hal_view.exits() == 1), "the HAL sees the controller leave");
+    }
+}
