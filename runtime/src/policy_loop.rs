@@ -67,6 +67,14 @@ pub struct PolicyChannels {
     pub status: Arc<Status>,
 }
 
+/// The watchdog's streaks of the policy loop, across episodes.
+struct ChunkFaults {
+    /// Chunks ready after the servo needed them.
+    late: Streak,
+    /// Calls that could not fit even one ODE step.
+    over: Streak,
+}
+
 pub struct PolicyLoop {
     pub engine: Engine,
     pub task: PickCup,
@@ -82,8 +90,10 @@ impl PolicyLoop {
         if !self.wait_for(|s| s.hal_ready.load(Ordering::Acquire)) {
             return report;
         }
-        let mut late = Streak::new(cfg.watchdog.max_consecutive_late_chunks);
-        let mut over = Streak::new(cfg.watchdog.max_consecutive_over_budget);
+        let mut faults = ChunkFaults {
+            late: Streak::new(cfg.watchdog.max_consecutive_late_chunks),
+            over: Streak::new(cfg.watchdog.max_consecutive_over_budget),
+        };
         let mut traces = TraceRing::new(cfg.traces_kept);
         for episode in 1..=episodes {
             let pose_v = self.task.start_pose(cfg.seed.wrapping_add(episode));
@@ -97,7 +107,7 @@ impl PolicyLoop {
                 break;
             }
             let rest = self.task.rest_action(&pose_v);
-            match self.episode(cfg, episode, &rest, &mut late, &mut over, &mut traces, &mut report) {
+            match self.episode(cfg, episode, &rest, &mut faults, &mut traces, &mut report) {
                 Some(result) => report.episodes.push(result),
                 None => break,
             }
@@ -114,8 +124,7 @@ impl PolicyLoop {
         cfg: &DaemonConfig,
         episode: u64,
         rest: &[f32],
-        late: &mut Streak,
-        over: &mut Streak,
+        faults: &mut ChunkFaults,
         traces: &mut TraceRing,
         report: &mut PolicyReport,
     ) -> Option<EpisodeResult> {
@@ -189,13 +198,13 @@ impl PolicyLoop {
             if out.over_budget {
                 // Not even one step fitted: keep executing the previous chunk.
                 report.over_budget += 1;
-                if over.bad() {
+                if faults.over.bad() {
                     self.request(Request::Trip(Trip::InferenceOverBudget));
                     return None;
                 }
                 continue;
             }
-            over.good();
+            faults.over.good();
             w_inf = out.w.iter().fold(0.0f32, |m, w| m.max(w.abs()));
             seq += 1;
             let dst = self.ch.chunks.input_buffer_mut();
@@ -217,12 +226,12 @@ impl PolicyLoop {
             if ready > need_ns {
                 report.late_chunks += 1;
                 ep_late += 1;
-                if late.bad() {
+                if faults.late.bad() {
                     self.request(Request::Trip(Trip::LateChunks));
                     return None;
                 }
             } else {
-                late.good();
+                faults.late.good();
             }
         }
         unreachable!("the episode loop only ends by returning")
