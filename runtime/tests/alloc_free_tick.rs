@@ -107,5 +107,19 @@ fn servo_tick_makes_no_heap_allocation_over_two_episodes() {
         "after warm-up the servo thread may take exactly one pooled block per sample sent ({}) and nothing else",
         s.servo_samples_sent
     );
+    // summary.json says what real-time setup each loop thread got (the benchmark reads it from there), and the
+    // wire's error counts, each class apart.
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    let threads: Vec<&str> =
+        json["realtime"].as_array().unwrap().iter().map(|t| t["thread"].as_str().unwrap()).collect();
+    assert_eq!(threads, ["servo", "policy"]);
+    for key in ["sched_fifo", "memory_locked", "core", "pin_error"] {
+        assert!(json["realtime"][0].get(key).is_some(), "no {key} in {}", json["realtime"][0]);
+    }
+    for ptr in ["/wire/schema_refusals", "/wire/receive_port_errors", "/wire/send_errors", "/wire/heartbeat/errors"] {
+        assert_eq!(json.pointer(ptr).and_then(|v| v.as_u64()), Some(0), "{ptr}");
+    }
+    assert!(json.pointer("/wire/heartbeat/beats").and_then(|v| v.as_u64()).unwrap() > 100);
     let _ = std::fs::remove_dir_all(out);
 }

@@ -607,10 +607,36 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
             false,
         ),
         (
-            "limit violations (final check + HAL rejected)",
-            Box::new(|r| match (r.num("/limit_violations/final_check"), r.num("/limit_violations/hal_rejected")) {
-                (Some(a), Some(b)) => (format!("{:.0}", a + b), None),
-                _ => ("–".into(), None),
+            "out-of-limit commands (final check + HAL rejected + HAL clamped)",
+            Box::new(|r| {
+                let parts =
+                    ["final_check", "hal_rejected", "hal_clamped"].map(|k| r.num(&format!("/limit_violations/{k}")));
+                match parts {
+                    [Some(a), Some(b), Some(c)] => (format!("{:.0}", a + b + c), None),
+                    _ => ("–".into(), None),
+                }
+            }),
+            false,
+        ),
+        (
+            "late commands (seen by marsd / counted by the HAL)",
+            Box::new(|r| {
+                match (r.num("/deadline_misses/late_commands"), r.num("/deadline_misses/hal_late_commands")) {
+                    (Some(a), Some(b)) => (format!("{a:.0} / {b:.0}"), None),
+                    _ => ("–".into(), None),
+                }
+            }),
+            false,
+        ),
+        (
+            "HAL last resorts (guard hits / infeasible / backend errors)",
+            Box::new(|r| {
+                let parts = ["position_guard_hits", "infeasible_steps", "backend_errors"]
+                    .map(|k| r.num(&format!("/hal_last_resorts/{k}")));
+                match parts {
+                    [Some(a), Some(b), Some(c)] => (format!("{a:.0} / {b:.0} / {c:.0}"), None),
+                    _ => ("–".into(), None),
+                }
             }),
             false,
         ),
