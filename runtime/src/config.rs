@@ -218,3 +218,30 @@ impl DaemonConfig {
         (1e9 / self.policy.rate_hz).round() as u64
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn shipped() -> String {
+        std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/../configs/marsd.toml")).unwrap()
+    }
+
+    #[test]
+    fn send_error_limit_and_kept_traces_default_as_documented_and_refuse_zero() {
+        let cfg = DaemonConfig::parse(&shipped(), "marsd.toml").unwrap();
+        assert_eq!((cfg.watchdog.max_consecutive_send_errors, cfg.traces_kept), (10, 20));
+        let without: String = shipped()
+            .lines()
+            .filter(|l| !l.starts_with("max_consecutive_send_errors") && !l.starts_with("traces_kept"))
+            .map(|l| format!("{l}\n"))
+            .collect();
+        let cfg = DaemonConfig::parse(&without, "marsd.toml").unwrap();
+        assert_eq!((cfg.watchdog.max_consecutive_send_errors, cfg.traces_kept), (10, 20), "the defaults");
+        let zero = shipped().replace("max_consecutive_send_errors = 10", "max_consecutive_send_errors = 0");
+        assert!(matches!(
+            DaemonConfig::parse(&zero, "marsd.toml"),
+            Err(ConfigError::Invalid { key: "watchdog.max_consecutive_send_errors", .. })
+        ));
+    }
+}
