@@ -147,7 +147,7 @@ fn count_system() {
     }
 }
 
-/// Allocates and touches the pool (once per process). Call at a real-time thread's setup, before mlockall.
+/// Allocates and touches the pool (once per process). Call at a real-time thread's setup, not in its loop.
 pub fn init_rt_pool() {
     POOL.get_or_init(|| Pool {
         slab: (0..BLOCKS).map(|_| Block(UnsafeCell::new([0; BLOCK]))).collect(),
