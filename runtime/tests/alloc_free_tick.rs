@@ -76,12 +76,19 @@ fn servo_tick_makes_no_heap_allocation_over_two_episodes() {
     profile.validate().unwrap();
     {
         let (profile, robot) = (profile.clone(), robot.clone());
+        let hal_core = DaemonConfig::load(&root.join("configs/marsd.toml")).unwrap().servo.core;
         // Runs until this process ends (the test does not wait for it).
         std::thread::Builder::new()
             .name("hal".into())
             .spawn(move || {
-                let opts =
-                    RunOptions { robot, duration: Some(Duration::from_secs(600)), core: None, rt_priority: None };
+                // As the demo runs it: a robot's own loop, real-time and above the servo loop on the servo's core
+                // (at normal priority a busy machine starves it into a stale-state trip).
+                let opts = RunOptions {
+                    robot,
+                    duration: Some(Duration::from_secs(600)),
+                    core: hal_core,
+                    rt_priority: Some(85),
+                };
                 mars_hal::runner::run(&profile, &mut SimBackend::new(&profile), &opts)
             })
             .unwrap();
