@@ -4,7 +4,8 @@
 //! The main thread owns everything that may allocate or block: signal handling (flags set by signal-hook),
 //! systemd notifications (`READY=1` after the HAL handshake, `WATCHDOG=1` only while both loops make progress
 //! and nothing tripped — the sd-notify crate allocates and opens a socket per call), log lines for trips as
-//! soon as the servo publishes them, and the handshake timeout.
+//! soon as the servo publishes them, and the handshake timeout. The iceoryx2 liveness heartbeat beats from a
+//! thread of its own ([`crate::heartbeat`]), only while the servo loop advances.
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
