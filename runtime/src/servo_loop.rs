@@ -18,7 +18,7 @@ use crate::latency::{Channel, Recorder};
 use crate::rt::Ticker;
 use crate::servo::{HalCounts, ServoCounters, ServoTick, StopCause, TickInput};
 use crate::shared::{Observed, Phase, Request, Status};
-use crate::watchdog::{Streak, Trip};
+use crate::watchdog::SendWatch;
 
 /// The servo loop's ends of the wire. iceoryx2's ports are bound to the thread that made them, so the servo
 /// thread opens them itself.
@@ -132,8 +132,7 @@ pub fn run_servo(
     let interval_ns = cfg.interval.as_nanos() as u64;
     let mut next_interval = monotonic_ns() + interval_ns;
     let (mut schema_refusals, mut receive_port_errors) = (0u64, 0u64);
-    let mut send_failures = Streak::new(cfg.max_consecutive_send_errors);
-    let mut samples_sent = 0u64;
+    let mut sends = SendWatch::new(cfg.max_consecutive_send_errors);
     let mut allocs_at_warmup: Option<(crate::alloc_count::Counts, u64)> = None;
     crate::alloc_count::init_rt_pool();
     loop {
@@ -181,16 +180,11 @@ pub fn run_servo(
                 let _pool = crate::alloc_count::RtPoolScope::enter();
                 wire.commands.send(cmd)
             };
-            if sent.is_err() {
-                if send_failures.bad() {
-                    tick.trip(Trip::SendErrors);
-                }
-            } else {
-                send_failures.good();
-                samples_sent += 1;
-                if newest.is_some() {
-                    rec.record(Channel::StateToCommand, monotonic_ns().saturating_sub(t0));
-                }
+            if let Some(trip) = sends.record(sent.is_ok()) {
+                tick.trip(trip);
+            }
+            if sent.is_ok() && newest.is_some() {
+                rec.record(Channel::StateToCommand, monotonic_ns().saturating_sub(t0));
             }
         }
         if let Some(obs) = out.observed {
@@ -215,7 +209,7 @@ pub fn run_servo(
             next_interval += interval_ns;
         }
         if tick.counters.ticks == ALLOC_WARMUP_TICKS {
-            allocs_at_warmup = crate::alloc_count::thread_counts().map(|c| (c, samples_sent));
+            allocs_at_warmup = crate::alloc_count::thread_counts().map(|c| (c, sends.sent));
         }
         if tick.phase() == Phase::Finished {
             break;
@@ -241,7 +235,7 @@ pub fn run_servo(
         });
     ServoReport {
         allocations_after_warmup,
-        samples_sent_after_warmup: allocs_at_warmup.map_or(0, |(_, sent)| samples_sent - sent),
+        samples_sent_after_warmup: allocs_at_warmup.map_or(0, |(_, sent)| sends.sent - sent),
         ticks_counted: tick.counters.ticks.saturating_sub(ALLOC_WARMUP_TICKS),
         cause: tick.stop_cause(),
         counters: tick.counters,
@@ -249,7 +243,7 @@ pub fn run_servo(
         missed_periods: ticker.missed_total(),
         schema_refusals,
         receive_port_errors,
-        send_errors: send_failures.total,
+        send_errors: sends.errors(),
         hal: tick.hal_counts(),
         first_violation: tick.first_violation,
     }

@@ -106,6 +106,36 @@ impl Streak {
     }
 }
 
+/// The servo loop's command sends: counts them, and trips when iceoryx2 refused too many in a row.
+#[derive(Debug, Clone, Copy)]
+pub struct SendWatch {
+    failures: Streak,
+    /// Samples delivered to iceoryx2.
+    pub sent: u64,
+}
+
+impl SendWatch {
+    pub fn new(max_consecutive_errors: u64) -> Self {
+        Self { failures: Streak::new(max_consecutive_errors), sent: 0 }
+    }
+
+    /// One send's outcome; `Some(Trip::SendErrors)` when the failures in a row reached the limit.
+    pub fn record(&mut self, ok: bool) -> Option<Trip> {
+        if ok {
+            self.sent += 1;
+            self.failures.good();
+            None
+        } else {
+            self.failures.bad().then_some(Trip::SendErrors)
+        }
+    }
+
+    /// Failed sends in all.
+    pub fn errors(&self) -> u64 {
+        self.failures.total
+    }
+}
+
 /// The servo loop's part of the watchdog: tick overruns and the age of the last usable state.
 #[derive(Debug, Clone, Copy)]
 pub struct ServoWatchdog {
@@ -174,6 +204,15 @@ mod tests {
         assert!(!s.bad() && !s.bad());
         assert!(s.bad());
         assert_eq!(s.total, 5);
+    }
+
+    #[test]
+    fn send_errors_trip_only_when_consecutive() {
+        let mut w = SendWatch::new(3);
+        assert_eq!([w.record(false), w.record(false), w.record(true)], [None, None, None]);
+        assert_eq!([w.record(false), w.record(false)], [None, None]);
+        assert_eq!(w.record(false), Some(Trip::SendErrors));
+        assert_eq!((w.sent, w.errors()), (1, 5));
     }
 
     #[test]
