@@ -131,6 +131,10 @@ mod tests {
             })
         };
         assert!(within(Duration::from_secs(2), || hal_view.peer() == Peer::Alive), "{:?}", hal_view.peer());
+        // The beats go on while the servo ticks (counted below; a busy machine may delay one past the deadline,
+        // which the next beat makes good).
+        std::thread::sleep(Duration::from_millis(100));
+        assert!(within(Duration::from_secs(2), || hal_view.peer() == Peer::Alive), "{:?}", hal_view.peer());
 
         // The servo stalls (its counter stops): no more beats, and the HAL's watch finds the deadline missed.
         ticking.store(false, Ordering::Release);
@@ -138,7 +142,7 @@ mod tests {
         assert!(within(Duration::from_secs(2), || hal_view.peer() == Peer::Late), "{:?}", hal_view.peer());
 
         let report = heartbeat.finish();
-        assert!(report.beats > 1 && report.withheld > 0 && report.errors == 0, "{report:?}");
+        assert!(report.beats > 10 && report.withheld > 0 && report.errors == 0, "{report:?}");
         assert!(within(Duration::from_secs(2), || hal_view.exits() == 1), "the HAL sees the controller leave");
     }
 }
