@@ -114,7 +114,7 @@ fn main() {
     let mut ours = Vec::with_capacity(TICKS * ROUNDS);
     for _ in 0..ROUNDS {
         let mut s = Smoother::new(7, p.period_s(), &Limits::from_profile(&p)).unwrap();
-        s.reset(&p.home);
+        s.reset(&p.home).expect("the profile's home is a valid start");
         for (q, v) in &stream {
             let t = Instant::now();
             black_box(s.track(black_box(q), black_box(v)).unwrap());

@@ -4,51 +4,77 @@
 //! allocator, so `marsd` reports in every run (not only in a test) how many allocations its servo thread made
 //! after warm-up. Our own tick code makes none. iceoryx2 0.10 does make one small allocation per published
 //! sample (the reference-counted bookkeeping of a loaned chunk, `ChunkMutSharedState`), which no public API
-//! avoids; so a thread that calls [`arm_rt_pool`] gets such small blocks from a preallocated pool instead —
-//! a lock-free queue of free block indices over a fixed slab: O(1), no lock, no syscall, no page fault (the slab
-//! is touched at arming and locked by mlockall). The report counts both: system-allocator calls on the servo
-//! thread after warm-up must be 0; pooled blocks are reported beside them.
+//! avoids; so the servo loop wraps exactly its `send` in an [`RtPoolScope`], and only inside such a scope are
+//! small blocks served from a preallocated pool: a fixed slab and an atomic bitmap of free blocks — no lock, no
+//! syscall, no page fault (the slab is touched at [`init_rt_pool`] and locked by mlockall). Every other
+//! allocation, on any thread, is a counted call to the system allocator. So the claim is exact: after warm-up
+//! the servo thread makes 0 system-allocator calls and exactly one pooled allocation per sample sent.
 
 use std::alloc::{GlobalAlloc, Layout, System};
-use std::cell::Cell;
+use std::cell::{Cell, UnsafeCell};
 use std::sync::OnceLock;
-use std::sync::atomic::{AtomicBool, Ordering};
-
-use crossbeam_queue::ArrayQueue;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 
 /// Size and alignment of a pool block: iceoryx2's per-sample state is well below this.
 const BLOCK: usize = 128;
-/// Blocks in the pool: far more than are ever live at once (one per sample in flight).
-const BLOCKS: usize = 1024;
+/// Words of the free bitmap; 64 blocks each. Far more blocks than are ever live at once (one per sample in
+/// flight; the publisher keeps a handful).
+const WORDS: usize = 4;
+const BLOCKS: usize = WORDS * 64;
 
 thread_local! {
     // `const` initialisation: reading these never allocates (no lazy init), which an allocator requires.
     static SYSTEM_ALLOCATIONS: Cell<u64> = const { Cell::new(0) };
     static POOLED_ALLOCATIONS: Cell<u64> = const { Cell::new(0) };
-    static USES_POOL: Cell<bool> = const { Cell::new(false) };
+    static IN_SCOPE: Cell<bool> = const { Cell::new(false) };
 }
 
 static INSTALLED: AtomicBool = AtomicBool::new(false);
 
 #[repr(C, align(128))]
-struct Block([u8; BLOCK]);
+struct Block(UnsafeCell<[u8; BLOCK]>);
 
 struct Pool {
+    /// Written only through raw pointers from `UnsafeCell::get`, each block by its one current owner.
     slab: Box<[Block]>,
-    free: ArrayQueue<u16>,
+    /// Bit set = block in use. Taking a block is a compare-and-swap that only retries when another thread
+    /// changed the word meanwhile (lock-free: nobody waits for a preempted thread); freeing is one `fetch_and`.
+    used: [AtomicU64; WORDS],
 }
+
+// SAFETY: a block's bytes are reachable only through the pointer handed out by `take`, and the bitmap hands each
+// block to one owner at a time (set by a successful CAS, cleared by that owner's dealloc).
+unsafe impl Sync for Pool {}
 
 static POOL: OnceLock<Pool> = OnceLock::new();
 
 impl Pool {
-    fn contains(&self, ptr: *mut u8) -> Option<usize> {
+    fn index_of(&self, ptr: *mut u8) -> Option<usize> {
         let start = self.slab.as_ptr() as usize;
         let p = ptr as usize;
         (p >= start && p < start + BLOCKS * BLOCK).then(|| (p - start) / BLOCK)
     }
+
+    fn take(&self) -> Option<*mut u8> {
+        for (w, word) in self.used.iter().enumerate() {
+            let mut cur = word.load(Ordering::Relaxed);
+            while cur != u64::MAX {
+                let bit = (!cur).trailing_zeros() as usize;
+                match word.compare_exchange_weak(cur, cur | 1 << bit, Ordering::Acquire, Ordering::Relaxed) {
+                    Ok(_) => return Some(self.slab[w * 64 + bit].0.get().cast()),
+                    Err(now) => cur = now,
+                }
+            }
+        }
+        None
+    }
+
+    fn give_back(&self, i: usize) {
+        self.used[i / 64].fetch_and(!(1 << (i % 64)), Ordering::Release);
+    }
 }
 
-/// The system allocator, counting per thread; small blocks of armed threads come from the pool.
+/// The system allocator, counting per thread; small blocks inside an [`RtPoolScope`] come from the pool.
 pub struct CountingAlloc;
 
 unsafe impl GlobalAlloc for CountingAlloc {
@@ -73,7 +99,7 @@ unsafe impl GlobalAlloc for CountingAlloc {
     }
 
     unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        if POOL.get().and_then(|pool| pool.contains(ptr)).is_some() {
+        if POOL.get().and_then(|pool| pool.index_of(ptr)).is_some() {
             // Rare (a pooled block growing): move it to the system allocator.
             count_system();
             // SAFETY: the new layout is valid (GlobalAlloc contract); both regions are valid for the copy.
@@ -92,11 +118,11 @@ unsafe impl GlobalAlloc for CountingAlloc {
     }
 
     unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        // Any thread may free a pooled block (in or out of a scope): the address says where it came from.
         if let Some(pool) = POOL.get()
-            && let Some(i) = pool.contains(ptr)
+            && let Some(i) = pool.index_of(ptr)
         {
-            // Never full: it holds every index and each is pushed once per pop.
-            let _ = pool.free.push(i as u16);
+            pool.give_back(i);
             return;
         }
         // SAFETY: not a pool block, so the system allocator's.
@@ -105,13 +131,12 @@ unsafe impl GlobalAlloc for CountingAlloc {
 }
 
 fn pooled(layout: Layout) -> Option<*mut u8> {
-    if layout.size() > BLOCK || layout.align() > BLOCK || !USES_POOL.try_with(Cell::get).unwrap_or(false) {
+    if layout.size() > BLOCK || layout.align() > BLOCK || !IN_SCOPE.try_with(Cell::get).unwrap_or(false) {
         return None;
     }
-    let pool = POOL.get()?;
-    let i = pool.free.pop()? as usize;
+    let p = POOL.get()?.take()?;
     let _ = POOLED_ALLOCATIONS.try_with(|c| c.set(c.get() + 1));
-    Some(pool.slab[i].0.as_ptr().cast_mut())
+    Some(p)
 }
 
 fn count_system() {
@@ -122,18 +147,35 @@ fn count_system() {
     }
 }
 
-/// Small allocations of the calling thread come from the preallocated pool from now on. Call at a real-time
-/// thread's setup (it allocates the pool the first time).
-pub fn arm_rt_pool() {
-    POOL.get_or_init(|| {
-        let slab: Box<[Block]> = (0..BLOCKS).map(|_| Block([0; BLOCK])).collect();
-        let free = ArrayQueue::new(BLOCKS);
-        for i in 0..BLOCKS {
-            let _ = free.push(i as u16);
-        }
-        Pool { slab, free }
+/// Allocates and touches the pool (once per process). Call at a real-time thread's setup, not in its loop.
+pub fn init_rt_pool() {
+    POOL.get_or_init(|| Pool {
+        slab: (0..BLOCKS).map(|_| Block(UnsafeCell::new([0; BLOCK]))).collect(),
+        used: [const { AtomicU64::new(0) }; WORDS],
     });
-    USES_POOL.with(|u| u.set(true));
+}
+
+/// While alive, small allocations of the calling thread come from the pool (once [`init_rt_pool`] ran).
+/// Wrap exactly the call that must allocate (iceoryx2's `send`), so nothing else is served unnoticed.
+#[must_use = "the pool is used only while the scope is alive"]
+pub struct RtPoolScope {
+    /// The thread's previous setting (scopes nest).
+    was: bool,
+    /// Bound to the thread whose flag it set.
+    _not_send: std::marker::PhantomData<*const ()>,
+}
+
+impl RtPoolScope {
+    pub fn enter() -> Self {
+        let was = IN_SCOPE.with(|s| s.replace(true));
+        Self { was, _not_send: std::marker::PhantomData }
+    }
+}
+
+impl Drop for RtPoolScope {
+    fn drop(&mut self) {
+        IN_SCOPE.with(|s| s.set(self.was));
+    }
 }
 
 /// The calling thread's counts so far, or `None` if [`CountingAlloc`] is not this process's global allocator
@@ -142,7 +184,7 @@ pub fn arm_rt_pool() {
 pub struct Counts {
     /// Calls that reached the system allocator.
     pub system: u64,
-    /// Small blocks served from the real-time pool.
+    /// Small blocks served from the real-time pool (inside an [`RtPoolScope`]).
     pub pooled: u64,
 }
 

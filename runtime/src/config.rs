@@ -38,6 +38,10 @@ pub struct DaemonConfig {
     /// How long to wait for the first usable state frame before giving up (exit status 4), in seconds.
     #[serde(default = "default_handshake_timeout_s")]
     pub handshake_timeout_s: f64,
+    /// Episode traces kept for the episodes plot: the last this many (older ones are dropped, so a run of
+    /// `episodes = 0` holds bounded memory).
+    #[serde(default = "default_traces_kept")]
+    pub traces_kept: usize,
     pub servo: ServoConfig,
     pub policy: PolicyLoopConfig,
     pub watchdog: WatchdogConfig,
@@ -92,6 +96,9 @@ pub struct WatchdogConfig {
     pub max_consecutive_over_budget: u64,
     /// No usable state frame for this long trips (ms).
     pub max_state_gap_ms: f64,
+    /// Command sends that failed in a row before tripping (default 10).
+    #[serde(default = "default_max_consecutive_send_errors")]
+    pub max_consecutive_send_errors: u64,
 }
 
 #[derive(Debug, Clone, Deserialize)]
@@ -118,6 +125,12 @@ pub struct FaultConfig {
 
 fn default_handshake_timeout_s() -> f64 {
     10.0
+}
+fn default_traces_kept() -> usize {
+    20
+}
+fn default_max_consecutive_send_errors() -> u64 {
+    10
 }
 fn yes() -> bool {
     true
@@ -187,6 +200,7 @@ impl DaemonConfig {
             ("watchdog.max_consecutive_overruns", self.watchdog.max_consecutive_overruns),
             ("watchdog.max_consecutive_late_chunks", self.watchdog.max_consecutive_late_chunks),
             ("watchdog.max_consecutive_over_budget", self.watchdog.max_consecutive_over_budget),
+            ("watchdog.max_consecutive_send_errors", self.watchdog.max_consecutive_send_errors),
         ] {
             if v == 0 {
                 return bad(key, "must be at least 1".into());
@@ -202,5 +216,32 @@ impl DaemonConfig {
 
     pub fn policy_period_ns(&self) -> u64 {
         (1e9 / self.policy.rate_hz).round() as u64
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn shipped() -> String {
+        std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/../configs/marsd.toml")).unwrap()
+    }
+
+    #[test]
+    fn send_error_limit_and_kept_traces_default_as_documented_and_refuse_zero() {
+        let cfg = DaemonConfig::parse(&shipped(), "marsd.toml").unwrap();
+        assert_eq!((cfg.watchdog.max_consecutive_send_errors, cfg.traces_kept), (10, 20));
+        let without: String = shipped()
+            .lines()
+            .filter(|l| !l.starts_with("max_consecutive_send_errors") && !l.starts_with("traces_kept"))
+            .map(|l| format!("{l}\n"))
+            .collect();
+        let cfg = DaemonConfig::parse(&without, "marsd.toml").unwrap();
+        assert_eq!((cfg.watchdog.max_consecutive_send_errors, cfg.traces_kept), (10, 20), "the defaults");
+        let zero = shipped().replace("max_consecutive_send_errors = 10", "max_consecutive_send_errors = 0");
+        assert!(matches!(
+            DaemonConfig::parse(&zero, "marsd.toml"),
+            Err(ConfigError::Invalid { key: "watchdog.max_consecutive_send_errors", .. })
+        ));
     }
 }

@@ -4,7 +4,8 @@
 //! The main thread owns everything that may allocate or block: signal handling (flags set by signal-hook),
 //! systemd notifications (`READY=1` after the HAL handshake, `WATCHDOG=1` only while both loops make progress
 //! and nothing tripped — the sd-notify crate allocates and opens a socket per call), log lines for trips as
-//! soon as the servo publishes them, and the handshake timeout.
+//! soon as the servo publishes them, and the handshake timeout. The iceoryx2 liveness heartbeat beats from a
+//! thread of its own ([`crate::heartbeat`]), only while the servo loop advances.
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -12,18 +13,19 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use anyhow::Context;
-use crossbeam_queue::ArrayQueue;
 use mars_engine::{Engine, EngineConfig};
 use mars_hal::profile::Profile;
 use tracing::{error, info};
 
 use crate::chunk::{MAX_ACTION, MAX_CHUNK, TimedChunk};
 use crate::config::DaemonConfig;
+use crate::heartbeat::HeartbeatThread;
 use crate::latency::{Channel, Collector};
 use crate::policy_loop::{PolicyChannels, PolicyLoop};
 use crate::report::Summary;
+use crate::rt::RtStatus;
 use crate::servo::ServoTick;
-use crate::servo_loop::{ServoChannels, ServoReport, ServoWire, run_servo};
+use crate::servo_loop::{ServoChannels, ServoLoopConfig, ServoReport, ServoWire, run_servo};
 use crate::shared::{Observed, Status};
 use crate::task::pick_cup::PickCup;
 
@@ -104,16 +106,20 @@ pub fn run(p: Prepared) -> anyhow::Result<Outcome> {
     let policy_rec = collector.recorder("policy", &[Channel::Inference, Channel::KRequested, Channel::KUsed], 8);
 
     let status = Arc::new(Status::default());
-    let requests = Arc::new(ArrayQueue::new(16));
+    // Policy thread → servo thread (see `shared`).
+    let (requests_in, requests_out) = rtrb::RingBuffer::new(16);
     let (chunk_in, chunk_out) = triple_buffer::triple_buffer(&TimedChunk::default());
     let (obs_in, obs_out) = triple_buffer::triple_buffer(&Observed::default());
     let session = session_id();
     let tick = ServoTick::new(&cfg, &profile, session)?;
-    let period = Duration::from_secs_f64(profile.period_s());
-    let interval = Duration::from_secs_f64(cfg.histograms.interval_s);
+    let loop_cfg = ServoLoopConfig {
+        period: Duration::from_secs_f64(profile.period_s()),
+        interval: Duration::from_secs_f64(cfg.histograms.interval_s),
+        max_consecutive_send_errors: cfg.watchdog.max_consecutive_send_errors,
+    };
 
     let servo_ch =
-        ServoChannels { chunks: chunk_out, observed: obs_in, requests: requests.clone(), status: status.clone() };
+        ServoChannels { chunks: chunk_out, observed: obs_in, requests: requests_out, status: status.clone() };
     let (servo_core, servo_prio, lock) = (cfg.servo.core, cfg.servo.priority, cfg.servo.lock_memory);
     let robot = cfg.robot.clone();
     let (opened_tx, opened_rx) = std::sync::mpsc::channel::<anyhow::Result<()>>();
@@ -130,11 +136,21 @@ pub fn run(p: Prepared) -> anyhow::Result<Outcome> {
                     return None;
                 }
             };
-            crate::rt::setup_realtime("servo", servo_core, Some(servo_prio), lock);
-            Some(run_servo(tick, wire, servo_ch, servo_rec, period, interval))
+            let rt = crate::rt::setup_realtime("servo", servo_core, Some(servo_prio), lock);
+            Some((run_servo(tick, wire, servo_ch, servo_rec, loop_cfg), rt))
         })
         .context("spawning the servo thread")?;
     opened_rx.recv().context("the servo thread died while opening the wire")??;
+    // Beats while the servo's tick counter advances; a syscall the servo thread does not make itself.
+    let heartbeat = match HeartbeatThread::start(&cfg.robot, status.clone()) {
+        Ok(h) => h,
+        Err(e) => {
+            // Nothing was commanded yet: the servo loop ends at once on a stop request before the handshake.
+            status.stop_requested.store(true, Ordering::Release);
+            let _ = servo.join();
+            return Err(e);
+        }
+    };
     // Signals only set flags; the main thread turns them into a safe stop. A second SIGINT/SIGTERM while
     // stopping exits at once (status 1); the HAL then brakes on command loss. Registered after the wire is
     // open: `ServoWire::open` makes iceoryx2 install its own handlers, which replace whatever is there, and
@@ -146,28 +162,32 @@ pub fn run(p: Prepared) -> anyhow::Result<Outcome> {
     }
 
     let policy_cfg = cfg.clone();
-    let policy_ch = PolicyChannels { chunks: chunk_in, observed: obs_out, requests, status: status.clone() };
+    let policy_ch =
+        PolicyChannels { chunks: chunk_in, observed: obs_out, requests: requests_in, status: status.clone() };
     let (policy_core, policy_prio) = (cfg.policy.core, cfg.policy.priority);
     let policy = std::thread::Builder::new()
         .name("marsd-policy".into())
         .spawn(move || {
-            crate::rt::setup_realtime("policy", policy_core, Some(policy_prio), false);
-            PolicyLoop { engine, task, ch: policy_ch, rec: policy_rec }.run(&policy_cfg)
+            let rt = crate::rt::setup_realtime("policy", policy_core, Some(policy_prio), false);
+            (PolicyLoop { engine, task, ch: policy_ch, rec: policy_rec }.run(&policy_cfg), rt)
         })
         .context("spawning the policy thread")?;
 
     let no_hal = supervise(&status, &term, &servo, Duration::from_secs_f64(cfg.handshake_timeout_s));
-    let servo_report = servo
-        .join()
+    let servo_joined = servo.join();
+    // Stopped once the servo loop has ended (its last command, the hold, is sent): the HAL sees us leave.
+    let heartbeat = heartbeat.finish();
+    let (servo_report, servo_rt) = servo_joined
         .map_err(|_| anyhow::anyhow!("the servo thread panicked"))?
         .context("the servo thread could not open the wire")?;
-    let policy_report = policy.join().map_err(|_| anyhow::anyhow!("the policy thread panicked"))?;
+    let (policy_report, policy_rt) = policy.join().map_err(|_| anyhow::anyhow!("the policy thread panicked"))?;
     let totals = collector.finish();
 
     if let Some(v) = servo_report.first_violation {
         tracing::error!("the first command refused by the final limit check: {v:?}");
     }
-    let summary = Summary::new(&cfg, &mode_names, &servo_report, &policy_report, totals);
+    let run = crate::report::RunFacts { realtime: vec![servo_rt, policy_rt], heartbeat };
+    let summary = Summary::new(&cfg, &mode_names, &servo_report, &policy_report, totals, run);
     let written = summary.write(&cfg.out, &policy_report)?;
     println!("{summary}");
     println!("  wrote {}", written.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(", "));
@@ -186,7 +206,7 @@ pub fn run(p: Prepared) -> anyhow::Result<Outcome> {
 fn supervise(
     status: &Status,
     term: &AtomicBool,
-    servo: &std::thread::JoinHandle<Option<ServoReport>>,
+    servo: &std::thread::JoinHandle<Option<(ServoReport, RtStatus)>>,
     handshake_timeout: Duration,
 ) -> bool {
     let started = Instant::now();

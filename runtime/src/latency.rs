@@ -2,10 +2,11 @@
 //!
 //! Each loop thread owns a [`Recorder`]: HdrHistograms for its channels, preallocated with fixed bounds, so
 //! recording is an index computation and an increment. Once per interval the thread swaps its filled set for
-//! an empty one through a lock-free pool shared with the [`Collector`] thread, which merges the set into the
-//! run's totals, appends it to an HdrHistogram interval log (so a run can be inspected over time with the
-//! standard tools) and returns it emptied. Nothing on the loop side blocks or allocates: if the collector has
-//! not returned a set yet, the loop keeps recording into the current one (the interval just gets longer).
+//! an empty one through two wait-free single-producer/single-consumer rings (`rtrb`) shared with the
+//! [`Collector`] thread, which merges the set into the run's totals, appends it to an HdrHistogram interval log
+//! (so a run can be inspected over time with the standard tools) and returns it emptied. Nothing on the loop
+//! side blocks, spins or allocates: if the collector has not returned a set yet, the loop keeps recording into
+//! the current one (the interval just gets longer).
 
 use std::fmt;
 use std::fs::File;
@@ -16,7 +17,6 @@ use std::thread::JoinHandle;
 use std::time::{Duration, SystemTime};
 
 use anyhow::Context;
-use crossbeam_queue::ArrayQueue;
 use hdrhistogram::Histogram;
 use hdrhistogram::serialization::V2DeflateSerializer;
 use hdrhistogram::serialization::interval_log::{IntervalLogWriter, IntervalLogWriterBuilder, Tag};
@@ -121,21 +121,32 @@ impl Interval {
     }
 }
 
-/// The sets of one recorder. Every set is always in exactly one place: the recorder's hand, `full` or
-/// `empty` (or the collector's hand, briefly), so neither queue can ever be full.
-struct Pool {
+/// What a recorder and the collector both read about the recorder.
+struct PoolInfo {
     name: String,
-    full: ArrayQueue<Box<Interval>>,
-    empty: ArrayQueue<Box<Interval>>,
     /// `end_interval` calls that found no empty set.
     starved: AtomicU64,
 }
 
-/// A loop thread's histograms. `record` and `end_interval` never allocate, lock or block.
+/// The collector's ends of one recorder's rings. Every set is always in exactly one place: the recorder's
+/// hand, `full` or `empty` (or the collector's hand, briefly), so neither ring can ever be full.
+struct Pool {
+    info: Arc<PoolInfo>,
+    /// Filled sets: the loop thread (recorder) produces, the collector consumes.
+    full: rtrb::Consumer<Box<Interval>>,
+    /// Emptied sets: the collector produces, the loop thread (recorder) consumes.
+    empty: rtrb::Producer<Box<Interval>>,
+}
+
+/// A loop thread's histograms. `record` and `end_interval` never allocate, lock, spin or block.
 pub struct Recorder {
     /// Always `Some` until dropped.
     current: Option<Box<Interval>>,
-    pool: Arc<Pool>,
+    /// Producer end of the filled-set ring (the collector consumes).
+    full: rtrb::Producer<Box<Interval>>,
+    /// Consumer end of the emptied-set ring (the collector produces).
+    empty: rtrb::Consumer<Box<Interval>>,
+    info: Arc<PoolInfo>,
 }
 
 impl Recorder {
@@ -152,14 +163,14 @@ impl Recorder {
     /// Ends the current interval at `now_ns` (on [`monotonic_ns`]): hands the filled set to the collector and
     /// continues in an empty one. Returns false if none was free; recording then continues in the same set.
     pub fn end_interval(&mut self, now_ns: u64) -> bool {
-        let Some(mut fresh) = self.pool.empty.pop() else {
-            self.pool.starved.fetch_add(1, Ordering::Relaxed);
+        let Ok(mut fresh) = self.empty.pop() else {
+            self.info.starved.fetch_add(1, Ordering::Relaxed);
             return false;
         };
         fresh.start_ns = now_ns;
         if let Some(mut filled) = self.current.replace(fresh) {
             filled.end_ns = now_ns;
-            let handed = self.pool.full.push(filled);
+            let handed = self.full.push(filled);
             debug_assert!(handed.is_ok(), "the full queue holds every set, so it cannot be full");
         }
         true
@@ -167,7 +178,7 @@ impl Recorder {
 
     /// Intervals extended so far because the collector had not returned a set.
     pub fn starved(&self) -> u64 {
-        self.pool.starved.load(Ordering::Relaxed)
+        self.info.starved.load(Ordering::Relaxed)
     }
 }
 
@@ -176,13 +187,13 @@ impl Drop for Recorder {
     fn drop(&mut self) {
         if let Some(mut last) = self.current.take() {
             last.end_ns = monotonic_ns();
-            let _ = self.pool.full.push(last);
+            let _ = self.full.push(last);
         }
     }
 }
 
 struct Registry {
-    pools: Vec<Arc<Pool>>,
+    pools: Vec<Pool>,
     /// Channels some recorder owns: these appear in the summary, with a count of 0 if nothing was recorded.
     channels: [bool; Channel::COUNT],
 }
@@ -222,14 +233,11 @@ impl Collector {
     /// coming back). More sets ride out a slower collector. Call at setup, not in a loop: this allocates.
     pub fn recorder(&self, name: &str, channels: &[Channel], sets: usize) -> Recorder {
         let sets = sets.max(2);
-        let pool = Arc::new(Pool {
-            name: name.to_string(),
-            full: ArrayQueue::new(sets),
-            empty: ArrayQueue::new(sets),
-            starved: AtomicU64::new(0),
-        });
+        let info = Arc::new(PoolInfo { name: name.to_string(), starved: AtomicU64::new(0) });
+        let (full_in, full_out) = rtrb::RingBuffer::new(sets);
+        let (mut empty_in, empty_out) = rtrb::RingBuffer::new(sets);
         for _ in 1..sets {
-            let _ = pool.empty.push(Interval::new(channels));
+            let _ = empty_in.push(Interval::new(channels));
         }
         let mut first = Interval::new(channels);
         first.start_ns = monotonic_ns();
@@ -237,8 +245,8 @@ impl Collector {
         for c in channels {
             reg.channels[c.index()] = true;
         }
-        reg.pools.push(pool.clone());
-        Recorder { current: Some(first), pool }
+        reg.pools.push(Pool { info: info.clone(), full: full_out, empty: empty_in });
+        Recorder { current: Some(first), full: full_in, empty: empty_out, info }
     }
 
     pub fn log_path(&self) -> &Path {
@@ -289,9 +297,10 @@ fn collect(shared: &Shared, file: File, path: PathBuf, poll: Duration) -> Totals
     let mut totals = Totals::empty(path);
     loop {
         let stopping = shared.stop.load(Ordering::Acquire);
-        let reg = shared.registry.lock().expect("latency registry poisoned");
-        for pool in &reg.pools {
-            while let Some(mut set) = pool.full.pop() {
+        // The registry's lock is only taken here and in `Collector::recorder` (setup): never by a loop thread.
+        let mut reg = shared.registry.lock().expect("latency registry poisoned");
+        for pool in &mut reg.pools {
+            while let Ok(mut set) = pool.full.pop() {
                 if let Some(w) = log.as_mut()
                     && let Err(e) = write_interval(w, &set, base_ns)
                 {
@@ -305,10 +314,13 @@ fn collect(shared: &Shared, file: File, path: PathBuf, poll: Duration) -> Totals
         }
         if stopping {
             for pool in &reg.pools {
-                totals.starved += pool.starved.load(Ordering::Relaxed);
-                // The collector holds one reference; another means the recorder still lives.
-                if Arc::strong_count(pool) > 1 {
-                    warn!(recorder = pool.name, "latency recorder still alive at finish: its last interval is lost");
+                totals.starved += pool.info.starved.load(Ordering::Relaxed);
+                // The recorder's producer end lives as long as the recorder.
+                if !pool.full.is_abandoned() {
+                    warn!(
+                        recorder = pool.info.name,
+                        "latency recorder still alive at finish: its last interval is lost"
+                    );
                 }
             }
             totals.registered = reg.channels;

@@ -4,7 +4,7 @@
 //! the servo thread shares the newest usable state with the [`policy_loop`] through [`shared`]; the policy
 //! loop's time-stamped chunk ([`chunk`]) comes back the same way; [`servo`] turns it into a reference, smooths
 //! it with ruckig ([`smoothing`]), checks it ([`limits`]) and the command leaves in [`servo_loop`]. Around
-//! them: [`watchdog`], [`daemon`] (setup, signals, systemd), [`latency`] + [`plots`] + [`report`], [`rt`]
+//! them: [`watchdog`], [`daemon`] (setup, signals, systemd), [`heartbeat`] (liveness, off the RT thread), [`latency`] + [`plots`] + [`traces`] + [`report`], [`rt`]
 //! (pinning, SCHED_FIFO, the ticker), [`alloc_count`], the HIL [`task`], and the `mars-hil` tools ([`cli`],
 //! [`bench`]).
 
@@ -15,6 +15,7 @@ pub mod cli;
 pub mod config;
 pub mod daemon;
 pub mod frame;
+pub mod heartbeat;
 pub mod latency;
 pub mod limits;
 pub mod plots;
@@ -26,4 +27,6 @@ pub mod servo_loop;
 pub mod shared;
 pub mod smoothing;
 pub mod task;
+pub mod timeliness;
+pub mod traces;
 pub mod watchdog;

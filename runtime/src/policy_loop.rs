@@ -12,7 +12,6 @@ use std::sync::Arc;
 use std::sync::atomic::Ordering;
 use std::time::Duration;
 
-use crossbeam_queue::ArrayQueue;
 use mars_engine::Engine;
 use mars_ipc::MAX_JOINTS;
 use mars_ipc::clock::monotonic_ns;
@@ -25,6 +24,7 @@ use crate::plots::EpisodeTrace;
 use crate::rt::Ticker;
 use crate::shared::{Observed, Phase, Request, Status};
 use crate::task::pick_cup::{DoneReason, PickCup, Progress};
+use crate::traces::{TRACE_CAPACITY, TraceRing};
 use crate::watchdog::{Streak, Trip};
 
 /// One episode's outcome.
@@ -44,8 +44,11 @@ pub struct EpisodeResult {
 #[derive(Debug, Clone, Default, Serialize)]
 pub struct PolicyReport {
     pub episodes: Vec<EpisodeResult>,
+    /// The last `traces_kept` episodes' traces, oldest first.
     #[serde(skip)]
     pub traces: Vec<EpisodeTrace>,
+    /// Traces dropped because only the last `traces_kept` are kept.
+    pub traces_dropped: u64,
     pub inferences: u64,
     /// Calls whose K was cut by the deadline (k_used < k_requested).
     pub capped: u64,
@@ -59,8 +62,17 @@ pub struct PolicyReport {
 pub struct PolicyChannels {
     pub chunks: triple_buffer::Input<TimedChunk>,
     pub observed: triple_buffer::Output<Observed>,
-    pub requests: Arc<ArrayQueue<Request>>,
+    /// Producer end; the servo thread consumes (see [`crate::shared`]).
+    pub requests: rtrb::Producer<Request>,
     pub status: Arc<Status>,
+}
+
+/// The watchdog's streaks of the policy loop, across episodes.
+struct ChunkFaults {
+    /// Chunks ready after the servo needed them.
+    late: Streak,
+    /// Calls that could not fit even one ODE step.
+    over: Streak,
 }
 
 pub struct PolicyLoop {
@@ -70,9 +82,6 @@ pub struct PolicyLoop {
     pub rec: Recorder,
 }
 
-/// Steps the trace of one episode can hold before it stops growing (no reallocation in the loop).
-const TRACE_CAPACITY: usize = 4096;
-
 impl PolicyLoop {
     pub fn run(mut self, cfg: &DaemonConfig) -> PolicyReport {
         let mut report = PolicyReport::default();
@@ -81,8 +90,11 @@ impl PolicyLoop {
         if !self.wait_for(|s| s.hal_ready.load(Ordering::Acquire)) {
             return report;
         }
-        let mut late = Streak::new(cfg.watchdog.max_consecutive_late_chunks);
-        let mut over = Streak::new(cfg.watchdog.max_consecutive_over_budget);
+        let mut faults = ChunkFaults {
+            late: Streak::new(cfg.watchdog.max_consecutive_late_chunks),
+            over: Streak::new(cfg.watchdog.max_consecutive_over_budget),
+        };
+        let mut traces = TraceRing::new(cfg.traces_kept);
         for episode in 1..=episodes {
             let pose_v = self.task.start_pose(cfg.seed.wrapping_add(episode));
             let mut pose = [0.0; MAX_JOINTS];
@@ -95,12 +107,14 @@ impl PolicyLoop {
                 break;
             }
             let rest = self.task.rest_action(&pose_v);
-            match self.episode(cfg, episode, &rest, &mut late, &mut over, &mut report) {
+            match self.episode(cfg, episode, &rest, &mut faults, &mut traces, &mut report) {
                 Some(result) => report.episodes.push(result),
                 None => break,
             }
         }
         self.request(Request::Finish);
+        report.traces_dropped = traces.dropped();
+        report.traces = traces.into_vec();
         report
     }
 
@@ -110,8 +124,8 @@ impl PolicyLoop {
         cfg: &DaemonConfig,
         episode: u64,
         rest: &[f32],
-        late: &mut Streak,
-        over: &mut Streak,
+        faults: &mut ChunkFaults,
+        traces: &mut TraceRing,
         report: &mut PolicyReport,
     ) -> Option<EpisodeResult> {
         let (c, d) = (self.engine.chunk_len(), self.engine.action_dim());
@@ -121,11 +135,7 @@ impl PolicyLoop {
         let mut obs = vec![0.0f32; self.engine.obs_dim()];
         let mut history: Vec<f32> = rest.iter().copied().cycle().take(c * d).collect();
         let mut monitor = self.task.monitor();
-        let mut trace = EpisodeTrace {
-            mode: None,
-            q: Vec::with_capacity(TRACE_CAPACITY),
-            w_inf: Vec::with_capacity(TRACE_CAPACITY),
-        };
+        let mut trace = traces.start();
         let (mut chunks, mut k_sum, mut ep_late, mut w_inf) = (0u64, 0u64, 0u64, 0.0f32);
         let t0 = monotonic_ns();
         let mut ticker = Ticker::starting_at(t0, Duration::from_nanos(period_ns));
@@ -148,7 +158,7 @@ impl PolicyLoop {
             }
             if let Progress::Done { success, mode, reason } = progress {
                 trace.mode = mode;
-                report.traces.push(trace);
+                traces.push(trace);
                 return Some(EpisodeResult {
                     episode,
                     success,
@@ -188,13 +198,13 @@ impl PolicyLoop {
             if out.over_budget {
                 // Not even one step fitted: keep executing the previous chunk.
                 report.over_budget += 1;
-                if over.bad() {
+                if faults.over.bad() {
                     self.request(Request::Trip(Trip::InferenceOverBudget));
                     return None;
                 }
                 continue;
             }
-            over.good();
+            faults.over.good();
             w_inf = out.w.iter().fold(0.0f32, |m, w| m.max(w.abs()));
             seq += 1;
             let dst = self.ch.chunks.input_buffer_mut();
@@ -216,12 +226,12 @@ impl PolicyLoop {
             if ready > need_ns {
                 report.late_chunks += 1;
                 ep_late += 1;
-                if late.bad() {
+                if faults.late.bad() {
                     self.request(Request::Trip(Trip::LateChunks));
                     return None;
                 }
             } else {
-                late.good();
+                faults.late.good();
             }
         }
         unreachable!("the episode loop only ends by returning")
@@ -249,7 +259,7 @@ impl PolicyLoop {
     }
 
     /// Queues a request for the servo; false if the queue stayed full (the servo loop is gone).
-    fn request(&self, r: Request) -> bool {
+    fn request(&mut self, r: Request) -> bool {
         for _ in 0..1000 {
             if self.ch.requests.push(r).is_ok() {
                 return true;

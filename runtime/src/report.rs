@@ -8,8 +8,10 @@ use serde::Serialize;
 
 use crate::config::DaemonConfig;
 use crate::frame::FrameCounts;
+use crate::heartbeat::HeartbeatReport;
 use crate::latency::{Channel, Totals};
 use crate::policy_loop::{EpisodeResult, PolicyReport};
+use crate::rt::RtStatus;
 use crate::servo::StopCause;
 use crate::servo_loop::ServoReport;
 
@@ -33,26 +35,64 @@ pub struct DeadlineMisses {
     pub actions_dropped: u64,
     /// Servo ticks with the chunk used up and no newer one.
     pub starved_ticks: u64,
+    /// Commands that reached the HAL after its next tick, as marsd saw it in the following frame (the HAL's
+    /// `last_command_seq` fell short of the command answering the previous frame).
+    pub late_commands: u64,
+    /// The same, as the HAL counted it (a command whose `state_seq` was not its newest frame), since the
+    /// handshake.
+    pub hal_late_commands: u64,
 }
 
+/// Out-of-limit commands, wherever they were caught. Late commands are timing, not content: they are in
+/// [`DeadlineMisses`].
 #[derive(Debug, Clone, Serialize)]
 pub struct LimitViolations {
     /// Commands that failed marsd's own final check (never sent).
     pub final_check: u64,
-    /// Commands the HAL refused or clamped, from its state frames.
+    /// Out-of-limit commands the HAL refused (under `limit_policy = "reject"`), from its state frames.
     pub hal_rejected: u64,
+    /// Out-of-limit commands the HAL clamped into its limits (under `limit_policy = "clamp"`).
     pub hal_clamped: u64,
     /// Re-synchronisations to the HAL's applied setpoint after a late command (see `ServoCounters::resyncs`).
     pub resyncs: u64,
 }
 
 impl LimitViolations {
-    /// Commands that would have exceeded a limit: refused by marsd's final check or by the HAL. (A late
-    /// command the HAL smoothed is counted in `hal_clamped`: the stream was within limits, but the HAL's
-    /// setpoint had moved on without it.)
+    /// Commands that exceeded a limit: refused by marsd's final check, refused by the HAL or clamped by it.
     pub fn total(&self) -> u64 {
-        self.final_check + self.hal_rejected
+        self.final_check + self.hal_rejected + self.hal_clamped
     }
+}
+
+/// The HAL's last resorts since the handshake (from its state frames): each should stay 0.
+#[derive(Debug, Clone, Serialize)]
+pub struct HalLastResorts {
+    /// Ticks its position guard stopped a joint at a limit, breaking the acceleration/jerk limits on purpose.
+    pub position_guard_hits: u64,
+    /// Ticks no setpoint satisfied every limit and its filter took the middle of the empty interval.
+    pub infeasible_steps: u64,
+    /// Errors of its backend or ports (each brakes the arm to rest).
+    pub backend_errors: u64,
+}
+
+/// marsd's side of the wire.
+#[derive(Debug, Clone, Serialize)]
+pub struct WireErrors {
+    /// State frames refused for a wrong schema version.
+    pub schema_refusals: u64,
+    /// Receive calls iceoryx2 itself failed.
+    pub receive_port_errors: u64,
+    /// Command sends that failed (`watchdog.max_consecutive_send_errors` in a row trip).
+    pub send_errors: u64,
+    /// The liveness heartbeat (a non-RT thread that beats while the servo's tick counter advances).
+    pub heartbeat: HeartbeatReport,
+}
+
+/// Facts about the run gathered outside the two loops' reports.
+pub struct RunFacts {
+    /// The real-time setup of each loop thread, as applied.
+    pub realtime: Vec<RtStatus>,
+    pub heartbeat: HeartbeatReport,
 }
 
 #[derive(Debug, Clone, Serialize)]
@@ -71,17 +111,33 @@ pub struct Summary {
     pub k: KStats,
     pub deadline_misses: DeadlineMisses,
     pub limit_violations: LimitViolations,
+    pub hal_last_resorts: HalLastResorts,
     pub frames: FrameCounts,
+    pub wire: WireErrors,
     pub commands_sent: u64,
-    /// Heap allocations on the servo thread after warm-up, over `servo_ticks_counted` ticks (None: not measured).
+    /// Heap allocations on the servo thread after warm-up, over `servo_ticks_counted` ticks (None: not
+    /// measured). `system` must be 0; `pooled` must equal `servo_samples_sent` (iceoryx2's one block per sample).
     pub servo_allocations: Option<crate::alloc_count::Counts>,
     pub servo_ticks_counted: u64,
+    /// Command samples sent over the same ticks.
+    pub servo_samples_sent: u64,
+    /// Whether SCHED_FIFO, the core pinning and mlockall were applied, per loop thread.
+    pub realtime: Vec<RtStatus>,
     pub latency: Totals,
     pub episode_results: Vec<EpisodeResult>,
+    /// Episode traces dropped from the plot (only the last `traces_kept` are kept).
+    pub traces_dropped: u64,
 }
 
 impl Summary {
-    pub fn new(cfg: &DaemonConfig, mode_names: &[String], s: &ServoReport, p: &PolicyReport, latency: Totals) -> Self {
+    pub fn new(
+        cfg: &DaemonConfig,
+        mode_names: &[String],
+        s: &ServoReport,
+        p: &PolicyReport,
+        latency: Totals,
+        run: RunFacts,
+    ) -> Self {
         let successes = p.episodes.iter().filter(|e| e.success).count();
         let counts: Vec<usize> = (0..mode_names.len())
             .map(|m| p.episodes.iter().filter(|e| e.success && e.mode == Some(m)).count())
@@ -120,19 +176,35 @@ impl Summary {
                 over_budget: p.over_budget,
                 actions_dropped: s.counters.actions_dropped,
                 starved_ticks: s.counters.starved_ticks,
+                late_commands: s.counters.late_commands,
+                hal_late_commands: s.hal.late,
             },
             limit_violations: LimitViolations {
                 final_check: s.counters.limit_violations,
-                hal_rejected: s.hal_rejected,
-                hal_clamped: s.hal_clamped,
+                hal_rejected: s.hal.rejected,
+                hal_clamped: s.hal.clamped,
                 resyncs: s.counters.resyncs,
             },
+            hal_last_resorts: HalLastResorts {
+                position_guard_hits: s.hal.position_guard_hits,
+                infeasible_steps: s.hal.infeasible_steps,
+                backend_errors: s.hal.backend_errors,
+            },
             frames: s.frames,
+            wire: WireErrors {
+                schema_refusals: s.schema_refusals,
+                receive_port_errors: s.receive_port_errors,
+                send_errors: s.send_errors,
+                heartbeat: run.heartbeat,
+            },
             commands_sent: s.counters.commands_sent,
             servo_allocations: s.allocations_after_warmup,
             servo_ticks_counted: s.ticks_counted,
+            servo_samples_sent: s.samples_sent_after_warmup,
+            realtime: run.realtime,
             latency,
             episode_results: p.episodes.clone(),
+            traces_dropped: p.traces_dropped,
         }
     }
 
@@ -198,19 +270,49 @@ impl std::fmt::Display for Summary {
         let l = &self.limit_violations;
         writeln!(
             f,
-            "  limit violations: {} of {} commands (final check {}, HAL rejected {}); late commands the HAL smoothed {}, re-synchronised {}",
-            l.total(),
+            "  of {} commands: {} out of limits (final check {}, HAL rejected {}, HAL clamped {}); {} late for the HAL's tick (HAL's count {}); re-synchronised {}",
             self.commands_sent,
+            l.total(),
             l.final_check,
             l.hal_rejected,
             l.hal_clamped,
+            d.late_commands,
+            d.hal_late_commands,
             l.resyncs
         )?;
+        let h = &self.hal_last_resorts;
+        writeln!(
+            f,
+            "  HAL last resorts: position guard hits {}, infeasible steps {}, backend errors {}",
+            h.position_guard_hits, h.infeasible_steps, h.backend_errors
+        )?;
+        let w = &self.wire;
+        writeln!(
+            f,
+            "  wire: schema refusals {}, receive port errors {}, send errors {}; heartbeats {} ({} errors, {} withheld while the servo did not advance)",
+            w.schema_refusals,
+            w.receive_port_errors,
+            w.send_errors,
+            w.heartbeat.beats,
+            w.heartbeat.errors,
+            w.heartbeat.withheld
+        )?;
+        for rt in &self.realtime {
+            writeln!(
+                f,
+                "  {} thread: core {:?}, SCHED_FIFO {:?}, mlockall {:?}{}",
+                rt.thread,
+                rt.core,
+                rt.sched_fifo,
+                rt.memory_locked,
+                rt.pin_error.as_deref().map(|e| format!(", pinning failed: {e}")).unwrap_or_default()
+            )?;
+        }
         match self.servo_allocations {
             Some(n) => writeln!(
                 f,
-                "  servo thread after warm-up ({} ticks): {} system-allocator calls; {} small blocks from the preallocated RT pool (iceoryx2's per-sample bookkeeping)",
-                self.servo_ticks_counted, n.system, n.pooled
+                "  servo thread after warm-up ({} ticks): {} system-allocator calls; {} blocks from the RT pool for {} samples sent (iceoryx2's per-sample bookkeeping, only inside send)",
+                self.servo_ticks_counted, n.system, n.pooled, self.servo_samples_sent
             )?,
             None => writeln!(f, "  servo thread heap allocations: not measured (counting allocator not installed)")?,
         }

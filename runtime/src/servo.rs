@@ -14,6 +14,7 @@ use crate::frame::FrameCheck;
 use crate::limits::LimitCheck;
 use crate::shared::{Observed, Phase, Request};
 use crate::smoothing::{Kinematics, Limits, Smoother, SmoothingError};
+use crate::timeliness::CommandTimeliness;
 use crate::watchdog::{ServoWatchdog, Trip};
 
 /// The gripper is not part of the jerk-limited joint trajectory: during a reset it moves at this speed (m/s).
@@ -69,9 +70,54 @@ pub struct ServoCounters {
     pub clamped_targets: u64,
     /// Commands that failed the final limit check (never sent). Must be 0.
     pub limit_violations: u64,
+    /// Commands that reached the HAL after its next tick (see [`crate::timeliness`]): a deadline miss of its
+    /// own — the tick finished, but too late for the HAL.
+    pub late_commands: u64,
     /// Times the HAL had not applied the last command exactly (it arrived late, so the HAL smoothed the gap)
     /// and the trajectory continued from the HAL's applied setpoint.
     pub resyncs: u64,
+}
+
+/// The HAL's own counters (from its state frames), since this controller's handshake: the robot side's verdict
+/// on the command stream, and its last resorts.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize)]
+pub struct HalCounts {
+    /// Commands refused (NaN, wrong joint count, out of limits under `reject`).
+    pub rejected: u64,
+    /// Out-of-limit commands clamped into the limits (under `clamp`).
+    pub clamped: u64,
+    /// Commands that arrived after the tick they answered had passed.
+    pub late: u64,
+    /// Ticks the safety filter's position guard stopped a joint at its limit (breaking acc/jerk limits).
+    pub position_guard_hits: u64,
+    /// Ticks no setpoint satisfied every limit and the filter took the middle of the empty interval.
+    pub infeasible_steps: u64,
+    /// Errors of the HAL's backend or its own ports.
+    pub backend_errors: u64,
+}
+
+impl HalCounts {
+    fn of(f: &RobotState) -> Self {
+        Self {
+            rejected: f.rejected_commands,
+            clamped: f.clamped_commands,
+            late: f.late_commands,
+            position_guard_hits: f.position_guard_hits,
+            infeasible_steps: f.infeasible_steps,
+            backend_errors: f.backend_errors,
+        }
+    }
+
+    fn since(&self, start: &Self) -> Self {
+        Self {
+            rejected: self.rejected.saturating_sub(start.rejected),
+            clamped: self.clamped.saturating_sub(start.clamped),
+            late: self.late.saturating_sub(start.late),
+            position_guard_hits: self.position_guard_hits.saturating_sub(start.position_guard_hits),
+            infeasible_steps: self.infeasible_steps.saturating_sub(start.infeasible_steps),
+            backend_errors: self.backend_errors.saturating_sub(start.backend_errors),
+        }
+    }
 }
 
 pub struct ServoTick {
@@ -99,8 +145,10 @@ pub struct ServoTick {
     last_state: RobotState,
     /// The HAL has followed this session at least once (so a HOLDING status afterwards means it stopped).
     followed: bool,
-    /// The HAL's (rejected, clamped) command counters at the handshake: the HAL counts since it started.
-    hal_counts_at_start: (u64, u64),
+    /// The HAL's counters at the handshake: the HAL counts since it started.
+    hal_counts_at_start: HalCounts,
+    /// Whether each command reached the HAL before its next tick.
+    timeliness: CommandTimeliness,
     /// The first command refused by the final check, for the report.
     pub first_violation: Option<crate::limits::Violation>,
     pub counters: ServoCounters,
@@ -139,7 +187,8 @@ impl ServoTick {
             settle_tolerance: cfg.servo.settle_tolerance,
             last_state: RobotState::default(),
             followed: false,
-            hal_counts_at_start: (0, 0),
+            hal_counts_at_start: HalCounts::default(),
+            timeliness: CommandTimeliness::default(),
             first_violation: None,
             counters: ServoCounters::default(),
         })
@@ -207,12 +256,16 @@ impl ServoTick {
                 } else {
                     &f.position[..self.n]
                 };
-                self.smoother.reset(start);
+                if self.smoother.reset(start).is_err() {
+                    // A position the smoother cannot start from (beyond any joint's range): command nothing.
+                    self.stop_with(StopCause::Trip(Trip::Smoothing));
+                    return out;
+                }
                 self.pose[..self.n].copy_from_slice(start);
                 self.gripper = f.gripper.clamp(self.g_lo, self.g_hi);
                 self.gripper_target = self.gripper;
                 self.phase = if self.stop.is_some() { Phase::Stopping } else { Phase::Idle };
-                self.hal_counts_at_start = (f.rejected_commands, f.clamped_commands);
+                self.hal_counts_at_start = HalCounts::of(f);
             }
             if f.session == self.session {
                 if f.is(status::ACTIVE) {
@@ -347,6 +400,7 @@ impl ServoTick {
             self.phase = Phase::Finished;
         }
         self.counters.commands_sent += 1;
+        self.timeliness.sent(cmd.state_seq, cmd.seq);
         out.command = Some(cmd);
         out
     }
@@ -358,11 +412,21 @@ impl ServoTick {
         }
     }
 
-    /// Commands the HAL refused and clamped since the handshake, as of its newest usable frame: the robot
-    /// side's own verdict on this controller's command stream.
-    pub fn hal_limit_counts(&self) -> (u64, u64) {
-        let (r0, c0) = self.hal_counts_at_start;
-        (self.last_state.rejected_commands.saturating_sub(r0), self.last_state.clamped_commands.saturating_sub(c0))
+    /// The HAL's counters since the handshake, as of its newest usable frame.
+    pub fn hal_counts(&self) -> HalCounts {
+        HalCounts::of(&self.last_state).since(&self.hal_counts_at_start)
+    }
+
+    /// A fault found by the loop around the tick (the wire): stop as for any trip.
+    pub fn trip(&mut self, t: Trip) {
+        self.stop_with(StopCause::Trip(t));
+    }
+
+    /// Every state frame the loop receives, in order (also those a newer one supersedes in the same tick):
+    /// the first one after a command's frame tells whether the HAL had the command in time.
+    pub fn note_frame_timing(&mut self, f: &RobotState) {
+        self.timeliness.frame(f, self.session);
+        self.counters.late_commands = self.timeliness.late();
     }
 
     /// If the HAL's applied setpoint is not the last command sent (a late command: the HAL held or smoothed

@@ -1,31 +1,30 @@
 //! The servo loop: where a state frame enters and a command leaves. Once per HAL period, on an absolute
 //! CLOCK_MONOTONIC deadline: read the newest state frame, take the newest chunk and any request, run the
-//! [`ServoTick`], send its command, beat the heartbeat, record latencies. Nothing in the loop allocates, locks,
-//! prints or blocks (the sleep to the next deadline is the only syscall that waits): `tests/alloc_free_tick.rs`
-//! runs it against a live HAL under a counting allocator.
+//! [`ServoTick`], send its command, record latencies. Nothing in the loop allocates (except iceoryx2's one
+//! pooled block per sent sample, see [`crate::alloc_count`]), locks, prints or blocks (the sleep to the next
+//! deadline is the only syscall that waits): `tests/alloc_free_tick.rs` runs it against a live HAL under a
+//! counting allocator. The liveness heartbeat, a syscall, beats from [`crate::heartbeat`] instead.
 
 use std::sync::Arc;
 use std::time::Duration;
 
-use crossbeam_queue::ArrayQueue;
 use iceoryx2::prelude::*;
 use mars_ipc::clock::monotonic_ns;
-use mars_ipc::liveness::Side;
 use mars_ipc::node::create_node;
-use mars_ipc::{CommandWriter, Heartbeat, PeerWatch, RobotNamespace, RobotState, StateReader};
+use mars_ipc::{CommandWriter, FrameReceiveError, PeerWatch, RobotNamespace, RobotState, StateReader};
 
 use crate::chunk::TimedChunk;
 use crate::latency::{Channel, Recorder};
 use crate::rt::Ticker;
-use crate::servo::{ServoCounters, ServoTick, StopCause, TickInput};
+use crate::servo::{HalCounts, ServoCounters, ServoTick, StopCause, TickInput};
 use crate::shared::{Observed, Phase, Request, Status};
+use crate::watchdog::SendWatch;
 
 /// The servo loop's ends of the wire. iceoryx2's ports are bound to the thread that made them, so the servo
 /// thread opens them itself.
 pub struct ServoWire {
     pub states: StateReader,
     pub commands: CommandWriter,
-    pub heartbeat: Heartbeat,
     pub hal: PeerWatch,
     /// Owns the ports' node; dropped last.
     _node: Node<ipc::Service>,
@@ -46,7 +45,6 @@ impl ServoWire {
         Ok(Self {
             states: StateReader::new(&node, &ns)?,
             commands: CommandWriter::new(&node, &ns)?,
-            heartbeat: Heartbeat::new(&node, &ns, Side::Controller)?,
             hal: PeerWatch::hal(&ns)?,
             _node: node,
         })
@@ -57,7 +55,8 @@ impl ServoWire {
 pub struct ServoChannels {
     pub chunks: triple_buffer::Output<TimedChunk>,
     pub observed: triple_buffer::Input<Observed>,
-    pub requests: Arc<ArrayQueue<Request>>,
+    /// Consumer end; the policy thread produces (see [`crate::shared`]).
+    pub requests: rtrb::Consumer<Request>,
     pub status: Arc<Status>,
 }
 
@@ -70,15 +69,28 @@ pub struct ServoReport {
     pub missed_periods: u64,
     /// Frames refused by the wire for a wrong schema version.
     pub schema_refusals: u64,
+    /// Receive calls that failed in iceoryx2 itself (the port, not the frame).
+    pub receive_port_errors: u64,
     pub send_errors: u64,
-    /// Commands the HAL refused / clamped (from its state frames).
-    pub hal_rejected: u64,
-    pub hal_clamped: u64,
+    /// The HAL's own counters since the handshake (from its state frames).
+    pub hal: HalCounts,
     pub first_violation: Option<crate::limits::Violation>,
     /// Heap allocations on the servo thread from tick [`ALLOC_WARMUP_TICKS`] to the end (`None`: the process
     /// does not run the counting allocator). See [`crate::alloc_count`].
     pub allocations_after_warmup: Option<crate::alloc_count::Counts>,
+    /// Samples sent over the same span: each may take exactly one pooled block (iceoryx2's bookkeeping).
+    pub samples_sent_after_warmup: u64,
     pub ticks_counted: u64,
+}
+
+/// The loop's timing and its own fault limits.
+#[derive(Debug, Clone, Copy)]
+pub struct ServoLoopConfig {
+    pub period: Duration,
+    /// Latency histogram interval.
+    pub interval: Duration,
+    /// Command sends failing this many times in a row trip [`Trip::SendErrors`].
+    pub max_consecutive_send_errors: u64,
 }
 
 /// Ticks after which the servo thread's allocations are counted: iceoryx2 and the first chunk handoff have
@@ -109,20 +121,20 @@ const LIVENESS_GRACE: Duration = Duration::from_millis(100);
 
 pub fn run_servo(
     mut tick: ServoTick,
-    mut wire: ServoWire,
+    wire: ServoWire,
     mut ch: ServoChannels,
     mut rec: Recorder,
-    period: Duration,
-    interval: Duration,
+    cfg: ServoLoopConfig,
 ) -> ServoReport {
-    let mut ticker = Ticker::new(period);
-    let period_ns = period.as_nanos() as u64;
+    let mut ticker = Ticker::new(cfg.period);
+    let period_ns = cfg.period.as_nanos() as u64;
     let losses_at_start = wire.hal.losses();
-    let interval_ns = interval.as_nanos() as u64;
+    let interval_ns = cfg.interval.as_nanos() as u64;
     let mut next_interval = monotonic_ns() + interval_ns;
-    let (mut schema_refusals, mut send_errors) = (0u64, 0u64);
-    let mut allocs_at_warmup: Option<crate::alloc_count::Counts> = None;
-    crate::alloc_count::arm_rt_pool();
+    let (mut schema_refusals, mut receive_port_errors) = (0u64, 0u64);
+    let mut sends = SendWatch::new(cfg.max_consecutive_send_errors);
+    let mut allocs_at_warmup: Option<(crate::alloc_count::Counts, u64)> = None;
+    crate::alloc_count::init_rt_pool();
     loop {
         let wake = ticker.wait();
         let t0 = monotonic_ns();
@@ -132,10 +144,16 @@ pub fn run_servo(
         let mut newest: Option<RobotState> = None;
         loop {
             match wire.states.receive() {
-                Ok(Some(s)) => newest = Some(s),
+                Ok(Some(s)) => {
+                    tick.note_frame_timing(&s);
+                    newest = Some(s);
+                }
                 Ok(None) => break,
-                Err(_) => {
-                    schema_refusals += 1;
+                // A frame of another schema version is refused and the next one read; a port error ends this
+                // tick's reading (the stale-state watchdog trips if it persists).
+                Err(FrameReceiveError::Schema(_)) => schema_refusals += 1,
+                Err(FrameReceiveError::Port(_)) => {
+                    receive_port_errors += 1;
                     break;
                 }
             }
@@ -150,23 +168,28 @@ pub fn run_servo(
             missed: wake.missed,
             frame: newest.as_ref(),
             chunk,
-            request: ch.requests.pop(),
+            request: ch.requests.pop().ok(),
             stop_requested: ch.status.stop_requested.load(std::sync::atomic::Ordering::Acquire),
             hal_gone: wire.hal.losses() != losses_at_start,
         };
         let out = tick.tick(&input);
 
         if let Some(cmd) = &out.command {
-            if wire.commands.send(cmd).is_err() {
-                send_errors += 1;
-            } else if newest.is_some() {
+            // The only place the servo thread may allocate: iceoryx2's one block per sample, from the RT pool.
+            let sent = {
+                let _pool = crate::alloc_count::RtPoolScope::enter();
+                wire.commands.send(cmd)
+            };
+            if let Some(trip) = sends.record(sent.is_ok()) {
+                tick.trip(trip);
+            }
+            if sent.is_ok() && newest.is_some() {
                 rec.record(Channel::StateToCommand, monotonic_ns().saturating_sub(t0));
             }
         }
         if let Some(obs) = out.observed {
             ch.observed.write(obs);
         }
-        let _ = wire.heartbeat.beat();
 
         let st = &ch.status;
         st.set_phase(tick.phase());
@@ -186,7 +209,7 @@ pub fn run_servo(
             next_interval += interval_ns;
         }
         if tick.counters.ticks == ALLOC_WARMUP_TICKS {
-            allocs_at_warmup = crate::alloc_count::thread_counts();
+            allocs_at_warmup = crate::alloc_count::thread_counts().map(|c| (c, sends.sent));
         }
         if tick.phase() == Phase::Finished {
             break;
@@ -205,20 +228,23 @@ pub fn run_servo(
             ch.status.set_trip(crate::watchdog::Trip::HalDied);
         }
     }
-    let allocations_after_warmup = allocs_at_warmup.zip(crate::alloc_count::thread_counts()).map(|(start, end)| {
-        crate::alloc_count::Counts { system: end.system - start.system, pooled: end.pooled - start.pooled }
-    });
+    let allocations_after_warmup =
+        allocs_at_warmup.zip(crate::alloc_count::thread_counts()).map(|((start, _), end)| crate::alloc_count::Counts {
+            system: end.system - start.system,
+            pooled: end.pooled - start.pooled,
+        });
     ServoReport {
         allocations_after_warmup,
+        samples_sent_after_warmup: allocs_at_warmup.map_or(0, |(_, sent)| sends.sent - sent),
         ticks_counted: tick.counters.ticks.saturating_sub(ALLOC_WARMUP_TICKS),
         cause: tick.stop_cause(),
         counters: tick.counters,
         frames: tick.frames().counts,
         missed_periods: ticker.missed_total(),
         schema_refusals,
-        send_errors,
-        hal_rejected: tick.hal_limit_counts().0,
-        hal_clamped: tick.hal_limit_counts().1,
+        receive_port_errors,
+        send_errors: sends.errors(),
+        hal: tick.hal_counts(),
         first_violation: tick.first_violation,
     }
 }

@@ -1,7 +1,8 @@
 //! What the three threads share, all lock-free and preallocated: the servo loop never waits on the others.
 //!
-//! - policy → servo: the newest chunk (a triple buffer in [`crate::handoff`]) and [`Request`]s (a bounded
-//!   lock-free queue);
+//! - policy → servo: the newest chunk (a triple buffer) and [`Request`]s (an `rtrb` ring: the policy thread is
+//!   its only producer, the servo thread its only consumer; wait-free on both ends, so the servo's pop never
+//!   spins on a preempted policy thread);
 //! - servo → policy: the newest usable state, [`Observed`] (a triple buffer);
 //! - servo → everyone: [`Status`] atomics (phase, counters, the trip reason), which the daemon's notifier
 //!   thread reads to decide whether systemd's watchdog gets its ping.

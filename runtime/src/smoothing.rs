@@ -155,7 +155,7 @@ impl Smoother {
             output: OutputParameter::new(None),
             state: Kinematics::default(),
         };
-        s.reset(&[0.0; MAX_JOINTS]);
+        s.reset(&[0.0; MAX_JOINTS])?;
         Ok(s)
     }
 
@@ -168,14 +168,17 @@ impl Smoother {
         &self.state
     }
 
-    /// At rest at `position` (its first `n` values; missing ones are taken as 0). Non-finite values are replaced by 0
-    /// so the smoother can always be reset; callers check the measurement before resetting to it.
-    pub fn reset(&mut self, position: &[f64]) {
-        self.state = Kinematics::default();
-        for i in 0..self.n {
-            let q = position.get(i).copied().filter(|q| q.is_finite()).unwrap_or(0.0);
-            self.state.position[i] = q;
+    /// At rest at `position` (its first `n` values). A short, non-finite or out-of-range position is refused
+    /// and nothing changes: a substitute value (such as 0, outside FR3 joint 4's range) would make the next
+    /// command jump to a pose nobody asked for.
+    pub fn reset(&mut self, position: &[f64]) -> Result<(), SmoothingError> {
+        let n = self.n;
+        check("position", position, n)?;
+        if let Some(joint) = position[..n].iter().position(|q| q.abs() > MAX_ABS_POSITION) {
+            return Err(SmoothingError::OutOfRange { what: "position", joint, value: position[joint] });
         }
+        self.state = Kinematics::default();
+        self.state.position[..n].copy_from_slice(&position[..n]);
         for i in 0..MAX_JOINTS {
             let q = self.state.position[i];
             self.input.current_position[i] = q;
@@ -186,6 +189,7 @@ impl Smoother {
             self.input.target_acceleration[i] = 0.0;
         }
         self.otg.reset();
+        Ok(())
     }
 
     /// One online step towards (`target_position`, `target_velocity`) from the previous output; returns the state

@@ -27,6 +27,8 @@ pub enum Trip {
     LimitViolation,
     /// The smoother refused its input (non-finite target).
     Smoothing,
+    /// Sending commands to the HAL failed too many times in a row (`watchdog.max_consecutive_send_errors`).
+    SendErrors,
 }
 
 impl Trip {
@@ -40,6 +42,7 @@ impl Trip {
             Self::HalDied => 6,
             Self::LimitViolation => 7,
             Self::Smoothing => 8,
+            Self::SendErrors => 9,
             Self::HalHolding(r) => 100 + r as u32,
         }
     }
@@ -54,6 +57,7 @@ impl Trip {
             6 => Self::HalDied,
             7 => Self::LimitViolation,
             8 => Self::Smoothing,
+            9 => Self::SendErrors,
             c if c >= 100 => Self::HalHolding(HoldReason::from_u32(c - 100)?),
             _ => return None,
         })
@@ -72,6 +76,7 @@ impl std::fmt::Display for Trip {
             Self::HalHolding(r) => write!(f, "the HAL stopped following this controller ({r:?})"),
             Self::LimitViolation => write!(f, "a command failed the final limit check and was not sent"),
             Self::Smoothing => write!(f, "the jerk-limited smoother refused its input"),
+            Self::SendErrors => write!(f, "sending commands to the HAL failed too many times in a row"),
         }
     }
 }
@@ -98,6 +103,36 @@ impl Streak {
 
     pub fn good(&mut self) {
         self.run = 0;
+    }
+}
+
+/// The servo loop's command sends: counts them, and trips when iceoryx2 refused too many in a row.
+#[derive(Debug, Clone, Copy)]
+pub struct SendWatch {
+    failures: Streak,
+    /// Samples delivered to iceoryx2.
+    pub sent: u64,
+}
+
+impl SendWatch {
+    pub fn new(max_consecutive_errors: u64) -> Self {
+        Self { failures: Streak::new(max_consecutive_errors), sent: 0 }
+    }
+
+    /// One send's outcome; `Some(Trip::SendErrors)` when the failures in a row reached the limit.
+    pub fn record(&mut self, ok: bool) -> Option<Trip> {
+        if ok {
+            self.sent += 1;
+            self.failures.good();
+            None
+        } else {
+            self.failures.bad().then_some(Trip::SendErrors)
+        }
+    }
+
+    /// Failed sends in all.
+    pub fn errors(&self) -> u64 {
+        self.failures.total
     }
 }
 
@@ -153,6 +188,7 @@ mod tests {
             Trip::HalDied,
             Trip::LimitViolation,
             Trip::Smoothing,
+            Trip::SendErrors,
             Trip::HalHolding(HoldReason::CommandTimeout),
         ] {
             assert_eq!(Trip::from_code(t.code()), Some(t));
@@ -171,12 +207,22 @@ mod tests {
     }
 
     #[test]
+    fn send_errors_trip_only_when_consecutive() {
+        let mut w = SendWatch::new(3);
+        assert_eq!([w.record(false), w.record(false), w.record(true)], [None, None, None]);
+        assert_eq!([w.record(false), w.record(false)], [None, None]);
+        assert_eq!(w.record(false), Some(Trip::SendErrors));
+        assert_eq!((w.sent, w.errors()), (1, 5));
+    }
+
+    #[test]
     fn stale_state_trips_after_the_gap_but_not_before_the_first_frame() {
         let cfg = WatchdogConfig {
             max_consecutive_overruns: 2,
             max_consecutive_late_chunks: 2,
             max_consecutive_over_budget: 2,
             max_state_gap_ms: 10.0,
+            max_consecutive_send_errors: 2,
         };
         let mut w = ServoWatchdog::new(&cfg);
         assert_eq!(w.tick(100_000_000, 0, false), None, "no frame yet: the handshake timeout applies");

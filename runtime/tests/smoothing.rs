@@ -60,7 +60,7 @@ fn fr3() -> Profile {
 
 fn smoother(p: &Profile, n: usize) -> Smoother {
     let mut s = Smoother::new(n, p.period_s(), &Limits::from_profile(p)).unwrap();
-    s.reset(&p.home);
+    s.reset(&p.home).unwrap();
     s
 }
 
@@ -153,7 +153,7 @@ fn track_and_brake_do_not_allocate() {
         for cmd in &cmds {
             last = apply(&mut s, cmd);
         }
-        s.reset(&p.home);
+        s.reset(&p.home).unwrap();
         for _ in 0..100 {
             last = *s.brake().unwrap();
         }
@@ -368,9 +368,19 @@ fn bad_input_is_an_error_and_changes_nothing() {
     assert_eq!(s.track(&target, &[0.0; 7]).unwrap(), twin.track(&target, &[0.0; 7]).unwrap());
     // Target velocities beyond the limits are clamped, not refused.
     assert!(s.track(&target, &[100.0; 7]).is_ok());
-    // A non-finite reset position falls back to 0 rather than poisoning the state.
-    s.reset(&[f64::NAN; 7]);
-    assert!(s.is_at_rest() && s.state().position.iter().all(|q| *q == 0.0));
+    // A non-finite, short or absurd reset position is refused and changes nothing (0 would be outside FR3
+    // joint 4's range: the next command would jump there).
+    let before = *s.state();
+    let mut one_nan = p.home.clone();
+    one_nan[3] = f64::NAN;
+    assert!(matches!(s.reset(&one_nan), Err(SmoothingError::NonFinite { what: "position", joint: 3, .. })));
+    assert!(matches!(s.reset(&p.home[..6]), Err(SmoothingError::Length { what: "position", .. })));
+    let mut far = p.home.clone();
+    far[1] = 1e9;
+    assert!(matches!(s.reset(&far), Err(SmoothingError::OutOfRange { what: "position", joint: 1, .. })));
+    assert_eq!(*s.state(), before);
+    s.reset(&p.home).unwrap();
+    assert!(s.is_at_rest() && s.state().position[..7] == p.home[..7]);
 }
 
 /// Limits of the official crate's problems: the smoother's scaled FR3 limits.
@@ -480,7 +490,7 @@ fn one_joint_matches_the_closed_form_time_optimal_duration() {
     let dt = 0.001;
     for d in [3.0, 0.2, 1e-4, -0.7] {
         let mut s = Smoother::with_safety_factor(1, dt, &l, 1.0).unwrap();
-        s.reset(&[0.0]);
+        s.reset(&[0.0]).unwrap();
         let t_opt = rest_to_rest_time(d, v, a, j);
         let tick = (1..100_000).find(|_| {
             let out = s.track(&[d], &[0.0]).unwrap();

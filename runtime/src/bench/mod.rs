@@ -91,43 +91,48 @@ impl PolicyRun {
     }
 }
 
-/// The real-time setup marsd logged for its loop threads ("real-time setup thread=… sched_fifo=… …").
+/// The real-time setup marsd applied to its loop threads, as its summary.json's `realtime` says.
 #[derive(Default, Clone)]
 struct RtLog {
     servo: Option<String>,
     policy: Option<String>,
-    /// Warnings about refused real-time requests, verbatim.
+    /// What was requested and not applied, per thread.
     refusals: Vec<String>,
 }
 
-fn parse_rt_log(log: &str) -> RtLog {
+/// An `Outcome` as serialized: `"Applied"`, `"NotRequested"` or `{"Denied": {"errno": 1}}`.
+fn outcome_text(v: &Value) -> (String, bool) {
+    match v {
+        Value::String(s) => (s.clone(), true),
+        Value::Object(m) => match m.iter().next() {
+            Some((kind, detail)) => (format!("{kind} (errno {})", detail["errno"]), false),
+            None => ("?".into(), false),
+        },
+        _ => ("?".into(), false),
+    }
+}
+
+fn rt_from_summary(summary: &Value) -> RtLog {
     let mut rt = RtLog::default();
-    for line in log.lines() {
-        if line.contains("real-time setup") {
-            let value = |key: &str| -> String {
-                let Some(i) = line.find(&format!("{key}=")) else { return "?".into() };
-                let rest = &line[i + key.len() + 1..];
-                // `Denied { errno: 1 }` holds spaces; everything else is one token.
-                let end = if rest.starts_with("Denied {") || rest.starts_with("Failed {") {
-                    rest.find('}').map_or(rest.len(), |e| e + 1)
-                } else {
-                    rest.find(char::is_whitespace).unwrap_or(rest.len())
-                };
-                rest[..end].to_string()
-            };
-            let text = format!(
-                "core {}, SCHED_FIFO {}, mlockall {}",
-                value("core"),
-                value("sched_fifo"),
-                value("memory_locked")
-            );
-            if line.contains("thread=\"servo\"") || line.contains("thread=servo") {
-                rt.servo = Some(text);
-            } else if line.contains("thread=\"policy\"") || line.contains("thread=policy") {
-                rt.policy = Some(text);
-            }
-        } else if line.contains("WARN") && line.contains("mars_runtime::rt") {
-            rt.refusals.push(line.trim().to_string());
+    for t in summary["realtime"].as_array().into_iter().flatten() {
+        let thread = t["thread"].as_str().unwrap_or("?");
+        let core = t["core"].as_u64().map_or("none".to_string(), |c| c.to_string());
+        let (fifo, fifo_ok) = outcome_text(&t["sched_fifo"]);
+        let (lock, lock_ok) = outcome_text(&t["memory_locked"]);
+        let text = format!("core {core}, SCHED_FIFO {fifo}, mlockall {lock}");
+        if let Some(e) = t["pin_error"].as_str() {
+            rt.refusals.push(format!("{thread} thread: pinning failed: {e}"));
+        }
+        if !fifo_ok {
+            rt.refusals.push(format!("{thread} thread: SCHED_FIFO {fifo}"));
+        }
+        if !lock_ok {
+            rt.refusals.push(format!("{thread} thread: mlockall {lock}"));
+        }
+        match thread {
+            "servo" => rt.servo = Some(text),
+            "policy" => rt.policy = Some(text),
+            _ => {}
         }
     }
     rt
@@ -208,7 +213,6 @@ fn run_policy(args: &BenchArgs, name: &str, robot: &str) -> PolicyRun {
     };
     match teed {
         Ok((result, log)) => {
-            run.rt = parse_rt_log(&log);
             let _ = std::fs::create_dir_all(&dir);
             let _ = std::fs::write(dir.join("marsd.log"), &log);
             match result {
@@ -220,7 +224,10 @@ fn run_policy(args: &BenchArgs, name: &str, robot: &str) -> PolicyRun {
     }
     match std::fs::read_to_string(&summary_path) {
         Ok(text) => match serde_json::from_str(&text) {
-            Ok(v) => run.summary = Some(v),
+            Ok(v) => {
+                run.rt = rt_from_summary(&v);
+                run.summary = Some(v);
+            }
             Err(e) => add_error(&mut run.error, format!("{}: {e}", summary_path.display())),
         },
         Err(e) => add_error(&mut run.error, format!("no {} ({e})", summary_path.display())),
@@ -357,15 +364,15 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         probe_sched_fifo(cfg.servo.priority)
     );
     for r in &runs {
-        let servo = r.rt.servo.clone().unwrap_or_else(|| "not in the log".into());
-        let policy = r.rt.policy.clone().unwrap_or_else(|| "not in the log".into());
+        let servo = r.rt.servo.clone().unwrap_or_else(|| "not in summary.json".into());
+        let policy = r.rt.policy.clone().unwrap_or_else(|| "not in summary.json".into());
         let _ = writeln!(
             w,
-            "| marsd ({}) real-time setup, from its log | servo thread: {servo}; policy thread: {policy} |",
+            "| marsd ({}) real-time setup, from its summary.json | servo thread: {servo}; policy thread: {policy} |",
             r.name
         );
         for refusal in &r.rt.refusals {
-            let _ = writeln!(w, "| marsd ({}) warning | {} |", r.name, refusal.replace('|', "/"));
+            let _ = writeln!(w, "| marsd ({}) real-time request not applied | {} |", r.name, refusal.replace('|', "/"));
         }
     }
     let _ = writeln!(
@@ -600,10 +607,36 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
             false,
         ),
         (
-            "limit violations (final check + HAL rejected)",
-            Box::new(|r| match (r.num("/limit_violations/final_check"), r.num("/limit_violations/hal_rejected")) {
-                (Some(a), Some(b)) => (format!("{:.0}", a + b), None),
-                _ => ("–".into(), None),
+            "out-of-limit commands (final check + HAL rejected + HAL clamped)",
+            Box::new(|r| {
+                let parts =
+                    ["final_check", "hal_rejected", "hal_clamped"].map(|k| r.num(&format!("/limit_violations/{k}")));
+                match parts {
+                    [Some(a), Some(b), Some(c)] => (format!("{:.0}", a + b + c), None),
+                    _ => ("–".into(), None),
+                }
+            }),
+            false,
+        ),
+        (
+            "late commands (seen by marsd / counted by the HAL)",
+            Box::new(|r| {
+                match (r.num("/deadline_misses/late_commands"), r.num("/deadline_misses/hal_late_commands")) {
+                    (Some(a), Some(b)) => (format!("{a:.0} / {b:.0}"), None),
+                    _ => ("–".into(), None),
+                }
+            }),
+            false,
+        ),
+        (
+            "HAL last resorts (guard hits / infeasible / backend errors)",
+            Box::new(|r| {
+                let parts = ["position_guard_hits", "infeasible_steps", "backend_errors"]
+                    .map(|k| r.num(&format!("/hal_last_resorts/{k}")));
+                match parts {
+                    [Some(a), Some(b), Some(c)] => (format!("{a:.0} / {b:.0} / {c:.0}"), None),
+                    _ => ("–".into(), None),
+                }
             }),
             false,
         ),
@@ -648,18 +681,37 @@ mod tests {
     use super::*;
 
     #[test]
-    fn reads_the_real_time_setup_from_marsd_log() {
-        let log = concat!(
-            "2026-11-21T11:52:02.664206Z  INFO mars_runtime::rt: real-time setup thread=\"servo\" core=Some(1) ",
-            "sched_fifo=Applied memory_locked=Denied { errno: 12 }\n",
-            "2026-11-21T11:52:02.665173Z  INFO mars_runtime::rt: real-time setup thread=\"policy\" core=None ",
-            "sched_fifo=Denied { errno: 1 } memory_locked=NotRequested\n",
-            "2026-11-21T11:52:02.665173Z  WARN mars_runtime::rt: SCHED_FIFO priority 70 refused thread=\"policy\"",
+    fn reads_the_real_time_setup_from_the_summary() {
+        use crate::rt::{Outcome, RtStatus};
+        let threads = [
+            RtStatus {
+                thread: "servo".into(),
+                core: Some(1),
+                pin_error: None,
+                sched_fifo: Outcome::Applied,
+                memory_locked: Outcome::Denied { errno: 12 },
+            },
+            RtStatus {
+                thread: "policy".into(),
+                core: None,
+                pin_error: Some("no such core".into()),
+                sched_fifo: Outcome::Denied { errno: 1 },
+                memory_locked: Outcome::NotRequested,
+            },
+        ];
+        // As `Summary` serializes it.
+        let summary = serde_json::json!({ "realtime": threads });
+        let rt = rt_from_summary(&summary);
+        assert_eq!(rt.servo.as_deref(), Some("core 1, SCHED_FIFO Applied, mlockall Denied (errno 12)"));
+        assert_eq!(rt.policy.as_deref(), Some("core none, SCHED_FIFO Denied (errno 1), mlockall NotRequested"));
+        assert_eq!(
+            rt.refusals,
+            [
+                "servo thread: mlockall Denied (errno 12)",
+                "policy thread: pinning failed: no such core",
+                "policy thread: SCHED_FIFO Denied (errno 1)"
+            ]
         );
-        let rt = parse_rt_log(log);
-        assert_eq!(rt.servo.as_deref(), Some("core Some(1), SCHED_FIFO Applied, mlockall Denied { errno: 12 }"));
-        assert_eq!(rt.policy.as_deref(), Some("core None, SCHED_FIFO Denied { errno: 1 }, mlockall NotRequested"));
-        assert_eq!(rt.refusals.len(), 1);
     }
 
     #[test]

@@ -1,0 +1,148 @@
+//! marsd's liveness heartbeat, off the real-time thread.
+//!
+//! An iceoryx2 `notify` is a syscall; the SCHED_FIFO servo thread must not make one every few ticks. This
+//! ordinary (SCHED_OTHER) thread beats instead, but only while the servo loop makes progress: it watches the
+//! servo's tick counter ([`Status::ticks`]) and stays silent when it stops advancing, so a stuck servo still
+//! looks dead to the HAL's liveness watch. Failed notifications are counted for the report.
+
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::thread::JoinHandle;
+
+use anyhow::Context;
+use mars_ipc::liveness::{HEARTBEAT_PERIOD, Side};
+use mars_ipc::node::create_node;
+use mars_ipc::{Heartbeat, RobotNamespace};
+
+use crate::shared::Status;
+
+/// What the heartbeat thread did.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize)]
+pub struct HeartbeatReport {
+    /// Notifications attempted (one per period in which the servo's tick counter advanced).
+    pub beats: u64,
+    /// Periods without a beat because the servo's tick counter had not moved.
+    pub withheld: u64,
+    /// Notifications iceoryx2 refused.
+    pub errors: u64,
+}
+
+/// The running heartbeat thread.
+pub struct HeartbeatThread {
+    stop: Arc<AtomicBool>,
+    thread: JoinHandle<HeartbeatReport>,
+}
+
+impl HeartbeatThread {
+    /// Opens the controller's heartbeat (its own iceoryx2 node: ports belong to the thread that made them) and
+    /// starts beating while `status.ticks` advances.
+    pub fn start(robot: &str, status: Arc<Status>) -> anyhow::Result<Self> {
+        let ns = RobotNamespace::new(robot)?;
+        let node_name = format!("marsd-{robot}-heartbeat");
+        let stop = Arc::new(AtomicBool::new(false));
+        let (opened_tx, opened_rx) = std::sync::mpsc::channel::<anyhow::Result<()>>();
+        let flag = stop.clone();
+        let thread = std::thread::Builder::new()
+            .name("marsd-heartbeat".into())
+            .spawn(move || {
+                let opened = create_node(&node_name)
+                    .map_err(anyhow::Error::from)
+                    .and_then(|(node, _)| Ok((Heartbeat::new(&node, &ns, Side::Controller)?, node)));
+                let (mut heartbeat, _node) = match opened {
+                    Ok(h) => {
+                        let _ = opened_tx.send(Ok(()));
+                        h
+                    }
+                    Err(e) => {
+                        let _ = opened_tx.send(Err(e));
+                        return HeartbeatReport::default();
+                    }
+                };
+                beat_while_progressing(&mut heartbeat, &status, &flag)
+            })
+            .context("spawning the heartbeat thread")?;
+        opened_rx.recv().context("the heartbeat thread died while opening its port")??;
+        Ok(Self { stop, thread })
+    }
+
+    /// Stops beating (the HAL then sees this controller leave) and returns the counts.
+    pub fn finish(self) -> HeartbeatReport {
+        self.stop.store(true, Ordering::Release);
+        self.thread.join().unwrap_or_default()
+    }
+}
+
+fn beat_while_progressing(heartbeat: &mut Heartbeat, status: &Status, stop: &AtomicBool) -> HeartbeatReport {
+    let mut report = HeartbeatReport::default();
+    let mut last_ticks = None;
+    while !stop.load(Ordering::Acquire) {
+        let ticks = status.ticks.load(Ordering::Acquire);
+        if last_ticks != Some(ticks) {
+            last_ticks = Some(ticks);
+            report.beats += 1;
+            if heartbeat.beat().is_err() {
+                report.errors += 1;
+            }
+        } else {
+            report.withheld += 1;
+        }
+        std::thread::sleep(HEARTBEAT_PERIOD);
+    }
+    report
+}
+
+#[cfg(test)]
+mod tests {
+    use std::time::{Duration, Instant};
+
+    use mars_ipc::{Peer, PeerWatch};
+
+    use super::*;
+
+    /// Polls `cond` for up to `limit`.
+    fn within(limit: Duration, cond: impl Fn() -> bool) -> bool {
+        let until = Instant::now() + limit;
+        while Instant::now() < until {
+            if cond() {
+                return true;
+            }
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        cond()
+    }
+
+    #[test]
+    fn beats_only_while_the_servo_advances_and_leaves_on_finish() {
+        let robot = format!("t{}-heartbeat", std::process::id());
+        let ns = RobotNamespace::new(&robot).unwrap();
+        let hal_view = PeerWatch::controller(&ns).unwrap();
+        let status = Arc::new(Status::default());
+        let heartbeat = HeartbeatThread::start(&robot, status.clone()).unwrap();
+
+        // A servo that ticks: the HAL sees a live controller.
+        let ticking = Arc::new(AtomicBool::new(true));
+        let servo = {
+            let (status, ticking) = (status.clone(), ticking.clone());
+            std::thread::spawn(move || {
+                while ticking.load(Ordering::Acquire) {
+                    status.ticks.fetch_add(1, Ordering::Release);
+                    std::thread::sleep(Duration::from_millis(1));
+                }
+            })
+        };
+        assert!(within(Duration::from_secs(2), || hal_view.peer() == Peer::Alive), "{:?}", hal_view.peer());
+        // The beats go on while the servo ticks (counted below; a busy machine may delay one past the deadline,
+        // which the next beat makes good).
+        std::thread::sleep(Duration::from_millis(100));
+        assert!(within(Duration::from_secs(2), || hal_view.peer() == Peer::Alive), "{:?}", hal_view.peer());
+
+        // The servo stalls (its counter stops): no more beats, and the HAL's watch finds the deadline missed.
+        ticking.store(false, Ordering::Release);
+        servo.join().unwrap();
+        assert!(within(Duration::from_secs(2), || hal_view.peer() == Peer::Late), "{:?}", hal_view.peer());
+
+        let report = heartbeat.finish();
+        assert!(report.beats > 10 && report.withheld > 0 && report.errors == 0, "{report:?}");
+        assert!(within(Duration::from_secs(2), || hal_view.exits() == 1), "the HAL sees the controller leave");
+    }
+}
