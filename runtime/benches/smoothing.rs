@@ -123,7 +123,7 @@ fn main() {
     }
     report("marsd Smoother::track (rsruckig, 8 slots)", ours);
     let mut s = Smoother::new(7, p.period_s(), &Limits::from_profile(&p)).unwrap();
-    s.reset(&p.home);
+    s.reset(&p.home).expect("the profile's home is a valid start");
     let (rust, all) = allocations_per_call(stream.len(), |k| {
         black_box(s.track(&stream[k].0, &stream[k].1).unwrap());
     });
