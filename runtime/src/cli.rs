@@ -76,6 +76,12 @@ pub struct DemoArgs {
     /// from the HAL's, while the policy thread (which may spin for tens of ms at SCHED_FIFO) gets the other.
     #[arg(long, default_value_t = 1)]
     pub hal_core: usize,
+    /// Fault injection, passed to the HAL: its loop sleeps --hal-stall-ms once at this tick (a machine stall as
+    /// the demo would meet one).
+    #[arg(long, requires = "hal_stall_ms")]
+    pub hal_stall_at_tick: Option<u64>,
+    #[arg(long, requires = "hal_stall_at_tick")]
+    pub hal_stall_ms: Option<f64>,
 }
 
 /// Kills a child on drop, so a failing demo never leaves a HAL running.
@@ -113,6 +119,9 @@ pub fn demo(args: DemoArgs) -> anyhow::Result<u8> {
         "--rt-priority",
         "85",
     ]);
+    if let (Some(tick), Some(ms)) = (args.hal_stall_at_tick, args.hal_stall_ms) {
+        hal.args(["--stall-at-tick", &tick.to_string(), "--stall-ms", &ms.to_string()]);
+    }
     let mut hal = Reaped(hal.spawn().context("starting the HAL process")?);
     let watch = crate::stall_watch::StallWatch::start(&robot)?;
     let mut marsd = Command::new(&exe);

@@ -550,6 +550,60 @@ fn sigterm_brings_the_arm_to_rest_and_exits_0() {
     assert!(hal.running());
 }
 
+/// The pids of the processes started with `<exe> <subcommand> ... --robot <robot>` (found by command line).
+fn pids_of(subcommand: &str, robot: &str) -> Vec<libc::pid_t> {
+    let Ok(dir) = std::fs::read_dir("/proc") else { return Vec::new() };
+    dir.flatten()
+        .filter_map(|e| {
+            let pid: libc::pid_t = e.file_name().to_str()?.parse().ok()?;
+            let cmd = std::fs::read(e.path().join("cmdline")).ok()?;
+            let args: Vec<&[u8]> = cmd.split(|b| *b == 0).collect();
+            let hit = args.get(1) == Some(&subcommand.as_bytes())
+                && args.windows(2).any(|w| w == [&b"--robot"[..], robot.as_bytes()]);
+            hit.then_some(pid)
+        })
+        .collect()
+}
+
+/// SIGKILLs the demo's HAL and marsd when dropped: a failing test kills the demo process itself, whose children
+/// would otherwise live on (marsd with `--episodes 0` forever).
+struct KillDemoChildren(String);
+
+impl Drop for KillDemoChildren {
+    fn drop(&mut self) {
+        for pid in pids_of("hal", &self.0).into_iter().chain(pids_of("marsd", &self.0)) {
+            // SAFETY: kill(2) on a process this test started (through the demo), found by its unique robot id.
+            unsafe { libc::kill(pid, libc::SIGKILL) };
+        }
+    }
+}
+
+/// Test 8: `mars-hil demo` on a machine that stalls: it runs the doctor first, and when the HAL's loop stalls for
+/// 60 ms mid-run (its fault injection, as a machine stall would freeze it), marsd trips as it should and the
+/// demo says the run was stopped by a stall of this machine, with the HAL's frame gap as the evidence.
+#[test]
+fn a_demo_stopped_by_a_machine_stall_says_so_with_the_evidence() {
+    let _rt = rt_rig_lock();
+    let logs = TempDir::new("demo-stall");
+    let robot = robot("demo-stall");
+    let _children = KillDemoChildren(robot.clone());
+    let mut cmd = std::process::Command::new(env!("CARGO_BIN_EXE_mars-hil"));
+    cmd.args(["demo", "--episodes", "0", "--robot", &robot, "--hal-stall-at-tick", "4000", "--hal-stall-ms", "60"])
+        .arg("--out")
+        .arg(logs.join("out"));
+    let mut demo = spawn_named(cmd, "demo", &logs);
+    let code = demo.exit_code(Duration::from_secs(60));
+    let (out, err) = (demo.stdout_text(), demo.stderr_text());
+    let verdict = ["good:", "expect "].iter().any(|v| out.lines().any(|l| l.starts_with(&format!("doctor: {v}"))));
+    assert!(verdict, "the demo printed no doctor verdict first:\n{out}");
+    assert!(logs.join("out/doctor.json").exists());
+    assert_eq!(code, 3, "{}", demo.logs());
+    let said = find_line(&err, &["the run was stopped by a stall of this machine", "the HAL published no frame for"]);
+    eprintln!("the demo said: {}", said.unwrap_or("(nothing)"));
+    let said = said.unwrap_or_else(|| panic!("the demo did not name the stall\n{}", demo.logs()));
+    assert!(said.contains("see `marsd doctor`"), "{said}");
+}
+
 /// The rig lock is exclusive across processes (an flock on a file any other test binary opens too), re-entrant
 /// within a test, and released when the last guard goes.
 #[test]

@@ -240,6 +240,13 @@ pub fn spawn_hal(robot: &str, extra: &[&str], logs: &TempDir) -> Proc {
     Proc::spawn(cmd, "mars-hal", logs.path())
 }
 
+/// Any command as a real-time child of the test (logs as [`Proc`]); the caller holds the rig lock.
+pub fn spawn_named(mut cmd: Command, name: &str, logs: &TempDir) -> Proc {
+    assert_rig_locked(name);
+    realtime_child(&mut cmd);
+    Proc::spawn(cmd, name, logs.path())
+}
+
 /// `marsd --config <config> --robot <robot> --episodes <n> --out <logs>/out [extra]`.
 pub fn spawn_marsd(robot: &str, config: &Path, episodes: usize, extra: &[&str], logs: &TempDir) -> Proc {
     spawn_marsd_named("marsd", robot, config, episodes, extra, logs)
