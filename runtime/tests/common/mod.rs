@@ -210,8 +210,14 @@ impl Proc {
 
 impl Drop for Proc {
     fn drop(&mut self) {
+        // SIGTERM first, as systemd stops a unit: a SIGKILLed process leaves its iceoryx2 node behind as dead,
+        // and the next rig's liveness watch would spend its time cleaning that up. SIGKILL if it does not go.
         if self.status.is_none() && matches!(self.child.try_wait(), Ok(None)) {
-            let _ = self.child.kill();
+            // SAFETY: kill(2) on our own, not yet reaped child.
+            unsafe { libc::kill(self.pid(), libc::SIGTERM) };
+            if self.wait_timeout(Duration::from_secs(2)).is_none() {
+                let _ = self.child.kill();
+            }
         }
         let _ = self.child.wait();
         if std::thread::panicking() {
