@@ -7,7 +7,10 @@ use anyhow::Context;
 use hdrhistogram::Histogram;
 use mars_ipc::liveness::{Heartbeat, PeerWatch, Side};
 use mars_ipc::node::create_node;
-use mars_ipc::{CommandMode, FrameReceiveError, CommandReader, HoldReason, MAX_JOINTS, RobotNamespace, RobotState, StateWriter, status};
+use mars_ipc::{
+    CommandMode, CommandReader, FrameReceiveError, HoldReason, MAX_JOINTS, RobotNamespace, RobotState, StateWriter,
+    status,
+};
 use tracing::{info, warn};
 
 use crate::backend::Backend;

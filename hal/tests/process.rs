@@ -11,6 +11,11 @@ use mars_hal::profile::Profile;
 use mars_ipc::node::create_node;
 use mars_ipc::*;
 
+// One real-time rig at a time on this machine, across test binaries (see the file).
+#[path = "../../testing/rt_rig_lock.rs"]
+#[allow(dead_code)] // not every helper is used here
+mod rt_rig_lock;
+
 fn profile_path(name: &str) -> String {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs").join(name).display().to_string()
 }
@@ -37,6 +42,8 @@ struct Rig {
     commands: CommandWriter,
     profile: Profile,
     hal: Proc,
+    /// Declared last: released after the HAL was killed.
+    _rt: rt_rig_lock::RtRigLock,
 }
 
 impl Rig {
@@ -51,6 +58,7 @@ impl Rig {
 
     /// Start `mars-hal` with the profile file at `path`.
     fn start_at(path: &str, extra: &[&str]) -> Self {
+        let rt = rt_rig_lock::rt_rig_lock();
         let robot = unique_robot();
         let ns = RobotNamespace::new(&robot).unwrap();
         let (node, _) = create_node("hal-test").unwrap();
@@ -66,7 +74,7 @@ impl Rig {
             .spawn()
             .unwrap();
         let profile = Profile::load(Path::new(path)).unwrap();
-        let rig = Rig { ns, _node: node, states, commands, profile, hal: Proc(hal) };
+        let rig = Rig { ns, _node: node, states, commands, profile, hal: Proc(hal), _rt: rt };
         rig.wait_for("the first state frame", Duration::from_secs(10), |_| true);
         rig
     }
@@ -423,8 +431,10 @@ fn controller_sees_a_sigkilled_hal_die_through_iceoryx2_events() {
     }
     let waited = killed.elapsed();
     assert_eq!(hal.deaths(), 1);
-    assert!(waited < Duration::from_millis(1000), "{waited:?}");
-    eprintln!("HAL death seen {waited:?} after SIGKILL");
+    // README: marsd sees a SIGKILLed HAL die "13–21 ms later" through the same liveness watch; bounded at 3× that,
+    // a margin a noisy 2-core VM meets.
+    eprintln!("HAL death seen {waited:?} after SIGKILL (README: 13–21 ms; bound 63 ms)");
+    assert!(waited < Duration::from_millis(63), "{waited:?}");
 }
 
 #[test]

@@ -2,8 +2,9 @@
 //! `marsd` binary and `mars-hil marsd` run the very same daemon (the demo spawns it as a separate process
 //! from its own executable, so one `cargo run` builds everything the demo needs).
 
-use std::path::PathBuf;
-use std::process::{Child, Command, ExitCode};
+use std::io::BufRead;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, ExitCode, Stdio};
 use std::time::{Duration, Instant};
 
 use anyhow::Context;
@@ -75,6 +76,12 @@ pub struct DemoArgs {
     /// from the HAL's, while the policy thread (which may spin for tens of ms at SCHED_FIFO) gets the other.
     #[arg(long, default_value_t = 1)]
     pub hal_core: usize,
+    /// Fault injection, passed to the HAL: its loop sleeps --hal-stall-ms once at this tick (a machine stall as
+    /// the demo would meet one).
+    #[arg(long, requires = "hal_stall_ms")]
+    pub hal_stall_at_tick: Option<u64>,
+    #[arg(long, requires = "hal_stall_at_tick")]
+    pub hal_stall_ms: Option<f64>,
 }
 
 /// Kills a child on drop, so a failing demo never leaves a HAL running.
@@ -96,6 +103,12 @@ pub fn demo(args: DemoArgs) -> anyhow::Result<u8> {
     let cfg = crate::config::DaemonConfig::load(&args.marsd.config)?;
     // A namespace of its own, so a demo never meets another run's HAL or controller.
     let robot = args.marsd.robot.clone().unwrap_or_else(|| format!("{}-demo-{}", cfg.robot, std::process::id()));
+    let out = args.marsd.out.clone().unwrap_or_else(|| cfg.out.clone());
+    // The preflight: what this machine can do, before anything runs on it (it never stops the demo).
+    match crate::doctor::run(&args.marsd.config, 2.0, Some(&out)) {
+        Ok(report) => print!("{report}"),
+        Err(e) => eprintln!("doctor: could not measure this machine: {e:#}"),
+    }
     let mut hal = Command::new(&exe);
     // The HAL is a robot's own control loop: real-time, above the servo loop it shares a core with.
     hal.args(["hal", "--profile"]).arg(&cfg.profile).args([
@@ -106,7 +119,11 @@ pub fn demo(args: DemoArgs) -> anyhow::Result<u8> {
         "--rt-priority",
         "85",
     ]);
+    if let (Some(tick), Some(ms)) = (args.hal_stall_at_tick, args.hal_stall_ms) {
+        hal.args(["--stall-at-tick", &tick.to_string(), "--stall-ms", &ms.to_string()]);
+    }
     let mut hal = Reaped(hal.spawn().context("starting the HAL process")?);
+    let watch = crate::stall_watch::StallWatch::start(&robot)?;
     let mut marsd = Command::new(&exe);
     marsd.arg("marsd").arg("--config").arg(&args.marsd.config).args(["--robot", &robot]);
     if let Some(n) = args.marsd.episodes {
@@ -121,7 +138,25 @@ pub fn demo(args: DemoArgs) -> anyhow::Result<u8> {
     if let Some(d) = args.marsd.engine_step_delay_ms {
         marsd.args(["--engine-step-delay-ms", &d.to_string()]);
     }
-    let status = marsd.status().context("running marsd")?;
+    // marsd's log passes through this process on its way to the terminal, so the trip line can be found.
+    let mut marsd = Reaped(marsd.stderr(Stdio::piped()).spawn().context("starting marsd")?);
+    let log = marsd.0.stderr.take().context("marsd's stderr")?;
+    let forward = std::thread::spawn(move || {
+        let mut trip_line = None;
+        for line in std::io::BufReader::new(log).lines().map_while(Result::ok) {
+            eprintln!("{line}");
+            if trip_line.is_none() && line.contains("watchdog trip") {
+                trip_line = Some(line);
+            }
+        }
+        trip_line
+    });
+    let status = marsd.0.wait().context("running marsd")?;
+    let trip_line = forward.join().unwrap_or(None);
+    let watched = watch.finish();
+    if status.code() == Some(i32::from(exit::TRIPPED)) {
+        explain_trip(&out, trip_line.as_deref(), &watched);
+    }
     // marsd has ended its session with a hold command; stop the HAL the way systemd would.
     // SAFETY: plain kill(2) on our own child's pid.
     unsafe { libc::kill(hal.0.id() as libc::pid_t, libc::SIGTERM) };
@@ -131,4 +166,22 @@ pub fn demo(args: DemoArgs) -> anyhow::Result<u8> {
     }
     drop(hal);
     Ok(status.code().map_or(exit::FAILURE, |c| c as u8))
+}
+
+/// After a trip: if marsd stopped on a timing check, says whether this machine stalled around it, with the
+/// evidence (the HAL's frame gap and the steal at that moment), rather than leaving only the watchdog's reason.
+fn explain_trip(out: &Path, trip_line: Option<&str>, watched: &crate::stall_watch::Watched) {
+    let summary = std::fs::read_to_string(out.join("summary.json"))
+        .ok()
+        .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok());
+    let Some(trip) = summary.as_ref().and_then(|s| s["trip"].as_str().map(str::to_owned)) else { return };
+    let Some(line) = trip_line else { return };
+    let Some(trip_ns) = crate::stall::trip_time_from_log(line) else { return };
+    let gaps: Vec<_> = watched.gaps.iter().copied().collect();
+    let steal: Vec<_> = watched.steal.iter().copied().collect();
+    let evidence = crate::stall::around_trip(trip_ns, &gaps, &steal);
+    let clock = line.get(11..23).unwrap_or("the trip");
+    if let Some(m) = crate::stall::demo_message(&trip, clock, &evidence) {
+        eprintln!("{m}");
+    }
 }

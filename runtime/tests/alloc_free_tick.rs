@@ -14,6 +14,11 @@ use mars_runtime::alloc_count::{self, CountingAlloc, Counts};
 use mars_runtime::config::DaemonConfig;
 use mars_runtime::daemon;
 
+// One real-time rig at a time on this machine, across test binaries (see the file).
+#[path = "../../testing/rt_rig_lock.rs"]
+#[allow(dead_code)] // not every helper is used here
+mod rt_rig_lock;
+
 #[global_allocator]
 static ALLOC: CountingAlloc = CountingAlloc;
 
@@ -70,6 +75,7 @@ fn the_counter_sees_allocations_made_on_purpose() {
 
 #[test]
 fn servo_tick_makes_no_heap_allocation_over_two_episodes() {
+    let _rt = rt_rig_lock::rt_rig_lock();
     let root = root();
     let robot = format!("t{}-alloc", std::process::id());
     let profile = Profile::load(&root.join("configs/fr3.toml")).unwrap();

@@ -3,8 +3,9 @@
 //! and checks, with a limit checker of its own, what the joints were actually told to do.
 //!
 //! Each test uses its own robot id and temp dir and kills its children when dropped, so the tests are
-//! independent and run in parallel (`--test-threads=2` on a 2-core CI machine: the demo test takes ~70 s, the
-//! rest together about as long).
+//! independent; every test that starts processes holds the machine-wide real-time rig lock for its whole run
+//! (common/rt_rig_lock), so they run one at a time however cargo schedules them, across test binaries too: the
+//! demo test takes ~70 s, the rest together about as long.
 
 mod common;
 
@@ -12,6 +13,17 @@ use std::time::{Duration, Instant};
 
 use common::*;
 use mars_ipc::{HoldReason, RobotNamespace, RobotState, StateWriter, status};
+
+/// README's reaction times (the upper end of each claimed range) are bounded by this multiple: a margin a noisy
+/// 2-core VM meets, tight enough that a reaction outside the claimed order of magnitude fails.
+const CLAIM_MARGIN: f64 = 3.0;
+
+/// Asserts a measured reaction time against README's claim for it (ms), printing both.
+fn assert_near_claim(what: &str, measured_ms: f64, claim_ms: f64) {
+    let bound = CLAIM_MARGIN * claim_ms;
+    eprintln!("{what}: {measured_ms:.1} ms (README: {claim_ms} ms; bound {bound:.0} ms)");
+    assert!(measured_ms <= bound, "{what}: {measured_ms:.1} ms, more than {CLAIM_MARGIN}× README's {claim_ms} ms");
+}
 
 /// Generous: the first start may include iceoryx2 setup and the checkpoint's warm-up on a loaded machine.
 const START: Duration = Duration::from_secs(30);
@@ -49,23 +61,36 @@ fn assert_limits(r: &Recorded, lim: &Limits, what: &str) -> AppliedStats {
     st
 }
 
-/// Whether a failed run is explained by the machine, not marsd: marsd stopped on a timing trip (stale state,
-/// tick overruns) or its servo missed more than `missed_limit` periods, while the HAL — a separate SCHED_FIFO
-/// process free to run on either core — itself published no frame for ≥ 15 ms (the VM stalled; this CI VM's
-/// hypervisor does that every few minutes, see /proc/stat `steal`). Returns the evidence, printed before the
-/// scenario runs again (once).
-fn machine_stall_explains(r: &Recorded, s: &serde_json::Value, missed_limit: u64) -> Option<String> {
-    let timing_trip = ["no usable state frame", "servo ticks overran"]
-        .iter()
-        .any(|t| s["trip"].as_str().is_some_and(|trip| trip.contains(t)));
+/// Whether a failed run is explained by a stall of the machine rather than by marsd, with the evidence tied to
+/// that very failure (printed before the scenario runs again, once):
+/// - marsd stopped on a timing trip (stale state, tick overruns, the HAL's command timeout), and in the window
+///   around the trip (its time from marsd's "watchdog trip" log line) the HAL — the highest-priority process,
+///   SCHED_FIFO 85 — published no frame for ≥ 15 ms, or the VM's steal time grew;
+/// - or, without a trip, its servo missed more than `missed_limit` periods, and the HAL itself missed at least
+///   the excess in frame gaps of the same run (nothing of the rig ran then).
+fn machine_stall_explains(r: &Recorded, s: &serde_json::Value, marsd: &Proc, missed_limit: u64) -> Option<String> {
+    let trip = s["trip"].as_str();
+    if let Some(trip) = trip {
+        if !mars_runtime::stall::is_timing_trip(trip) {
+            return None;
+        }
+        let Some(e) = trip_evidence(r, marsd) else {
+            eprintln!("marsd reported trip {trip:?} but logged no watchdog trip line: no evidence");
+            return None;
+        };
+        eprintln!("around the trip ({trip}): {e}");
+        return e.is_stall().then(|| format!("marsd tripped ({trip}) and {e}"));
+    }
     let missed = u64_at(s, "/deadline_misses/servo_missed_periods");
-    let (gap, seq, at) = largest_frame_gap(&r.states);
-    ((timing_trip || missed > missed_limit) && gap >= 15.0).then(|| {
+    let gaps = hal_gaps(r);
+    let hal_missed = mars_runtime::stall::hal_missed_periods(&gaps, 1.0);
+    (missed > missed_limit && hal_missed >= missed - missed_limit).then(|| {
         format!(
-            "the HAL itself published nothing for {gap:.1} ms (before its frame {seq}, at {}), and marsd reacted as \
-             configured (trip {}, {missed} servo periods missed)",
-            clock_text(at),
-            s["trip"]
+            "the servo missed {missed} periods (limit {missed_limit}) while the HAL itself missed {hal_missed} in \
+             {} frame gaps ≥ {} ms (longest {:.1} ms)",
+            gaps.len(),
+            mars_runtime::stall::MIN_GAP_MS,
+            gaps.iter().map(|g| g.ms()).fold(0.0, f64::max)
         )
     })
 }
@@ -74,6 +99,7 @@ fn machine_stall_explains(r: &Recorded, s: &serde_json::Value, missed_limit: u64
 /// servo tick, and the applied and command streams the test recorded within every limit of configs/fr3.toml.
 #[test]
 fn demo_episodes_succeed_in_both_modes_within_limits() {
+    let _rt = rt_rig_lock();
     for attempt in 1..=2 {
         if demo_attempt(attempt) {
             return;
@@ -105,9 +131,9 @@ fn demo_attempt(attempt: u32) -> bool {
     eprintln!("{}", marsd.stdout_text());
     if code != 0
         && attempt == 1
-        && let Some(why) = machine_stall_explains(&r, &s, u64::MAX)
+        && let Some(why) = machine_stall_explains(&r, &s, &marsd, u64::MAX)
     {
-        eprintln!("attempt 1 is inconclusive: {why}; running it again");
+        eprintln!("RERUN demo: attempt 1 is inconclusive: {why}; running it again");
         return false;
     }
     assert_eq!(code, 0, "marsd failed\n{}", marsd.logs());
@@ -154,9 +180,9 @@ struct Moving {
     frame: RobotState,
 }
 
-/// Starts the rig and waits for motion. If marsd stops before the arm moves because of a timing trip (stale
-/// state, tick overruns: the machine stalled), nothing was tested yet: the evidence is printed
-/// and the rig is started once more. Any other early stop fails the test.
+/// Starts the rig and waits for motion. If marsd stops before the arm moves on a timing trip with evidence of
+/// a machine stall around it (see [`machine_stall_explains`]), nothing was tested yet: the evidence is printed
+/// and the rig is started once more. Any other early stop fails the test. The caller holds the rig lock.
 fn start_moving(name: &str) -> Moving {
     for attempt in 1..=2 {
         let logs = TempDir::new(&format!("{name}{attempt}"));
@@ -169,18 +195,12 @@ fn start_moving(name: &str) -> Moving {
         let code = marsd.exit_code(Duration::from_secs(5));
         let s = summary(&logs, "marsd");
         let r = rec.finish();
-        let timing_trip = ["no usable state frame", "servo ticks overran"]
-            .iter()
-            .any(|t| s["trip"].as_str().is_some_and(|trip| trip.contains(t)));
-        assert!(attempt == 1 && code == 3 && timing_trip, "marsd stopped before the arm moved\n{}", marsd.logs());
-        let (gap, _, at) = largest_frame_gap(&r.states);
-        eprintln!(
-            "{name}: marsd tripped before the arm moved ({}; {} servo periods missed; the HAL's longest gap between \
-             frames {gap:.1} ms at {}): starting again",
-            s["trip"],
-            u64_at(&s, "/deadline_misses/servo_missed_periods"),
-            clock_text(at)
-        );
+        let why = (code == 3).then(|| machine_stall_explains(&r, &s, &marsd, u64::MAX)).flatten();
+        let Some(why) = why.filter(|_| attempt == 1) else {
+            panic!("marsd stopped before the arm moved (exit {code}, trip {})\n{}", s["trip"], marsd.logs());
+        };
+        eprintln!("RERUN {name}: marsd tripped before the arm moved: {why}; starting again");
+        drop(hal);
     }
     unreachable!()
 }
@@ -189,6 +209,7 @@ fn start_moving(name: &str) -> Moving {
 /// ~100 ms, comes to rest, and the applied stream stays within limits through the stop.
 #[test]
 fn sigkill_of_marsd_makes_the_hal_brake_to_rest_within_limits() {
+    let _rt = rt_rig_lock();
     let Moving { logs: _logs, mut hal, rec, mut marsd, frame: moving } = start_moving("kill-marsd");
     let v = moving.applied_velocity[..7].iter().fold(0.0f64, |m, v| m.max(v.abs()));
     let killed_at = monotonic_ns();
@@ -212,8 +233,9 @@ fn sigkill_of_marsd_makes_the_hal_brake_to_rest_within_limits() {
         "SIGKILL of marsd at {v:.3} rad/s: HAL holding ({reason:?}) after {reaction_ms:.1} ms (HAL clock), \
          at rest after {rest_ms:.1} ms"
     );
-    assert!(reaction_ms < 100.0, "the HAL took {reaction_ms:.1} ms to stop following a dead controller");
-    assert!(rest_ms < 2000.0);
+    // README: "SIGKILL of marsd → the HAL holds after 14–19 ms and is at rest after ~55 ms".
+    assert_near_claim("SIGKILL of marsd → HAL holding", reaction_ms, 19.0);
+    assert_near_claim("SIGKILL of marsd → HAL at rest", rest_ms, 55.0);
     // It stays held where it stopped.
     let after: Vec<&RobotState> = r.states.iter().map(|(s, _)| s).filter(|s| s.seq > rest.seq).collect();
     assert!(after.len() > 50);
@@ -230,6 +252,7 @@ fn sigkill_of_marsd_makes_the_hal_brake_to_rest_within_limits() {
 /// log, reports the trip and exits 3 within 1 s.
 #[test]
 fn sigkill_of_the_hal_makes_marsd_trip_and_exit_3() {
+    let _rt = rt_rig_lock();
     let Moving { logs, hal, rec, mut marsd, .. } = start_moving("kill-hal");
     let commands_before = rec.commands_len();
     let (killed_at, killed_tod) = (Instant::now(), now_time_of_day());
@@ -260,7 +283,10 @@ fn sigkill_of_the_hal_makes_marsd_trip_and_exit_3() {
          watchdog.max_state_gap_ms)\n{err}",
         s["trip"]
     );
-    assert!(exit_after < Duration::from_secs(1), "marsd took {exit_after:?} to exit");
+    // README: "SIGKILL of the HAL → marsd logs the trip 13–21 ms later ... and exits 3 about 0.15 s later".
+    let logged_ms = logged_ms.expect("the trip line has a timestamp");
+    assert_near_claim("SIGKILL of the HAL → marsd logs the trip", logged_ms, 21.0);
+    assert_near_claim("SIGKILL of the HAL → marsd exits", exit_after.as_secs_f64() * 1e3, 21.0 + 150.0);
     assert_eq!(s["stop"], "trip");
     assert_eq!(s["trip"], trip_text);
     check_commands(&r.commands, &Limits::fr3()).unwrap();
@@ -270,6 +296,7 @@ fn sigkill_of_the_hal_makes_marsd_trip_and_exit_3() {
 /// still on time, and the servo loop on its own core keeps its 1 kHz rate.
 #[test]
 fn slow_engine_caps_k_and_the_servo_keeps_its_rate() {
+    let _rt = rt_rig_lock();
     for attempt in 1..=2 {
         if slow_engine_attempt(attempt) {
             return;
@@ -300,9 +327,9 @@ fn slow_engine_attempt(attempt: u32) -> bool {
     let s = summary(&logs, "marsd");
     eprintln!("{}", marsd.stdout_text());
     if attempt == 1
-        && let Some(why) = machine_stall_explains(&r, &s, SLOW_MISSED_LIMIT)
+        && let Some(why) = machine_stall_explains(&r, &s, &marsd, SLOW_MISSED_LIMIT)
     {
-        eprintln!("attempt 1 is inconclusive: {why}; running it again");
+        eprintln!("RERUN slow engine: attempt 1 is inconclusive: {why}; running it again");
         return false;
     }
     // Whatever the episodes' outcome (a capped K may fail the task), a slow engine is no fault: the deadline
@@ -334,6 +361,7 @@ fn slow_engine_attempt(attempt: u32) -> bool {
 /// reaches the command stream, which stays within limits.
 #[test]
 fn nan_frames_are_refused_and_marsd_trips_on_stale_state() {
+    let _rt = rt_rig_lock();
     let logs = TempDir::new("nan");
     let robot = robot("nan");
     let (_hal, rec) = hal_with_recorder(&robot, &["--nan-joint", "3", "--nan-at-tick", "3000"], &logs);
@@ -362,6 +390,7 @@ fn nan_frames_are_refused_and_marsd_trips_on_stale_state() {
 /// frame, never commands, and gives up after the handshake timeout with status 4.
 #[test]
 fn late_frames_are_never_used_and_marsd_exits_4_without_commanding() {
+    let _rt = rt_rig_lock();
     let logs = TempDir::new("late");
     let robot = robot("late");
     let cfg = write_config(&logs, "marsd.toml", &[("handshake_timeout_s", "2.0")], "");
@@ -386,6 +415,7 @@ fn late_frames_are_never_used_and_marsd_exits_4_without_commanding() {
 /// command, status 4 after the handshake timeout.
 #[test]
 fn wrong_dof_frames_are_refused_and_marsd_exits_4_without_commanding() {
+    let _rt = rt_rig_lock();
     let logs = TempDir::new("dof");
     let robot = robot("dof");
     let cfg = write_config(&logs, "marsd.toml", &[("handshake_timeout_s", "2.0")], "");
@@ -434,6 +464,7 @@ fn wrong_dof_frames_are_refused_and_marsd_exits_4_without_commanding() {
 /// same robot id never sees a command.
 #[test]
 fn bad_config_or_checkpoint_is_refused_with_status_2_and_nothing_moves() {
+    let _rt = rt_rig_lock();
     let logs = TempDir::new("bad");
     let robot = robot("bad");
     let (mut hal, rec) = hal_with_recorder(&robot, &[], &logs);
@@ -483,6 +514,7 @@ fn bad_config_or_checkpoint_is_refused_with_status_2_and_nothing_moves() {
 /// Test 7: SIGTERM while the arm moves: a jerk-limited stop, a hold command that ends the session, status 0.
 #[test]
 fn sigterm_brings_the_arm_to_rest_and_exits_0() {
+    let _rt = rt_rig_lock();
     let Moving { logs, mut hal, rec, mut marsd, frame: moving } = start_moving("term");
     let from = rec.states_len();
     let signalled = Instant::now();
@@ -501,11 +533,13 @@ fn sigterm_brings_the_arm_to_rest_and_exits_0() {
         took.as_secs_f64() * 1e3
     );
     assert_eq!(status.code(), Some(0), "{status:?}\n{}", marsd.logs());
-    assert!(took < Duration::from_secs(2), "marsd took {took:?} to stop");
+    // README: "SIGTERM → the arm is at rest and held within ~35 ms, marsd exits 0 within ~0.15 s".
+    assert_near_claim("SIGTERM → marsd exits", took.as_secs_f64() * 1e3, 150.0);
     let s = summary(&logs, "marsd");
     assert_eq!(s["stop"], "signal");
     assert!(s["trip"].is_null());
     let (_, held) = held.expect("the HAL never showed HOLDING and AT_REST after the SIGTERM");
+    assert_near_claim("SIGTERM → arm at rest and held", stop_ms.unwrap(), 35.0);
     assert_eq!(held.session, moving.session);
     assert_eq!(hold_reason(&held), Some(HoldReason::ControllerRequested));
     let last = r.states.last().unwrap().0;
@@ -514,6 +548,89 @@ fn sigterm_brings_the_arm_to_rest_and_exits_0() {
     assert_eq!(r.commands.last().unwrap().0.mode, mars_ipc::CommandMode::Hold as u32);
     assert_limits(&r, &Limits::fr3(), "SIGTERM");
     assert!(hal.running());
+}
+
+/// The pids of the processes started with `<exe> <subcommand> ... --robot <robot>` (found by command line).
+fn pids_of(subcommand: &str, robot: &str) -> Vec<libc::pid_t> {
+    let Ok(dir) = std::fs::read_dir("/proc") else { return Vec::new() };
+    dir.flatten()
+        .filter_map(|e| {
+            let pid: libc::pid_t = e.file_name().to_str()?.parse().ok()?;
+            let cmd = std::fs::read(e.path().join("cmdline")).ok()?;
+            let args: Vec<&[u8]> = cmd.split(|b| *b == 0).collect();
+            let hit = args.get(1) == Some(&subcommand.as_bytes())
+                && args.windows(2).any(|w| w == [&b"--robot"[..], robot.as_bytes()]);
+            hit.then_some(pid)
+        })
+        .collect()
+}
+
+/// SIGKILLs the demo's HAL and marsd when dropped: a failing test kills the demo process itself, whose children
+/// would otherwise live on (marsd with `--episodes 0` forever).
+struct KillDemoChildren(String);
+
+impl Drop for KillDemoChildren {
+    fn drop(&mut self) {
+        for pid in pids_of("hal", &self.0).into_iter().chain(pids_of("marsd", &self.0)) {
+            // SAFETY: kill(2) on a process this test started (through the demo), found by its unique robot id.
+            unsafe { libc::kill(pid, libc::SIGKILL) };
+        }
+    }
+}
+
+/// Test 8: `mars-hil demo` on a machine that stalls: it runs the doctor first, and when the HAL's loop stalls for
+/// 60 ms mid-run (its fault injection, as a machine stall would freeze it), marsd trips as it should and the
+/// demo says the run was stopped by a stall of this machine, with the HAL's frame gap as the evidence.
+#[test]
+fn a_demo_stopped_by_a_machine_stall_says_so_with_the_evidence() {
+    let _rt = rt_rig_lock();
+    let logs = TempDir::new("demo-stall");
+    let robot = robot("demo-stall");
+    let _children = KillDemoChildren(robot.clone());
+    let mut cmd = std::process::Command::new(env!("CARGO_BIN_EXE_mars-hil"));
+    cmd.args(["demo", "--episodes", "0", "--robot", &robot, "--hal-stall-at-tick", "4000", "--hal-stall-ms", "60"])
+        .arg("--out")
+        .arg(logs.join("out"));
+    let mut demo = spawn_named(cmd, "demo", &logs);
+    let code = demo.exit_code(Duration::from_secs(60));
+    let (out, err) = (demo.stdout_text(), demo.stderr_text());
+    let verdict = ["good:", "expect "].iter().any(|v| out.lines().any(|l| l.starts_with(&format!("doctor: {v}"))));
+    assert!(verdict, "the demo printed no doctor verdict first:\n{out}");
+    assert!(logs.join("out/doctor.json").exists());
+    assert_eq!(code, 3, "{}", demo.logs());
+    let said = find_line(&err, &["the run was stopped by a stall of this machine", "the HAL published no frame for"]);
+    eprintln!("the demo said: {}", said.unwrap_or("(nothing)"));
+    let said = said.unwrap_or_else(|| panic!("the demo did not name the stall\n{}", demo.logs()));
+    assert!(said.contains("see `marsd doctor`"), "{said}");
+}
+
+/// The rig lock is exclusive across processes (an flock on a file any other test binary opens too), re-entrant
+/// within a test, and released when the last guard goes.
+#[test]
+fn the_rt_rig_lock_excludes_other_processes_until_released() {
+    let path = rt_rig_lock_path();
+    let other_process_can_take_it = || {
+        let st = std::process::Command::new("flock").args(["-n", "-E", "42"]).arg(&path).arg("true").status();
+        match st.expect("flock(1) from util-linux").code() {
+            Some(0) => true,
+            Some(42) => false,
+            c => panic!("flock exited {c:?}"),
+        }
+    };
+    let outer = rt_rig_lock();
+    assert!(rt_rig_lock_held());
+    assert!(!other_process_can_take_it());
+    let inner = rt_rig_lock();
+    drop(inner);
+    assert!(rt_rig_lock_held() && !other_process_can_take_it(), "dropping the inner guard released the lock");
+    drop(outer);
+    assert!(!rt_rig_lock_held());
+    // Another test of this binary may have taken it meanwhile: wait for that one to end.
+    let deadline = Instant::now() + Duration::from_secs(600);
+    while !other_process_can_take_it() {
+        assert!(Instant::now() < deadline, "the lock was never free again");
+        std::thread::sleep(Duration::from_millis(100));
+    }
 }
 
 /// The deterministic half of test 7's race (seen once in ~15 runs there: summary `stop` said "finished" after a

@@ -197,6 +197,8 @@ fn run_policy(args: &BenchArgs, name: &str, robot: &str) -> PolicyRun {
             engine_step_delay_ms: None,
         },
         hal_core: args.hal_core.unwrap_or_else(demo_hal_core),
+        hal_stall_at_tick: None,
+        hal_stall_ms: None,
     };
     let probe = LoadProbe::start();
     let teed = tee_stderr(|| crate::cli::demo(demo));

@@ -10,12 +10,36 @@ use mars_runtime::cli::{MarsdArgs, init_logging, marsd};
 
 #[derive(Parser)]
 #[command(version, about = "MARS controller daemon: servo loop, deadline-capped policy, watchdog")]
+#[command(args_conflicts_with_subcommands = true)]
 struct Args {
     #[command(flatten)]
     marsd: MarsdArgs,
+    #[command(subcommand)]
+    command: Option<Command>,
+}
+
+#[derive(clap::Subcommand)]
+enum Command {
+    /// Measure this machine in a few seconds (wake-ups at the servo's rate and priority, steal, RT limits,
+    /// PREEMPT_RT, CPU governor, isolated cores), say what a run can expect and how to improve it, and write
+    /// doctor.json.
+    Doctor(mars_runtime::doctor::DoctorArgs),
 }
 
 fn main() -> std::process::ExitCode {
     init_logging();
-    marsd(Args::parse().marsd)
+    let args = Args::parse();
+    match args.command {
+        Some(Command::Doctor(d)) => match mars_runtime::doctor::run(&d.config, d.seconds, d.out.as_deref()) {
+            Ok(report) => {
+                print!("{report}");
+                std::process::ExitCode::SUCCESS
+            }
+            Err(e) => {
+                eprintln!("error: {e:#}");
+                std::process::ExitCode::FAILURE
+            }
+        },
+        None => marsd(args.marsd),
+    }
 }

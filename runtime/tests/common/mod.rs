@@ -2,8 +2,9 @@
 //! killed when dropped; a recorder thread in the test process that reads the robot's state and command services;
 //! and a limit checker of its own (independent of `mars_runtime::limits` and of the HAL's safety filter).
 //!
-//! Every test uses its own robot id (pid + test name), so the tests run in parallel without meeting each other's
-//! iceoryx2 services.
+//! Every test uses its own robot id (pid + test name), so tests never meet each other's iceoryx2 services; and
+//! every test that starts the HAL or marsd holds the machine-wide [`rt_rig_lock`] for its whole run (the spawners
+//! check), so two real-time rigs never compete for the cores.
 
 #![allow(dead_code)] // each test binary uses a different part of this module
 
@@ -18,6 +19,16 @@ use std::time::{Duration, Instant};
 
 use mars_ipc::node::create_node;
 use mars_ipc::{CommandReader, JointCommand, RobotNamespace, RobotState, StateReader, status};
+use mars_runtime::stall::{self, Evidence, FrameGap, StealSample};
+pub use mars_runtime::stall::{log_time_of_day, now_time_of_day};
+
+#[path = "../../../testing/rt_rig_lock.rs"]
+mod rt_rig_lock;
+pub use rt_rig_lock::{rt_rig_lock, rt_rig_lock_held, rt_rig_lock_path};
+
+fn assert_rig_locked(what: &str) {
+    assert!(rt_rig_lock_held(), "{what} is a real-time process: hold rt_rig_lock() for the whole test");
+}
 
 /// The workspace root: the configs name their files relative to it, so every child runs there.
 pub fn root() -> PathBuf {
@@ -95,24 +106,20 @@ pub fn write_config(dir: &TempDir, name: &str, edits: &[(&str, &str)], extra: &s
 }
 
 /// Scheduling of a child. The test runs niced (a shared 2-core CI machine); the processes under test are
-/// real-time processes, so their niceness goes back to 0 (possible as root, ignored otherwise), and the HAL — a
-/// robot's own controller, which is real-time on every real robot — gets SCHED_FIFO 50 when allowed (below
-/// marsd's servo 80 and policy 70, and not pinned, so it never shares a core with a busy higher-priority
-/// thread). Without this a niced, normal-priority HAL on a loaded machine can miss 20 ms of frames, and marsd
-/// then (rightly) trips on stale state: a test of the machine, not of marsd.
-fn realtime_child(cmd: &mut Command, fifo: Option<i32>) {
-    // SAFETY: only async-signal-safe calls (setpriority, sched_setscheduler) between fork and exec.
+/// real-time processes, so their niceness goes back to 0 (possible as root, ignored otherwise). Their real-time
+/// settings are their own: marsd's from its config, the HAL's from its flags (see [`spawn_hal`]).
+fn realtime_child(cmd: &mut Command) {
+    // SAFETY: only async-signal-safe calls (setpriority) between fork and exec.
     unsafe {
         cmd.pre_exec(move || {
             libc::setpriority(libc::PRIO_PROCESS, 0, 0);
-            if let Some(p) = fifo {
-                let param = libc::sched_param { sched_priority: p };
-                libc::sched_setscheduler(0, libc::SCHED_FIFO, &param);
-            }
             Ok(())
         });
     }
 }
+
+/// The HAL's real-time priority, as `mars-hil demo` runs it: above marsd's servo (80) and policy (70) loops.
+pub const HAL_PRIORITY: i32 = 85;
 
 /// A child process, SIGKILLed when dropped; its stdout and stderr go to files (printed if the test fails).
 pub struct Proc {
@@ -203,8 +210,14 @@ impl Proc {
 
 impl Drop for Proc {
     fn drop(&mut self) {
+        // SIGTERM first, as systemd stops a unit: a SIGKILLed process leaves its iceoryx2 node behind as dead,
+        // and the next rig's liveness watch would spend its time cleaning that up. SIGKILL if it does not go.
         if self.status.is_none() && matches!(self.child.try_wait(), Ok(None)) {
-            let _ = self.child.kill();
+            // SAFETY: kill(2) on our own, not yet reaped child.
+            unsafe { libc::kill(self.pid(), libc::SIGTERM) };
+            if self.wait_timeout(Duration::from_secs(2)).is_none() {
+                let _ = self.child.kill();
+            }
         }
         let _ = self.child.wait();
         if std::thread::panicking() {
@@ -213,12 +226,31 @@ impl Drop for Proc {
     }
 }
 
-/// `mars-hil hal --profile configs/fr3.toml --robot <robot> [extra]` (the `mars-hal` process).
+/// The core of marsd's servo loop in the shipped config.
+pub fn servo_core() -> usize {
+    let cfg = mars_runtime::config::DaemonConfig::load(&shipped_config()).unwrap();
+    cfg.servo.core.expect("configs/marsd.toml pins the servo loop")
+}
+
+/// `mars-hil hal --profile configs/fr3.toml --robot <robot> --core <servo core> --rt-priority 85 [extra]` (the
+/// `mars-hal` process), as `mars-hil demo` runs it: a robot's own control loop is real-time, above the servo loop
+/// it shares a core with (the HAL's ticks are short and phase-shifted from the servo's; the policy thread, which
+/// may spin for tens of ms at SCHED_FIFO 70, has the other core).
 pub fn spawn_hal(robot: &str, extra: &[&str], logs: &TempDir) -> Proc {
+    assert_rig_locked("the HAL");
     let mut cmd = Command::new(env!("CARGO_BIN_EXE_mars-hil"));
-    cmd.args(["hal", "--profile", "configs/fr3.toml", "--robot", robot]).args(extra);
-    realtime_child(&mut cmd, Some(50));
+    cmd.args(["hal", "--profile", "configs/fr3.toml", "--robot", robot])
+        .args(["--core", &servo_core().to_string(), "--rt-priority", &HAL_PRIORITY.to_string()])
+        .args(extra);
+    realtime_child(&mut cmd);
     Proc::spawn(cmd, "mars-hal", logs.path())
+}
+
+/// Any command as a real-time child of the test (logs as [`Proc`]); the caller holds the rig lock.
+pub fn spawn_named(mut cmd: Command, name: &str, logs: &TempDir) -> Proc {
+    assert_rig_locked(name);
+    realtime_child(&mut cmd);
+    Proc::spawn(cmd, name, logs.path())
 }
 
 /// `marsd --config <config> --robot <robot> --episodes <n> --out <logs>/out [extra]`.
@@ -234,6 +266,7 @@ pub fn spawn_marsd_named(
     extra: &[&str],
     logs: &TempDir,
 ) -> Proc {
+    assert_rig_locked("marsd");
     let mut cmd = Command::new(env!("CARGO_BIN_EXE_marsd"));
     cmd.arg("--config")
         .arg(config)
@@ -241,7 +274,7 @@ pub fn spawn_marsd_named(
         .arg("--out")
         .arg(logs.join(&format!("{name}-out")))
         .args(extra);
-    realtime_child(&mut cmd, None);
+    realtime_child(&mut cmd);
     Proc::spawn(cmd, name, logs.path())
 }
 
@@ -277,6 +310,8 @@ pub struct Recorded {
     pub states: Vec<(RobotState, u64)>,
     pub commands: Vec<(JointCommand, u64)>,
     pub errors: u64,
+    /// The VM's steal counter every 10 ms while recording (empty where /proc/stat has none).
+    pub steal: Vec<StealSample>,
 }
 
 /// A thread of the test process that subscribes to the robot's state and command services and records every
@@ -308,7 +343,15 @@ impl Recorder {
                 let mut s_buf = Vec::with_capacity(64);
                 let mut c_buf = Vec::with_capacity(64);
                 let mut errors = 0;
+                let mut next_steal = 0;
                 while !stop2.load(Ordering::Acquire) {
+                    let now = monotonic_ns();
+                    if now >= next_steal {
+                        next_steal = now + 10_000_000;
+                        if let Some(steal_ms) = stall::steal_ms() {
+                            data2.lock().unwrap().steal.push(StealSample { at_ns: now, steal_ms });
+                        }
+                    }
                     loop {
                         match states.receive() {
                             Ok(Some(s)) => s_buf.push((s, monotonic_ns())),
@@ -408,8 +451,9 @@ impl Recorder {
         })
     }
 
-    /// Stops the thread and returns everything it recorded.
+    /// Stops the thread (after one more steal sample) and returns everything it recorded.
     pub fn finish(mut self) -> Recorded {
+        std::thread::sleep(Duration::from_millis(20));
         self.stop.store(true, Ordering::Release);
         if let Some(h) = self.handle.take() {
             h.join().unwrap();
@@ -608,20 +652,6 @@ pub fn find_line<'a>(text: &'a str, needles: &[&str]) -> Option<&'a str> {
     text.lines().find(|l| needles.iter().all(|n| l.contains(n)))
 }
 
-/// Seconds since UTC midnight of a tracing log line's timestamp (`2026-11-21T11:51:57.722514Z ...`).
-pub fn log_time_of_day(line: &str) -> Option<f64> {
-    let t = line.get(11..26)?;
-    let (h, m, s) =
-        (t.get(0..2)?.parse::<f64>().ok()?, t.get(3..5)?.parse::<f64>().ok()?, t.get(6..)?.parse::<f64>().ok()?);
-    Some(h * 3600.0 + m * 60.0 + s)
-}
-
-/// Seconds since UTC midnight now (wall clock, the clock of the log lines).
-pub fn now_time_of_day() -> f64 {
-    let d = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap();
-    (d.as_secs() % 86_400) as f64 + f64::from(d.subsec_nanos()) * 1e-9
-}
-
 /// The largest gap between the HAL's stamps of consecutive recorded frames: (ms, seq after it, UTC time of day
 /// of its end in s). A gap far above one period means the HAL itself did not run.
 pub fn largest_frame_gap(states: &[(RobotState, u64)]) -> (f64, u64, f64) {
@@ -648,13 +678,21 @@ pub fn major_faults(pid: libc::pid_t) -> Option<u64> {
     stat.rsplit_once(')')?.1.split_whitespace().nth(9)?.parse().ok()
 }
 
-/// CPU time the hypervisor took from this VM so far, summed over its CPUs (ms; /proc/stat's `steal`). A run
-/// whose HAL or servo loop stalled while this grew was stalled from outside the machine.
+/// CPU time the hypervisor took from this VM so far, summed over its CPUs (ms; /proc/stat's `steal`; 0 where
+/// there is no such column).
 pub fn steal_ms() -> f64 {
-    let stat = std::fs::read_to_string("/proc/stat").unwrap_or_default();
-    let ticks =
-        stat.lines().find(|l| l.starts_with("cpu ")).and_then(|l| l.split_whitespace().nth(8)?.parse::<f64>().ok());
-    // SAFETY: sysconf has no preconditions.
-    let hz = unsafe { libc::sysconf(libc::_SC_CLK_TCK) } as f64;
-    ticks.map_or(0.0, |t| t * 1e3 / hz.max(1.0))
+    stall::steal_ms().unwrap_or(0.0)
+}
+
+/// The HAL's frame gaps of at least [`stall::MIN_GAP_MS`] in the recorded frames.
+pub fn hal_gaps(r: &Recorded) -> Vec<FrameGap> {
+    stall::frame_gaps(r.states.iter().map(|(s, _)| (s.seq, s.timestamp_ns)), stall::MIN_GAP_MS)
+}
+
+/// What the machine did around marsd's watchdog trip: the time is that of marsd's "watchdog trip" log line
+/// (summary.json has none), the evidence a HAL frame gap or steal growth in the window around it. `None` if
+/// marsd logged no trip.
+pub fn trip_evidence(r: &Recorded, marsd: &Proc) -> Option<Evidence> {
+    let trip_ns = stall::trip_time_from_log(&marsd.stderr_text())?;
+    Some(stall::around_trip(trip_ns, &hal_gaps(r), &r.steal))
 }
