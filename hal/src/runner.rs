@@ -42,6 +42,11 @@ pub struct Report {
     pub rejected: u64,
     pub clamped: u64,
     pub schema_refusals: u64,
+    /// Commands that arrived after the tick they answered for (see `RobotState::late_commands`).
+    pub late_commands: u64,
+    /// Last resorts of the safety filter (see `RobotState::position_guard_hits` / `infeasible_steps`).
+    pub position_guard_hits: u64,
+    pub infeasible_steps: u64,
     /// State frames not published because of injected drops.
     pub dropped_frames: u64,
 }
@@ -70,10 +75,15 @@ impl std::fmt::Display for Report {
             q(&self.work_us, 0.999),
             self.work_us.max()
         )?;
+        writeln!(
+            f,
+            "  commands: {} rejected, {} clamped, {} wrong schema, {} late for their tick",
+            self.rejected, self.clamped, self.schema_refusals, self.late_commands
+        )?;
         write!(
             f,
-            "  commands: {} rejected, {} clamped, {} wrong schema",
-            self.rejected, self.clamped, self.schema_refusals
+            "  safety filter last resorts: {} position-guard stops, {} steps with no feasible acceleration",
+            self.position_guard_hits, self.infeasible_steps
         )
     }
 }
@@ -123,6 +133,9 @@ pub fn run(profile: &Profile, backend: &mut dyn Backend, opts: &RunOptions) -> a
         rejected: 0,
         clamped: 0,
         schema_refusals: 0,
+        late_commands: 0,
+        position_guard_hits: 0,
+        infeasible_steps: 0,
         dropped_frames: 0,
     };
     info!(robot = %opts.robot, rate_hz = profile.rate_hz, joints = n, "mars-hal running");
@@ -149,6 +162,12 @@ pub fn run(profile: &Profile, backend: &mut dyn Backend, opts: &RunOptions) -> a
                             filter.rejected += 1;
                             events.send(LoopEvent::ReservedSession { seq: cmd.seq });
                         } else if supervisor.on_command(cmd.session, hold, now_ns) == Decision::Follow {
+                            // The newest frame published so far is `report.ticks`: a command answering an
+                            // older one missed the tick it was meant for (the cause of a clamp is then
+                            // timing, not content, and the controller should count it as such).
+                            if !hold && cmd.state_seq < report.ticks {
+                                report.late_commands += 1;
+                            }
                             target = if hold { None } else { Some(t.position) };
                             gripper = t.gripper;
                             last_command_seq = cmd.seq;
@@ -179,6 +198,7 @@ pub fn run(profile: &Profile, backend: &mut dyn Backend, opts: &RunOptions) -> a
 
         // 2. Setpoint (filtered) → backend → measurement.
         let follow = matches!(supervisor.mode(), Mode::Active { .. });
+        let last_resorts_before = (filter.position_guard_hits, filter.infeasible_steps);
         let setpoint = filter.step(if follow { target.as_ref() } else { None });
         backend.apply(setpoint, gripper)?;
         let m = backend.read()?;
@@ -210,8 +230,12 @@ pub fn run(profile: &Profile, backend: &mut dyn Backend, opts: &RunOptions) -> a
             velocity: m.velocity,
             effort: m.effort,
             gripper: m.gripper,
+            gripper_target: gripper,
             rejected_commands: filter.rejected,
             clamped_commands: filter.clamped,
+            late_commands: report.late_commands,
+            position_guard_hits: filter.position_guard_hits,
+            infeasible_steps: filter.infeasible_steps,
             status: if follow { status::ACTIVE } else { status::HOLDING },
             fault: fault_bits,
             hold_reason: hold_reason as u32,
@@ -223,6 +247,9 @@ pub fn run(profile: &Profile, backend: &mut dyn Backend, opts: &RunOptions) -> a
         st.applied_acceleration[..n].copy_from_slice(filter.acceleration());
         if filter.at_rest() {
             st.status |= status::AT_REST;
+        }
+        if (filter.position_guard_hits, filter.infeasible_steps) != last_resorts_before {
+            st.status |= status::LAST_RESORT;
         }
         if !injected.late.is_zero() {
             std::thread::sleep(injected.late);
@@ -262,5 +289,7 @@ pub fn run(profile: &Profile, backend: &mut dyn Backend, opts: &RunOptions) -> a
     report.rejected = filter.rejected;
     report.clamped = filter.clamped;
     report.schema_refusals = schema_refusals;
+    report.position_guard_hits = filter.position_guard_hits;
+    report.infeasible_steps = filter.infeasible_steps;
     Ok(report)
 }

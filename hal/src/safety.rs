@@ -68,6 +68,9 @@ pub struct SafetyFilter {
     pub clamped: u64,
     /// Ticks in which the position guard had to stop a joint at its limit (expected to stay zero).
     pub position_guard_hits: u64,
+    /// Joint steps in which no acceleration met every bound at once, so the middle of the empty interval was
+    /// taken (a last resort, expected to stay zero).
+    pub infeasible_steps: u64,
 }
 
 fn arr(v: &[f64]) -> [f64; MAX_JOINTS] {
@@ -99,6 +102,7 @@ impl SafetyFilter {
             rejected: 0,
             clamped: 0,
             position_guard_hits: 0,
+            infeasible_steps: 0,
         }
     }
 
@@ -257,7 +261,12 @@ impl SafetyFilter {
             // velocity-dependent bound a ≤ (J/A)(V − v), which keeps |v| ≤ V without a jerk spike.
             let hi = (a + jm * dt).min(am).min(jm / am * (vm - v));
             let lo = (a - jm * dt).max(-am).max(jm / am * (-vm - v));
-            let mut a_new = if lo <= hi { a_des.clamp(lo, hi) } else { 0.5 * (lo + hi) };
+            let mut a_new = if lo <= hi {
+                a_des.clamp(lo, hi)
+            } else {
+                self.infeasible_steps += 1;
+                0.5 * (lo + hi)
+            };
             // Braking ends in an exact stop (not an endless exponential creep), once the last step to zero
             // velocity, and the step back to zero acceleration after it, fit within the jerk limit.
             if target.is_none() && v.abs() + a.abs() * dt <= 0.5 * jm * dt * dt && v.abs() <= 0.5 * am * dt {
@@ -458,5 +467,24 @@ mod tests {
         }
         assert!(f.at_rest(), "{:?}", f.velocity());
         assert!(f.velocity().iter().all(|v| *v == 0.0), "braking ends in an exact stop: {:?}", f.velocity());
+    }
+
+    #[test]
+    fn last_resorts_are_counted() {
+        let p = fr3();
+        // A setpoint far faster than the limit (no command can cause it; a corrupted state could) leaves no
+        // acceleration within every bound: the filter takes the middle of the empty interval and counts it.
+        let mut f = SafetyFilter::new(&p, &p.home);
+        f.v[0] = 3.0 * f.v_max[0];
+        f.step(None);
+        assert!(f.infeasible_steps >= 1, "{}", f.infeasible_steps);
+        assert_eq!(f.position_guard_hits, 0);
+        // A joint at full speed a micro-radian below its limit cannot stop in one tick: the guard stops it there.
+        let mut g = SafetyFilter::new(&p, &p.home);
+        g.q[0] = g.q_max[0] - 1e-6;
+        g.v[0] = g.v_max[0];
+        g.step(None);
+        assert_eq!(g.position_guard_hits, 1);
+        assert_eq!(g.position()[0], g.q_max[0]);
     }
 }

@@ -596,3 +596,20 @@ fn core_flag_pins_the_loop_thread() {
         assert_ne!(allowed(free.hal.0.id()), core, "without --core the HAL must not pin itself");
     }
 }
+
+#[test]
+fn a_command_answering_an_old_frame_is_counted_late_not_out_of_limits() {
+    let rig = Rig::start("fr3.toml");
+    let home = rig.profile.home.clone();
+    // On time: answers the newest frame.
+    let s = rig.latest();
+    rig.commands.send(&JointCommand::position(9, 1, s.seq, &home)).unwrap();
+    let s = rig.wait_for("the session", Duration::from_secs(5), |f| f.session == 9 && f.last_command_seq == 1);
+    assert_eq!(s.late_commands, 0);
+    // Late: answers a frame 50 ticks old (the same target, so nothing about it is out of limits).
+    rig.commands.send(&JointCommand::position(9, 2, s.seq.saturating_sub(50), &home)).unwrap();
+    let s = rig.wait_for("the late command", Duration::from_secs(5), |f| f.last_command_seq == 2);
+    assert_eq!(s.late_commands, 1);
+    assert_eq!((s.rejected_commands, s.clamped_commands), (0, 0));
+    assert_eq!(s.gripper_target, JointCommand::default().gripper);
+}
