@@ -17,7 +17,7 @@ use crate::backend::Backend;
 use crate::events::{EventLogger, LoopEvent};
 use crate::profile::Profile;
 use crate::safety::SafetyFilter;
-use crate::session::{Decision, Mode, Supervisor};
+use crate::session::{Decision, LoopClock, Mode, Supervisor};
 
 pub struct RunOptions {
     /// Robot id of the service namespace (defaults to the profile's name in the CLI).
@@ -121,6 +121,8 @@ pub fn run(profile: &Profile, backend: &mut dyn Backend, opts: &RunOptions) -> a
     let period = Duration::from_secs_f64(profile.period_s());
     let mut filter = SafetyFilter::new(profile, &profile.home);
     let mut supervisor = Supervisor::new(profile.timeout_ns());
+    // Silence of the controller is judged in the loop's own time (see `LoopClock`): two periods at most per tick.
+    let mut loop_clock = LoopClock::new(2 * period.as_nanos() as u64);
     let mut target: Option<[f64; MAX_JOINTS]> = None;
     let mut gripper = profile.gripper_min;
     let mut last_command_seq = 0;
@@ -149,6 +151,7 @@ pub fn run(profile: &Profile, backend: &mut dyn Backend, opts: &RunOptions) -> a
         report.wake_late_us.saturating_record(woke.saturating_duration_since(deadline).as_micros() as u64);
         // Frames carry CLOCK_MONOTONIC time, which the controller shares: it computes state ages from it.
         let now_ns = mars_ipc::clock::monotonic_ns();
+        let loop_ns = loop_clock.tick(now_ns);
 
         // 1. Commands: every frame is judged (so every bad one is counted); the newest valid one wins.
         loop {
@@ -161,7 +164,7 @@ pub fn run(profile: &Profile, backend: &mut dyn Backend, opts: &RunOptions) -> a
                         if cmd.session == 0 {
                             filter.rejected += 1;
                             events.send(LoopEvent::ReservedSession { seq: cmd.seq });
-                        } else if supervisor.on_command(cmd.session, hold, now_ns) == Decision::Follow {
+                        } else if supervisor.on_command(cmd.session, hold, loop_ns) == Decision::Follow {
                             // The newest frame published so far is `report.ticks`: a command answering an
                             // older one missed the tick it was meant for (the cause of a clamp is then
                             // timing, not content, and the controller should count it as such).
@@ -186,12 +189,12 @@ pub fn run(profile: &Profile, backend: &mut dyn Backend, opts: &RunOptions) -> a
         let losses = controller.losses();
         if losses != losses_seen {
             losses_seen = losses;
-            if supervisor.on_controller_lost(now_ns, 2 * period.as_nanos() as u64) {
+            if supervisor.on_controller_lost(loop_ns, 2 * period.as_nanos() as u64) {
                 events.send(LoopEvent::ControllerLost(controller.peer()));
                 target = None;
             }
         }
-        if supervisor.on_tick(now_ns) {
+        if supervisor.on_tick(loop_ns) {
             events.send(LoopEvent::CommandTimeout { ms: profile.command_timeout_ms as u64 });
             target = None;
         }
@@ -277,7 +280,12 @@ pub fn run(profile: &Profile, backend: &mut dyn Backend, opts: &RunOptions) -> a
             report.overruns += 1;
             deadline = now;
         }
-        if node.wait(deadline.saturating_duration_since(now)).is_err() {
+        // Any signal cuts the sleep short (SIGCONT after a SIGSTOP, a debugger, a child's SIGCHLD): only a
+        // termination request (SIGTERM, SIGINT) ends the loop; otherwise the next tick comes early, which the
+        // deadline arithmetic above absorbs.
+        let termination = |r| matches!(r, Err(iceoryx2::node::NodeWaitFailure::TerminationRequest));
+        let waited = node.wait(deadline.saturating_duration_since(now));
+        if termination(waited) || (waited.is_err() && termination(node.wait(Duration::ZERO))) {
             info!("termination requested");
             break;
         }

@@ -23,6 +23,33 @@ pub enum Decision {
     StaleSession,
 }
 
+/// The clock the [`Supervisor`] judges silence by: the HAL loop's own running time. It advances by the time
+/// between two ticks, but by at most `max_step_ns` per tick, so a stall of the HAL's loop itself (a VM that
+/// froze both processes, a page fault) does not count as silence of the controller: after such a stall the
+/// controller gets its ticks to answer, as a robot counts lost packets in its own cycles (libfranka's
+/// "communication constraints" reflex is 20 lost cycles, not 20 ms of wall time).
+#[derive(Debug, Clone, Copy)]
+pub struct LoopClock {
+    last_wall_ns: Option<u64>,
+    now_ns: u64,
+    max_step_ns: u64,
+}
+
+impl LoopClock {
+    pub fn new(max_step_ns: u64) -> Self {
+        Self { last_wall_ns: None, now_ns: 0, max_step_ns }
+    }
+
+    /// Advance to this tick's wall time; returns the loop time.
+    pub fn tick(&mut self, wall_ns: u64) -> u64 {
+        if let Some(last) = self.last_wall_ns {
+            self.now_ns += wall_ns.saturating_sub(last).min(self.max_step_ns);
+        }
+        self.last_wall_ns = Some(wall_ns);
+        self.now_ns
+    }
+}
+
 pub struct Supervisor {
     mode: Mode,
     timeout_ns: u64,
@@ -87,6 +114,24 @@ impl Supervisor {
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn the_loop_clock_counts_a_stall_of_the_loop_as_one_step() {
+        let mut c = LoopClock::new(2_000_000);
+        assert_eq!(c.tick(100_000_000), 0);
+        assert_eq!(c.tick(101_000_000), 1_000_000);
+        // The loop itself was stalled for 50 ms: the controller was not silent for 50 ms of the HAL's time.
+        assert_eq!(c.tick(151_000_000), 3_000_000);
+        assert_eq!(c.tick(152_000_000), 4_000_000);
+        // So a 20 ms command timeout judged on it does not fire across the stall…
+        let mut sup = Supervisor::new(20_000_000);
+        let mut c = LoopClock::new(2_000_000);
+        sup.on_command(1, false, c.tick(0));
+        assert!(!sup.on_tick(c.tick(50_000_000)));
+        // …but does after 20 ms of the loop's ticks without a command.
+        let fired = (1..=30).map(|k| sup.on_tick(c.tick(50_000_000 + k * 1_000_000))).position(|f| f);
+        assert_eq!(fired, Some(18), "2 ms for the stall + 19 ticks of 1 ms > 20 ms");
+    }
+
     use super::*;
 
     const MS: u64 = 1_000_000;

@@ -613,3 +613,20 @@ fn a_command_answering_an_old_frame_is_counted_late_not_out_of_limits() {
     assert_eq!((s.rejected_commands, s.clamped_commands), (0, 0));
     assert_eq!(s.gripper_target, JointCommand::default().gripper);
 }
+
+#[test]
+fn a_stopped_and_continued_hal_keeps_running() {
+    // SIGCONT interrupts the loop's sleep; only SIGTERM/SIGINT may end it (it used to exit on any interrupted sleep).
+    let mut rig = Rig::start("fr3.toml");
+    let pid = rig.hal.0.id() as libc::pid_t;
+    // SAFETY: kill(2) on our own, running child.
+    unsafe {
+        assert_eq!(libc::kill(pid, libc::SIGSTOP), 0);
+        std::thread::sleep(Duration::from_millis(50));
+        assert_eq!(libc::kill(pid, libc::SIGCONT), 0);
+    }
+    let s = rig.latest();
+    let later = rig.wait_for("frames after SIGCONT", Duration::from_secs(5), |f| f.seq > s.seq + 200);
+    assert!(later.seq > s.seq);
+    assert!(rig.hal.0.try_wait().unwrap().is_none(), "the HAL exited after SIGCONT");
+}

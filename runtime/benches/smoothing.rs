@@ -107,65 +107,86 @@ fn report(name: &str, mut ns: Vec<u64>) {
     );
 }
 
-fn main() {
-    let p = Profile::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/fr3.toml")).unwrap();
-    let stream = targets(&p.home, &p.dq_max);
-
-    let mut ours = Vec::with_capacity(TICKS * ROUNDS);
-    for _ in 0..ROUNDS {
-        let mut s = Smoother::new(7, p.period_s(), &Limits::from_profile(&p)).unwrap();
-        s.reset(&p.home).expect("the profile's home is a valid start");
-        for (q, v) in &stream {
-            let t = Instant::now();
-            black_box(s.track(black_box(q), black_box(v)).unwrap());
-            ours.push(t.elapsed().as_nanos() as u64);
-        }
-    }
-    report("marsd Smoother::track (rsruckig, 8 slots)", ours);
-    let mut s = Smoother::new(7, p.period_s(), &Limits::from_profile(&p)).unwrap();
+/// marsd's smoother at rest at the profile's home.
+fn ours(p: &Profile) -> Smoother {
+    let mut s = Smoother::new(7, p.period_s(), &Limits::from_profile(p)).unwrap();
     s.reset(&p.home).expect("the profile's home is a valid start");
-    let (rust, all) = allocations_per_call(stream.len(), |k| {
-        black_box(s.track(&stream[k].0, &stream[k].1).unwrap());
-    });
-    println!("{:<40} allocations per update: {rust:.2} Rust, {all:.2} malloc calls in all", "");
+    s
+}
 
-    let mut theirs = Vec::with_capacity(TICKS * ROUNDS);
-    for _ in 0..ROUNDS {
-        let mut otg = ruckig::Ruckig::new_direct(7, p.period_s());
+/// The official crate on the same problem: one online update per tick, as marsd would use it.
+struct Official {
+    otg: ruckig::Ruckig,
+    inp: ruckig::InputParameter,
+    out: ruckig::OutputParameter,
+}
+
+impl Official {
+    fn new(p: &Profile) -> Self {
         let mut inp = ruckig::InputParameter::new(7);
-        let mut out = ruckig::OutputParameter::new_direct(7);
         for i in 0..7 {
             inp.current_position[i] = p.home[i];
             inp.max_velocity[i] = DEFAULT_SAFETY_FACTOR * p.dq_max[i];
             inp.max_acceleration[i] = DEFAULT_SAFETY_FACTOR * p.ddq_max[i];
             inp.max_jerk[i] = DEFAULT_SAFETY_FACTOR * p.jerk_max[i];
         }
-        for (q, v) in &stream {
+        let (otg, out) = (ruckig::Ruckig::new_direct(7, p.period_s()), ruckig::OutputParameter::new_direct(7));
+        Self { otg, inp, out }
+    }
+
+    fn step(&mut self, q: &[f64; 7], v: &[f64; 7]) {
+        self.inp.target_position.copy_from_slice(q);
+        self.inp.target_velocity.copy_from_slice(v);
+        black_box(self.otg.update(&mut self.inp, &mut self.out));
+        self.out.pass_to_input(&mut self.inp);
+    }
+}
+
+/// ns per tick over [`ROUNDS`] passes of the stream, each from a fresh smoother.
+fn time_per_tick(
+    stream: &[([f64; 7], [f64; 7])],
+    mut fresh: impl FnMut() -> Box<dyn FnMut(&[f64; 7], &[f64; 7])>,
+) -> Vec<u64> {
+    let mut ns = Vec::with_capacity(TICKS * ROUNDS);
+    for _ in 0..ROUNDS {
+        let mut step = fresh();
+        for (q, v) in stream {
             let t = Instant::now();
-            inp.target_position.copy_from_slice(q);
-            inp.target_velocity.copy_from_slice(v);
-            black_box(otg.update(&mut inp, &mut out));
-            out.pass_to_input(&mut inp);
-            theirs.push(t.elapsed().as_nanos() as u64);
+            step(black_box(q), black_box(v));
+            ns.push(t.elapsed().as_nanos() as u64);
         }
     }
-    report("official ruckig 0.19 update+pass_to_input", theirs);
-    let mut otg = ruckig::Ruckig::new_direct(7, p.period_s());
-    let mut inp = ruckig::InputParameter::new(7);
-    let mut out = ruckig::OutputParameter::new_direct(7);
-    for i in 0..7 {
-        inp.current_position[i] = p.home[i];
-        inp.max_velocity[i] = DEFAULT_SAFETY_FACTOR * p.dq_max[i];
-        inp.max_acceleration[i] = DEFAULT_SAFETY_FACTOR * p.ddq_max[i];
-        inp.max_jerk[i] = DEFAULT_SAFETY_FACTOR * p.jerk_max[i];
-    }
-    let (rust, all) = allocations_per_call(stream.len(), |k| {
-        inp.target_position.copy_from_slice(&stream[k].0);
-        inp.target_velocity.copy_from_slice(&stream[k].1);
-        black_box(otg.update(&mut inp, &mut out));
-        out.pass_to_input(&mut inp);
-    });
+    ns
+}
+
+fn print_allocations(rust: f64, all: f64) {
     println!("{:<40} allocations per update: {rust:.2} Rust, {all:.2} malloc calls in all", "");
+}
+
+fn main() {
+    let p = Profile::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/fr3.toml")).unwrap();
+    let stream = targets(&p.home, &p.dq_max);
+
+    let fresh_ours = || -> Box<dyn FnMut(&[f64; 7], &[f64; 7])> {
+        let mut s = ours(&p);
+        Box::new(move |q, v| {
+            black_box(s.track(q, v).unwrap());
+        })
+    };
+    let fresh_official = || -> Box<dyn FnMut(&[f64; 7], &[f64; 7])> {
+        let mut o = Official::new(&p);
+        Box::new(move |q, v| o.step(q, v))
+    };
+    report("marsd Smoother::track (rsruckig, 8 slots)", time_per_tick(&stream, fresh_ours));
+    let mut step = fresh_ours();
+    let (rust, all) = allocations_per_call(stream.len(), |k| step(&stream[k].0, &stream[k].1));
+    print_allocations(rust, all);
+
+    report("official ruckig 0.19 update+pass_to_input", time_per_tick(&stream, fresh_official));
+    let mut step = fresh_official();
+    let (rust, all) = allocations_per_call(stream.len(), |k| step(&stream[k].0, &stream[k].1));
+    print_allocations(rust, all);
+
     // The malloc counter is live (a C-side allocation shows up even when Rust's counter does not move).
     let (rust, all) = allocations_per_call(1, |_| {
         // SAFETY: plain malloc/free pair.
