@@ -348,8 +348,19 @@ fn slow_engine_attempt(attempt: u32) -> bool {
     let p99 = latency(&s, "wake_jitter", "p99");
     // The policy spins ~75 ms per call at SCHED_FIFO 70 on its own core: had it taken the servo's core, every
     // call would cost the servo ~75 periods (over 1000 in this run). What remains is the machine's own stalls
-    // (a 10-15 ms VM-wide stall costs 10-15 periods; seen on this CI VM a few times a minute under load).
-    assert!(missed <= SLOW_MISSED_LIMIT, "the servo loop missed {missed} periods");
+    // (a 10-15 ms VM-wide stall costs 10-15 periods; seen on this CI VM a few times a minute under load). Those
+    // the HAL — the highest-priority thread of the rig, on the servo's core — missed too in this very run were
+    // the machine's, not the servo's: only what the servo missed beyond them is held to the limit.
+    let hal_missed = mars_runtime::stall::hal_missed_periods(
+        &mars_runtime::stall::frame_gaps(r.states.iter().map(|(s, _)| (s.seq, s.timestamp_ns)), 1.5),
+        1.0,
+    );
+    eprintln!("servo missed {missed} periods; the HAL itself missed {hal_missed} in the same run");
+    assert!(
+        missed <= SLOW_MISSED_LIMIT + hal_missed,
+        "the servo loop missed {missed} periods, {} more than the HAL itself missed ({hal_missed})",
+        missed.saturating_sub(hal_missed)
+    );
     assert!(p99 < 1000.0, "servo wake-up jitter p99 {p99} µs");
     assert_eq!(u64_at(&s, "/limit_violations/final_check"), 0);
     assert_eq!(u64_at(&s, "/limit_violations/hal_rejected"), 0);
