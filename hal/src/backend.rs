@@ -1,8 +1,15 @@
 //! The interface between the HAL loop and a robot.
 //!
-//! The HAL loop owns timing, the safety filter and the wire; a backend only moves joints to the setpoints it
-//! is given and reports what it measured. Every setpoint handed to [`Backend::apply`] has already passed the
-//! safety filter, so a backend need not (but may) check limits again.
+//! The HAL loop owns timing, the safety filter and the wire; a backend only reports what it measured and moves
+//! the joints to the setpoints it is given. Each tick the loop first [`read`](Backend::read)s, then
+//! [`apply`](Backend::apply)s: the HAL never commands an arm it has not read (its first setpoint is the measured
+//! position). Every setpoint handed to `apply` has already passed the safety filter, so a backend need not (but
+//! may) check limits again. The gripper gets a [`move_gripper`](Backend::move_gripper) only when its target
+//! changes (see [`crate::gripper`]).
+//!
+//! Errors are `Copy` values, never allocated: the loop counts them, brakes and holds
+//! ([`mars_ipc::HoldReason::HalError`]), and goes on; only a [`BackendError::Fatal`] ends the process, and only
+//! once the setpoint is at rest.
 //!
 //! What a real backend would have to do:
 //! - **FR3 over FCI (libfranka)**: libfranka owns the 1 kHz loop (`Robot::control` calls back once per packet),
@@ -25,17 +32,31 @@ pub struct Measurement {
     pub fault: u32,
 }
 
-#[derive(Debug, thiserror::Error)]
+/// What went wrong in the backend (the text names it; `&'static` so reporting never allocates).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
 pub enum BackendError {
-    #[error("backend fault: {0}")]
-    Fault(String),
+    /// This tick failed; later ones may work (a lost packet, a busy bus).
+    #[error("backend error: {0}")]
+    Transient(&'static str),
+    /// The robot cannot be driven any more (the connection is gone, or it needs a person to recover).
+    #[error("backend failed for good: {0}")]
+    Fatal(&'static str),
+}
+
+impl BackendError {
+    pub fn is_fatal(&self) -> bool {
+        matches!(self, BackendError::Fatal(_))
+    }
 }
 
 pub trait Backend {
-    /// Command the joints to `position` (rad) and the gripper to `gripper` (m) for this tick.
-    fn apply(&mut self, position: &[f64], gripper: f64) -> Result<(), BackendError>;
-    /// Advance one control period (a real robot does this by itself) and measure.
+    /// Measure the robot at the start of a tick (the sim advances its plant one period first; a real robot moves
+    /// by itself).
     fn read(&mut self) -> Result<Measurement, BackendError>;
+    /// Command the joints to `position` (rad) for this tick.
+    fn apply(&mut self, position: &[f64]) -> Result<(), BackendError>;
+    /// Start moving the gripper to a new target (called only when the target changes).
+    fn move_gripper(&mut self, to: crate::gripper::GripperMove) -> Result<(), BackendError>;
     /// Loop faults to inject into the tick just measured (only the sim backend injects any).
     fn loop_faults(&mut self) -> crate::fault::LoopFaults {
         crate::fault::LoopFaults::default()

@@ -26,6 +26,9 @@ pub struct HalArgs {
     /// Run the loop at this SCHED_FIFO priority (1–99) when the process may.
     #[arg(long, value_parser = clap::value_parser!(i32).range(1..=99))]
     pub rt_priority: Option<i32>,
+    /// Do not lock the process's memory (mlockall); by default it is locked when the process may.
+    #[arg(long)]
+    pub no_lock_memory: bool,
     #[command(flatten)]
     pub faults: FaultArgs,
 }
@@ -61,6 +64,19 @@ pub struct FaultArgs {
     /// The process aborts at this tick.
     #[arg(long)]
     crash_at_tick: Option<u64>,
+    /// The backend's read fails (a transient error) for --read-error-ticks ticks from this tick.
+    #[arg(long)]
+    read_error_at_tick: Option<u64>,
+    #[arg(long)]
+    read_error_ticks: Option<u64>,
+    /// The backend's apply fails (a transient error) for --apply-error-ticks ticks from this tick.
+    #[arg(long)]
+    apply_error_at_tick: Option<u64>,
+    #[arg(long)]
+    apply_error_ticks: Option<u64>,
+    /// The backend fails for good from this tick (a fatal error: mars-hal brakes to rest and exits 1).
+    #[arg(long)]
+    fatal_at_tick: Option<u64>,
     /// Seed of the random drops.
     #[arg(long)]
     fault_seed: Option<u64>,
@@ -74,15 +90,25 @@ impl FaultArgs {
         macro_rules! set_opt {
             ($($field:ident),*) => { $(if self.$field.is_some() { f.$field = self.$field; })* };
         }
-        set!(drop_probability, drop_every, late_every, late_ms, stall_ms);
-        set_opt!(freeze_at_tick, nan_joint, nan_at_tick, stall_at_tick, crash_at_tick);
+        set!(drop_probability, drop_every, late_every, late_ms, stall_ms, read_error_ticks, apply_error_ticks);
+        set_opt!(
+            freeze_at_tick,
+            nan_joint,
+            nan_at_tick,
+            stall_at_tick,
+            crash_at_tick,
+            read_error_at_tick,
+            apply_error_at_tick,
+            fatal_at_tick
+        );
         if let Some(seed) = self.fault_seed {
             f.seed = seed;
         }
     }
 }
 
-/// Runs the HAL process loop with the sim backend until the duration ends or SIGINT/SIGTERM; returns its report.
+/// Runs the HAL process loop with the sim backend until the duration ends, SIGINT/SIGTERM or a fatal backend
+/// error; returns its report.
 pub fn run_hal(args: HalArgs) -> anyhow::Result<Report> {
     let mut profile = Profile::load(&args.profile)?;
     args.faults.apply(&mut profile.sim.faults);
@@ -98,7 +124,25 @@ pub fn run_hal(args: HalArgs) -> anyhow::Result<Report> {
         duration: args.duration_s.map(Duration::from_secs_f64),
         core: args.core,
         rt_priority: args.rt_priority,
+        lock_memory: !args.no_lock_memory,
+        stop: None,
     };
     let mut backend = SimBackend::new(&profile);
     run(&profile, &mut backend, &opts)
+}
+
+/// Prints the outcome of [`run_hal`] and returns the process's exit status: 0 after a duration or a termination
+/// request, 1 after a fatal backend error (at rest) or any other failure, 2 when it refused to start (nothing
+/// was commanded).
+pub fn report_and_exit_code(outcome: anyhow::Result<Report>) -> i32 {
+    match outcome {
+        Ok(report) => {
+            println!("{report}");
+            if matches!(report.ended, crate::runner::Ended::BackendFailed(_)) { 1 } else { 0 }
+        }
+        Err(e) => {
+            eprintln!("mars-hal: {e:#}");
+            if e.downcast_ref::<crate::control::StartError>().is_some() { 2 } else { 1 }
+        }
+    }
 }

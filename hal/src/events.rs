@@ -2,13 +2,15 @@
 //!
 //! Formatting and writing a log line takes a lock and a `write` syscall that can block; a refused-command line
 //! per tick at 1 kHz would do both a thousand times a second inside the control loop. So the loop only pushes a
-//! small `Copy` value into a queue preallocated at start (lock-free, never blocks, never allocates), and a
-//! logger thread drains it and logs. If the queue is full the event is dropped and counted, never waited for.
+//! small `Copy` value into a ring preallocated at start, and a logger thread drains it and logs. The ring is
+//! `rtrb`'s single-producer/single-consumer ring: the HAL loop thread is its only producer, the logger thread its
+//! only consumer, and a push is wait-free (it never waits for the consumer, even one preempted mid-pop, unlike a
+//! multi-producer queue's slot hand-over). If the ring is full the event is dropped and counted, never waited for.
 
+use crate::backend::BackendError;
 use crate::safety::Refusal;
-use crossbeam_queue::ArrayQueue;
-use mars_ipc::SchemaMismatch;
 use mars_ipc::liveness::Peer;
+use mars_ipc::{FrameReceiveError, FrameSendError, SchemaMismatch};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::thread::JoinHandle;
@@ -34,6 +36,21 @@ pub enum LoopEvent {
         ms: u64,
         tick: u64,
     },
+    /// The first of a run of backend errors (the run's length comes with [`LoopEvent::BackendRecovered`]).
+    Backend {
+        error: BackendError,
+        tick: u64,
+    },
+    BackendRecovered {
+        errors: u64,
+        tick: u64,
+    },
+    ReceiveFailed(FrameReceiveError),
+    SendFailed(FrameSendError),
+    /// An error ended the active session: the arm brakes to rest and holds.
+    HoldingOnError,
+    /// The backend failed for good: braking to rest, then the process exits.
+    Fatal(BackendError),
 }
 
 impl std::fmt::Display for LoopEvent {
@@ -49,25 +66,36 @@ impl std::fmt::Display for LoopEvent {
                 write!(f, "no valid command for {ms} ms: braking to rest and holding; send a new session id to resume")
             }
             LoopEvent::InjectedStall { ms, tick } => write!(f, "injected stall of {ms} ms at tick {tick}"),
+            LoopEvent::Backend { error, tick } => write!(f, "tick {tick}: {error}"),
+            LoopEvent::BackendRecovered { errors, tick } => {
+                write!(f, "tick {tick}: the backend works again after {errors} failed call(s)")
+            }
+            LoopEvent::ReceiveFailed(e) => write!(f, "receiving commands failed: {e}"),
+            LoopEvent::SendFailed(e) => write!(f, "publishing the state failed: {e}"),
+            LoopEvent::HoldingOnError => write!(
+                f,
+                "an error ended the controller's session: braking to rest and holding; a new session resumes once \
+                 the errors stop"
+            ),
+            LoopEvent::Fatal(e) => write!(f, "{e}: braking to rest, then mars-hal exits"),
         }
     }
 }
 
 struct Shared {
-    queue: ArrayQueue<LoopEvent>,
     dropped: AtomicU64,
     stop: AtomicBool,
 }
 
-/// The loop's end: `send` never blocks or allocates.
-#[derive(Clone)]
+/// The loop's end (the ring's producer): `send` never blocks or allocates.
 pub struct EventSender {
+    ring: rtrb::Producer<LoopEvent>,
     shared: Arc<Shared>,
 }
 
 impl EventSender {
-    pub fn send(&self, event: LoopEvent) {
-        if self.shared.queue.push(event).is_err() {
+    pub fn send(&mut self, event: LoopEvent) {
+        if self.ring.push(event).is_err() {
             self.shared.dropped.fetch_add(1, Ordering::Relaxed);
         }
     }
@@ -92,16 +120,13 @@ impl EventLogger {
         poll: Duration,
         mut sink: impl FnMut(LoopEvent) + Send + 'static,
     ) -> std::io::Result<(EventSender, EventLogger)> {
-        let shared = Arc::new(Shared {
-            queue: ArrayQueue::new(capacity.max(1)),
-            dropped: AtomicU64::new(0),
-            stop: AtomicBool::new(false),
-        });
+        let shared = Arc::new(Shared { dropped: AtomicU64::new(0), stop: AtomicBool::new(false) });
+        let (producer, mut consumer) = rtrb::RingBuffer::new(capacity.max(1));
         let worker = shared.clone();
         let thread = std::thread::Builder::new().name("mars-hal-log".into()).spawn(move || {
             loop {
                 let stopping = worker.stop.load(Ordering::Acquire);
-                while let Some(e) = worker.queue.pop() {
+                while let Ok(e) = consumer.pop() {
                     sink(e);
                 }
                 if stopping {
@@ -110,7 +135,7 @@ impl EventLogger {
                 std::thread::sleep(poll);
             }
         })?;
-        Ok((EventSender { shared: shared.clone() }, EventLogger { shared, thread: Some(thread) }))
+        Ok((EventSender { ring: producer, shared: shared.clone() }, EventLogger { shared, thread: Some(thread) }))
     }
 
     /// Logs everything still queued, then joins the thread; returns how many events were dropped.
@@ -142,7 +167,7 @@ mod tests {
     fn every_event_reaches_the_sink_in_order_and_finish_drains_the_queue() {
         let seen = Arc::new(Mutex::new(Vec::new()));
         let sink_seen = seen.clone();
-        let (tx, logger) =
+        let (mut tx, logger) =
             EventLogger::start(64, Duration::from_millis(50), move |e| sink_seen.lock().unwrap().push(e)).unwrap();
         for seq in 0..10 {
             tx.send(LoopEvent::ReservedSession { seq });
@@ -158,7 +183,8 @@ mod tests {
         let gate = Arc::new(Mutex::new(()));
         let held = gate.lock().unwrap();
         let sink_gate = gate.clone();
-        let (tx, logger) = EventLogger::start(4, Duration::from_millis(1), move |_| drop(sink_gate.lock())).unwrap();
+        let (mut tx, logger) =
+            EventLogger::start(4, Duration::from_millis(1), move |_| drop(sink_gate.lock())).unwrap();
         let t0 = std::time::Instant::now();
         for seq in 0..100 {
             tx.send(LoopEvent::ReservedSession { seq });

@@ -7,7 +7,9 @@
 //! Loop faults change the HAL loop itself: dropped state frames (never published; the frame `seq` still
 //! advances, so the controller sees a gap), late state frames (published after an extra delay; the frame
 //! timestamp stays the measurement time), a stalled loop (one sleep of S ms at tick T), and a crash
-//! (`abort()` at tick T: no goodbye, no clean-up, like a segfault).
+//! (`abort()` at tick T: no goodbye, no clean-up, like a segfault). Backend errors make the backend itself fail,
+//! as a robot's driver can: its `read` or `apply` returns a transient error for N ticks from tick T, or a fatal one
+//! from tick T on (the robot is gone for good).
 //!
 //! Ticks count from 0 (the first state frame, `seq` 1, is tick 0).
 
@@ -47,6 +49,19 @@ pub struct FaultConfig {
     /// At this tick the process aborts.
     #[serde(default)]
     pub crash_at_tick: Option<u64>,
+    /// From this tick on, for `read_error_ticks` ticks, the backend's `read` fails (a transient error).
+    #[serde(default)]
+    pub read_error_at_tick: Option<u64>,
+    #[serde(default)]
+    pub read_error_ticks: u64,
+    /// From this tick on, for `apply_error_ticks` ticks, the backend's `apply` fails (a transient error).
+    #[serde(default)]
+    pub apply_error_at_tick: Option<u64>,
+    #[serde(default)]
+    pub apply_error_ticks: u64,
+    /// From this tick on the backend's `read` fails for good (a fatal error; `apply` still brakes).
+    #[serde(default)]
+    pub fatal_at_tick: Option<u64>,
     /// Seed of the drop generator (separate from the plant noise, so turning faults on keeps the noise).
     #[serde(default)]
     pub seed: u64,
@@ -68,6 +83,14 @@ impl FaultConfig {
         }
         if self.stall_at_tick.is_some() && self.stall_ms == 0.0 {
             return Err("faults.stall_at_tick is set but faults.stall_ms is 0".into());
+        }
+        for (at, ticks, name) in [
+            (self.read_error_at_tick, self.read_error_ticks, "read_error"),
+            (self.apply_error_at_tick, self.apply_error_ticks, "apply_error"),
+        ] {
+            if at.is_some() != (ticks > 0) {
+                return Err(format!("faults.{name}_at_tick and faults.{name}_ticks go together"));
+            }
         }
         match (self.nan_joint, self.nan_at_tick) {
             (Some(j), Some(_)) if j >= joints => {
@@ -139,6 +162,20 @@ impl FaultInjector {
         }
     }
 
+    /// `read` fails at `tick`: `Some(true)` for good, `Some(false)` this tick only.
+    pub fn read_error(&self, tick: u64) -> Option<bool> {
+        if self.cfg.fatal_at_tick.is_some_and(|t| tick >= t) {
+            return Some(true);
+        }
+        let window = |at: Option<u64>, n: u64| at.is_some_and(|t| tick >= t && tick < t.saturating_add(n));
+        window(self.cfg.read_error_at_tick, self.cfg.read_error_ticks).then_some(false)
+    }
+
+    /// `apply` fails at `tick` (a transient error).
+    pub fn apply_error(&self, tick: u64) -> bool {
+        self.cfg.apply_error_at_tick.is_some_and(|t| tick >= t && tick < t.saturating_add(self.cfg.apply_error_ticks))
+    }
+
     /// The loop faults of `tick`; call exactly once per tick, in order (the drop generator advances).
     pub fn loop_faults(&mut self, tick: u64) -> LoopFaults {
         let nth = |every: u64| every > 0 && (tick + 1).is_multiple_of(every);
@@ -187,6 +224,21 @@ mod tests {
     }
 
     #[test]
+    fn backend_errors_fire_in_their_windows_and_a_fatal_one_for_good() {
+        let f = FaultInjector::new(FaultConfig {
+            read_error_at_tick: Some(5),
+            read_error_ticks: 2,
+            apply_error_at_tick: Some(1),
+            apply_error_ticks: 1,
+            fatal_at_tick: Some(20),
+            ..Default::default()
+        });
+        let reads: Vec<(u64, bool)> = (0..25).filter_map(|t| f.read_error(t).map(|fatal| (t, fatal))).collect();
+        assert_eq!(reads, [(5, false), (6, false), (20, true), (21, true), (22, true), (23, true), (24, true)]);
+        assert_eq!((0..25).filter(|&t| f.apply_error(t)).collect::<Vec<_>>(), [1]);
+    }
+
+    #[test]
     fn random_drops_match_the_probability_and_repeat_with_the_seed() {
         let run = |seed| {
             let mut f = FaultInjector::new(FaultConfig { drop_probability: 0.1, seed, ..Default::default() });
@@ -209,6 +261,7 @@ mod tests {
         assert!(bad(FaultConfig { nan_joint: Some(1), ..Default::default() }).contains("together"));
         assert!(bad(FaultConfig { stall_at_tick: Some(1), ..Default::default() }).contains("stall_ms"));
         assert!(bad(FaultConfig { late_every: 2, ..Default::default() }).contains("late_ms"));
+        assert!(bad(FaultConfig { read_error_at_tick: Some(3), ..Default::default() }).contains("go together"));
         assert!(FaultConfig::default().validate(7).is_ok());
         assert!(!FaultConfig { seed: 9, ..Default::default() }.any());
         assert!(FaultConfig { drop_every: 2, ..Default::default() }.any());

@@ -1,12 +1,19 @@
 //! The robot side of the MARS runtime: robot profiles, the safety filter, the backend interface with its sim
 //! implementation, and the `mars-hal` process loop.
+//!
+//! Data flow of one tick: the backend is read ([`backend`], [`sim`]) → commands arrive over iceoryx2 →
+//! [`control`] judges them ([`safety`], [`session`], [`gripper`]) → the setpoint goes to the backend → the state
+//! frame leaves ([`runner`] does the I/O). [`profile`] and [`velocity_limits`] hold the robot's limits.
 
 pub mod backend;
 pub mod cli;
+pub mod control;
 pub mod events;
 pub mod fault;
+pub mod gripper;
 pub mod profile;
 pub mod runner;
 pub mod safety;
 pub mod session;
 pub mod sim;
+pub mod velocity_limits;

@@ -7,6 +7,7 @@ use mars_ipc::MAX_JOINTS;
 use serde::Deserialize;
 
 use crate::fault::FaultConfig;
+use crate::velocity_limits::{JointVelocityBound, VelocityLimits};
 
 /// What the safety filter does with a command outside the limits.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
@@ -33,6 +34,13 @@ pub struct SimParams {
     pub position_noise_std: f64,
     #[serde(default)]
     pub seed: u64,
+    /// Joint positions the plant starts at, instead of the profile's `home` (e.g. to test that a HAL starts from
+    /// where the arm is, not from `home`).
+    #[serde(default)]
+    pub start: Option<Vec<f64>>,
+    /// Gripper opening the plant starts at (default: `gripper_max`).
+    #[serde(default)]
+    pub start_gripper: Option<f64>,
     /// Faults to inject (all off by default); see [`crate::fault`].
     #[serde(default)]
     pub faults: FaultConfig,
@@ -45,6 +53,8 @@ impl Default for SimParams {
             tracking_time_constant_s: 0.0,
             position_noise_std: 0.0,
             seed: 0,
+            start: None,
+            start_gripper: None,
             faults: FaultConfig::default(),
         }
     }
@@ -62,12 +72,24 @@ pub struct Profile {
     pub q_min: Vec<f64>,
     pub q_max: Vec<f64>,
     pub dq_max: Vec<f64>,
+    /// Whether the velocity bound depends on position (the FR3's braking curves, see [`crate::velocity_limits`]);
+    /// `dq_max` caps it either way.
+    #[serde(default)]
+    pub velocity_limits: VelocityLimits,
     pub ddq_max: Vec<f64>,
     pub jerk_max: Vec<f64>,
-    /// Where the sim backend starts; must lie inside the limits.
+    /// Where the sim backend starts (unless `sim.start` says otherwise); must lie inside the limits. The HAL
+    /// itself never moves the arm here: it starts from wherever the arm is measured.
     pub home: Vec<f64>,
     pub gripper_min: f64,
     pub gripper_max: f64,
+    /// The fastest the gripper opening may change (m/s): a command's `gripper_speed` is capped by it.
+    pub gripper_speed_max: f64,
+    /// A new gripper target goes to the backend only when it differs from the one sent last by more than
+    /// this (m): a gripper takes one move at a time, not a stream.
+    pub gripper_deadband: f64,
+    /// …and at most once per this long (ms); a target that changes meanwhile is sent when it ends.
+    pub gripper_command_interval_ms: f64,
     #[serde(default)]
     pub sim: SimParams,
 }
@@ -102,9 +124,25 @@ impl Profile {
         1.0 / self.rate_hz
     }
 
-    /// Command timeout in whole ticks (at least one).
+    /// Command timeout (ns).
     pub fn timeout_ns(&self) -> u64 {
         (self.command_timeout_ms * 1e6) as u64
+    }
+
+    /// The velocity bound of each joint.
+    pub fn velocity_bounds(&self) -> Vec<JointVelocityBound> {
+        (0..self.joints).map(|i| JointVelocityBound::new(self.velocity_limits, i, self.dq_max[i])).collect()
+    }
+
+    /// The position range each joint may be commanded to and rest in: `[q_min, q_max]`, narrowed where the
+    /// velocity bound forbids standing still (the FR3's braking curves reach zero a little inside some limits).
+    pub fn position_limits(&self) -> (Vec<f64>, Vec<f64>) {
+        self.velocity_bounds().iter().enumerate().map(|(i, b)| b.rest_range(self.q_min[i], self.q_max[i])).unzip()
+    }
+
+    /// Gripper target interval in ticks (at least one).
+    pub fn gripper_interval_ticks(&self) -> u64 {
+        ((self.gripper_command_interval_ms * 1e-3 * self.rate_hz).round() as u64).max(1)
     }
 
     pub fn validate(&self) -> Result<(), ProfileError> {
@@ -138,15 +176,24 @@ impl Profile {
                 return bad(format!("{field}[{i}] is not a finite number"));
             }
         }
+        if let Err(msg) = self.velocity_limits.check_joints(self.joints) {
+            return bad(msg);
+        }
         for i in 0..self.joints {
             if self.q_min[i] >= self.q_max[i] {
                 return bad(format!("joint {i}: q_min {} must be below q_max {}", self.q_min[i], self.q_max[i]));
             }
-            if !(self.q_min[i]..=self.q_max[i]).contains(&self.home[i]) {
+        }
+        let (lo, hi) = self.position_limits();
+        for i in 0..self.joints {
+            if lo[i] >= hi[i] {
                 return bad(format!(
-                    "joint {i}: home {} lies outside [{}, {}]",
-                    self.home[i], self.q_min[i], self.q_max[i]
+                    "joint {i}: the velocity bounds leave no position to rest in [{}, {}]",
+                    lo[i], hi[i]
                 ));
+            }
+            if !(lo[i]..=hi[i]).contains(&self.home[i]) {
+                return bad(format!("joint {i}: home {} lies outside [{}, {}]", self.home[i], lo[i], hi[i]));
             }
             for (field, v) in [("dq_max", &self.dq_max), ("ddq_max", &self.ddq_max), ("jerk_max", &self.jerk_max)] {
                 if v[i] <= 0.0 {
@@ -169,12 +216,29 @@ impl Profile {
                 self.gripper_min, self.gripper_max
             ));
         }
+        for (field, v) in [
+            ("gripper_speed_max", self.gripper_speed_max),
+            ("gripper_deadband", self.gripper_deadband),
+            ("gripper_command_interval_ms", self.gripper_command_interval_ms),
+        ] {
+            if !(v.is_finite() && v > 0.0) {
+                return bad(format!("{field} = {v} but must be a positive number"));
+            }
+        }
         let s = &self.sim;
         if !(s.tracking_time_constant_s.is_finite() && s.tracking_time_constant_s >= 0.0) {
             return bad(format!("sim.tracking_time_constant_s = {} must be ≥ 0", s.tracking_time_constant_s));
         }
         if !(s.position_noise_std.is_finite() && s.position_noise_std >= 0.0) {
             return bad(format!("sim.position_noise_std = {} must be ≥ 0", s.position_noise_std));
+        }
+        if let Some(start) = &s.start {
+            if start.len() != self.joints || start.iter().any(|x| !x.is_finite()) {
+                return bad(format!("sim.start must be {} finite joint positions", self.joints));
+            }
+        }
+        if s.start_gripper.is_some_and(|g| !g.is_finite()) {
+            return bad("sim.start_gripper must be a finite number".into());
         }
         if s.latency_ticks > 1000 {
             return bad(format!("sim.latency_ticks = {} is more than 1000", s.latency_ticks));
@@ -204,6 +268,16 @@ mod tests {
         assert_eq!(p.ddq_max, [10.0; 7]);
         assert_eq!(p.jerk_max, [5000.0; 7]);
         assert_eq!(p.command_timeout_ms, 20.0);
+        assert_eq!(p.velocity_limits, VelocityLimits::Fr3);
+        // The braking curves narrow joint 1 to about the datasheet's ±2.7437 rad.
+        let (lo, hi) = p.position_limits();
+        assert!((hi[0] - 2.7426).abs() < 1e-3 && (lo[0] + 2.7426).abs() < 1e-3, "{lo:?} {hi:?}");
+    }
+
+    #[test]
+    fn gripper_rates_must_be_positive() {
+        let t = fr3_text().replace("gripper_speed_max = 0.1", "gripper_speed_max = 0.0");
+        assert!(invalid(&t).contains("gripper_speed_max = 0 but must be a positive number"), "{}", invalid(&t));
     }
 
     #[test]

@@ -2,16 +2,25 @@
 //! the profile's position, velocity, acceleration and jerk limits.
 //!
 //! Two stages:
-//! 1. [`SafetyFilter::admit`] judges a command: NaN/∞ anywhere, a wrong joint count or an unknown mode is
-//!    always refused; a target outside the position limits, an intent (velocity/acceleration field) outside
-//!    the limits, or a step from the current setpoint that would exceed velocity/acceleration/jerk is clamped
-//!    or refused per the profile's [`LimitPolicy`]. Every refusal and clamp is counted.
+//! 1. [`SafetyFilter::admit`] judges a command: NaN/∞ anywhere, a wrong joint count, an unknown mode or a bad
+//!    gripper speed is always refused; a target outside the position limits or an intent (velocity/acceleration
+//!    field) outside the limits is clamped or refused per the profile's [`LimitPolicy`] and counted. A step from
+//!    the current setpoint that would exceed velocity/acceleration/jerk is counted the same way, unless the
+//!    caller knows the step is off because of *timing* (the command came late, or is a second answer to the
+//!    same frame): then it is not counted as out of limits, the caller counts it, and [`SafetyFilter::step`]
+//!    smooths it.
 //! 2. [`SafetyFilter::step`] moves the applied setpoint one tick toward the admitted target (or to rest when
 //!    braking) with a jerk-, acceleration- and velocity-bounded law, so even a clamped jump is reached smoothly.
+//!
+//! Velocity bounds may depend on position (the FR3's, see [`crate::velocity_limits`]). The filter plans with
+//! their braking *envelope*, tightened by the most its velocity law can lag a falling bound (A²/J: it follows
+//! a bound that drops at A/2 from A²/(2J) above, and twice that covers the transients), so the applied velocity
+//! meets the robot's bound at every position it reaches.
 
 use mars_ipc::{CommandMode, JointCommand, MAX_JOINTS};
 
 use crate::profile::{LimitPolicy, Profile};
+use crate::velocity_limits::{JointVelocityBound, VelocityLimits};
 
 /// Relative slack for floating-point rounding when comparing against a limit.
 const EPS: f64 = 1e-9;
@@ -29,6 +38,8 @@ pub enum Refusal {
     NotFinite { joint: usize, field: &'static str },
     #[error("gripper target is not a finite number")]
     GripperNotFinite,
+    #[error("gripper speed {0} is not a finite number ≥ 0")]
+    GripperSpeed(f64),
     #[error("joint {joint}: target position {value} outside [{min}, {max}]")]
     Position { joint: usize, value: f64, min: f64, max: f64 },
     #[error("joint {joint}: {quantity} {value} exceeds the limit {limit}")]
@@ -42,8 +53,12 @@ pub enum Refusal {
 pub struct Target {
     pub position: [f64; MAX_JOINTS],
     pub gripper: f64,
-    /// Whether anything had to be clamped.
+    pub gripper_speed: f64,
+    /// Whether anything had to be clamped because it was out of limits (counted in `clamped`).
     pub clamped: bool,
+    /// The step from the applied setpoint exceeds a rate limit, and the caller said that is timing (not counted
+    /// as clamped; `step` smooths it).
+    pub late_step: bool,
 }
 
 /// Limits and the applied setpoint (position, velocity, acceleration) of every joint.
@@ -51,9 +66,13 @@ pub struct SafetyFilter {
     n: usize,
     dt: f64,
     policy: LimitPolicy,
+    /// The positions a joint may be commanded to and rest in (`Profile::position_limits`, tightened with the
+    /// velocity bounds).
     q_min: [f64; MAX_JOINTS],
     q_max: [f64; MAX_JOINTS],
-    v_max: [f64; MAX_JOINTS],
+    /// The robot's velocity bounds, and the tightened ones the setpoint law plans with.
+    bound: [JointVelocityBound; MAX_JOINTS],
+    plan: [JointVelocityBound; MAX_JOINTS],
     a_max: [f64; MAX_JOINTS],
     j_max: [f64; MAX_JOINTS],
     g_min: f64,
@@ -80,15 +99,25 @@ fn arr(v: &[f64]) -> [f64; MAX_JOINTS] {
 }
 
 impl SafetyFilter {
-    /// A filter at rest at `start` (which must lie within the limits; the profile's `home` does).
+    /// A filter at rest at `start`: the measured position, which the caller has checked lies within
+    /// [`Self::position_range`] (see [`crate::control`]).
     pub fn new(p: &Profile, start: &[f64]) -> Self {
+        let unused = JointVelocityBound::new(VelocityLimits::Constant, 0, 1.0);
+        let (mut bound, mut plan) = ([unused; MAX_JOINTS], [unused; MAX_JOINTS]);
+        let (mut q_min, mut q_max) = ([0.0; MAX_JOINTS], [0.0; MAX_JOINTS]);
+        for (i, b) in p.velocity_bounds().into_iter().enumerate() {
+            bound[i] = b;
+            plan[i] = b.tightened(p.ddq_max[i] * p.ddq_max[i] / p.jerk_max[i]);
+            (q_min[i], q_max[i]) = plan[i].rest_range(p.q_min[i], p.q_max[i]);
+        }
         Self {
             n: p.joints,
             dt: p.period_s(),
             policy: p.limit_policy,
-            q_min: arr(&p.q_min),
-            q_max: arr(&p.q_max),
-            v_max: arr(&p.dq_max),
+            q_min,
+            q_max,
+            bound,
+            plan,
             a_max: arr(&p.ddq_max),
             j_max: arr(&p.jerk_max),
             g_min: p.gripper_min,
@@ -106,6 +135,11 @@ impl SafetyFilter {
         }
     }
 
+    /// The positions joint `i` may be commanded to and rest in.
+    pub fn position_range(&self, i: usize) -> (f64, f64) {
+        (self.q_min[i], self.q_max[i])
+    }
+
     pub fn position(&self) -> &[f64] {
         &self.q[..self.n]
     }
@@ -121,8 +155,9 @@ impl SafetyFilter {
     }
 
     /// Judge a `Position` command against the limits and the current setpoint; counts refusals and clamps.
-    pub fn admit(&mut self, cmd: &JointCommand) -> Result<Target, Refusal> {
-        let r = self.judge(cmd);
+    /// `timing`: a too-big step would be the command's timing, not its content (see [`Target::late_step`]).
+    pub fn admit(&mut self, cmd: &JointCommand, timing: bool) -> Result<Target, Refusal> {
+        let r = self.judge(cmd, timing);
         match &r {
             Err(_) => self.rejected += 1,
             Ok(t) if t.clamped => self.clamped += 1,
@@ -131,7 +166,7 @@ impl SafetyFilter {
         r
     }
 
-    fn judge(&self, cmd: &JointCommand) -> Result<Target, Refusal> {
+    fn judge(&self, cmd: &JointCommand, timing: bool) -> Result<Target, Refusal> {
         let n = self.n;
         if cmd.num_joints as usize != n {
             return Err(Refusal::JointCount { expected: n, found: cmd.num_joints });
@@ -150,8 +185,17 @@ impl SafetyFilter {
         if !cmd.gripper.is_finite() {
             return Err(Refusal::GripperNotFinite);
         }
+        if !(cmd.gripper_speed.is_finite() && cmd.gripper_speed >= 0.0) {
+            return Err(Refusal::GripperSpeed(cmd.gripper_speed));
+        }
         let reject = self.policy == LimitPolicy::Reject;
-        let mut t = Target { position: [0.0; MAX_JOINTS], gripper: cmd.gripper, clamped: false };
+        let mut t = Target {
+            position: [0.0; MAX_JOINTS],
+            gripper: cmd.gripper,
+            gripper_speed: cmd.gripper_speed,
+            clamped: false,
+            late_step: false,
+        };
         for i in 0..n {
             let (lo, hi) = (self.q_min[i], self.q_max[i]);
             let q = cmd.position[i];
@@ -163,29 +207,30 @@ impl SafetyFilter {
             }
             t.position[i] = q.clamp(lo, hi);
             // The controller's stated intent must itself be possible.
-            for (quantity, value, limit) in
-                [("velocity", cmd.velocity[i], self.v_max[i]), ("acceleration", cmd.acceleration[i], self.a_max[i])]
-            {
-                if value.abs() > limit * (1.0 + EPS) {
-                    if reject {
-                        return Err(Refusal::Rate { joint: i, quantity, value, limit });
-                    }
-                    t.clamped = true;
+            let (v_lo, v_hi) = self.bound[i].hard(t.position[i]);
+            let intent_v = cmd.velocity[i];
+            let v_limit = if intent_v >= 0.0 { v_hi } else { v_lo };
+            if intent_v > v_hi + EPS * v_hi.abs() || intent_v < v_lo - EPS * v_lo.abs() {
+                if reject {
+                    return Err(Refusal::Rate { joint: i, quantity: "velocity", value: intent_v, limit: v_limit });
                 }
+                t.clamped = true;
+            }
+            if cmd.acceleration[i].abs() > self.a_max[i] * (1.0 + EPS) {
+                if reject {
+                    let (value, limit) = (cmd.acceleration[i], self.a_max[i]);
+                    return Err(Refusal::Rate { joint: i, quantity: "acceleration", value, limit });
+                }
+                t.clamped = true;
             }
             // The step from the applied setpoint, differentiated like libfranka does, must be within limits.
-            let v = (t.position[i] - self.q[i]) / self.dt;
-            let a = (v - self.v[i]) / self.dt;
-            let j = (a - self.a[i]) / self.dt;
-            for (quantity, value, limit) in [
-                ("implied velocity", v, self.v_max[i]),
-                ("implied acceleration", a, self.a_max[i]),
-                ("implied jerk", j, self.j_max[i]),
-            ] {
-                if value.abs() > limit * (1.0 + EPS) {
-                    if reject {
-                        return Err(Refusal::Rate { joint: i, quantity, value, limit });
-                    }
+            if let Some((quantity, value, limit)) = self.step_excess(i, t.position[i]) {
+                if timing {
+                    // Timing, not content: smoothed by `step`, counted by the caller.
+                    t.late_step = true;
+                } else if reject {
+                    return Err(Refusal::Rate { joint: i, quantity, value, limit });
+                } else {
                     // Clamped by `step`, which never exceeds the limits on the way to the target.
                     t.clamped = true;
                 }
@@ -201,24 +246,44 @@ impl SafetyFilter {
         Ok(t)
     }
 
+    /// The first rate limit a one-tick step of joint `i` to `target` would exceed: (quantity, value, limit).
+    fn step_excess(&self, i: usize, target: f64) -> Option<(&'static str, f64, f64)> {
+        let v = (target - self.q[i]) / self.dt;
+        let a = (v - self.v[i]) / self.dt;
+        let j = (a - self.a[i]) / self.dt;
+        let (v_lo, v_hi) = self.bound[i].hard(target);
+        if v > v_hi + EPS * v_hi.abs() || v < v_lo - EPS * v_lo.abs() {
+            return Some(("implied velocity", v, if v >= 0.0 { v_hi } else { v_lo }));
+        }
+        if a.abs() > self.a_max[i] * (1.0 + EPS) {
+            return Some(("implied acceleration", a, self.a_max[i]));
+        }
+        if j.abs() > self.j_max[i] * (1.0 + EPS) {
+            return Some(("implied jerk", j, self.j_max[i]));
+        }
+        None
+    }
+
     fn reachable_in_one_tick(&self, t: &[f64; MAX_JOINTS]) -> bool {
         (0..self.n).all(|i| {
             let v = (t[i] - self.q[i]) / self.dt;
             let a = (v - self.v[i]) / self.dt;
-            let j = (a - self.a[i]) / self.dt;
+            let (am, jm) = (self.a_max[i], self.j_max[i]);
+            let (e_lo, e_hi) = self.plan[i].envelope(t[i], 0.5 * am);
             (self.q_min[i]..=self.q_max[i]).contains(&t[i])
-                && v.abs() <= self.v_max[i] * (1.0 + EPS)
-                && a.abs() <= self.a_max[i] * (1.0 + EPS)
-                && j.abs() <= self.j_max[i] * (1.0 + EPS)
-                // The cascade's invariant (libfranka's velocity-dependent acceleration bound), so that if a
-                // later target is not reachable in one tick, the cascade takes over from a state it can handle.
-                && a <= self.j_max[i] / self.a_max[i] * (self.v_max[i] - v) + EPS
-                && a >= self.j_max[i] / self.a_max[i] * (-self.v_max[i] - v) - EPS
+                && self.step_excess(i, t[i]).is_none()
+                // Within the envelope the cascade plans with, and within its velocity-dependent acceleration
+                // bound (libfranka's), so that if a later target is not reachable in one tick, the cascade takes
+                // over from a state it can handle…
+                && v <= e_hi + EPS
+                && v >= e_lo - EPS
+                && a <= jm / am * (e_hi - v) + EPS
+                && a >= jm / am * (e_lo - v) - EPS
                 // … and one from which the cascade can still stop before the position limit it is heading for
                 // (braking at half the acceleration limit after the jerk-limited ramp), should the stream end.
                 && {
                     let room = if v >= 0.0 { self.q_max[i] - t[i] } else { t[i] - self.q_min[i] };
-                    v * v / self.a_max[i] + v.abs() * self.a_max[i] / self.j_max[i] <= room
+                    v * v / am + v.abs() * am / jm <= room
                 }
         })
     }
@@ -244,23 +309,30 @@ impl SafetyFilter {
         }
         for i in 0..self.n {
             let (q, v, a) = (self.q[i], self.v[i], self.a[i]);
-            let (vm, am, jm) = (self.v_max[i], self.a_max[i], self.j_max[i]);
+            let (am, jm) = (self.a_max[i], self.j_max[i]);
+            // This tick's velocity bounds: the envelope where the joint can get to this tick (it only narrows
+            // toward a limit, so a velocity within it is within the envelope wherever the step ends).
+            let (lo0, hi0) = self.plan[i].envelope(q, 0.5 * am);
+            let v_hi = self.plan[i].envelope(q + hi0.max(0.0) * dt, 0.5 * am).1;
+            let v_lo = self.plan[i].envelope(q + lo0.min(0.0) * dt, 0.5 * am).0;
             // Cascade toward the target, critically damped near it (ω = 2·kp) and, far from it, braking
             // along v = √(A·e), i.e. at half the acceleration limit, leaving room for the jerk-limited ramp.
             let v_des = match target {
                 Some(t) => {
                     let e = t[i] - q;
-                    e.signum() * (self.kp * e.abs()).min((am * e.abs()).sqrt()).min(vm)
+                    e.signum() * (self.kp * e.abs()).min((am * e.abs()).sqrt())
                 }
                 None => 0.0,
-            };
+            }
+            .max(v_lo)
+            .min(v_hi);
             // a = √(J·|Δv|) lets the acceleration ramp back to zero, at half the jerk limit, as v arrives.
             let ev = v_des - v;
             let a_des = ev.signum() * (self.kv * ev.abs()).min((jm * ev.abs()).sqrt()).min(am);
             // Feasible accelerations this tick: jerk bound, acceleration bound, and libfranka's
             // velocity-dependent bound a ≤ (J/A)(V − v), which keeps |v| ≤ V without a jerk spike.
-            let hi = (a + jm * dt).min(am).min(jm / am * (vm - v));
-            let lo = (a - jm * dt).max(-am).max(jm / am * (-vm - v));
+            let hi = (a + jm * dt).min(am).min(jm / am * (v_hi - v));
+            let lo = (a - jm * dt).max(-am).max(jm / am * (v_lo - v));
             let mut a_new = if lo <= hi {
                 a_des.clamp(lo, hi)
             } else {
@@ -320,13 +392,13 @@ mod tests {
             let mut f = SafetyFilter::new(&p, &p.home);
             let mut c = cmd(&p.home);
             c.position[3] = f64::NAN;
-            assert_eq!(f.admit(&c), Err(Refusal::NotFinite { joint: 3, field: "position" }));
+            assert_eq!(f.admit(&c, false), Err(Refusal::NotFinite { joint: 3, field: "position" }));
             let mut c = cmd(&p.home);
             c.velocity[0] = f64::INFINITY;
-            assert_eq!(f.admit(&c), Err(Refusal::NotFinite { joint: 0, field: "velocity" }));
+            assert_eq!(f.admit(&c, false), Err(Refusal::NotFinite { joint: 0, field: "velocity" }));
             let mut c = cmd(&p.home);
             c.gripper = f64::NAN;
-            assert_eq!(f.admit(&c), Err(Refusal::GripperNotFinite));
+            assert_eq!(f.admit(&c, false), Err(Refusal::GripperNotFinite));
             assert_eq!(f.rejected, 3);
         }
     }
@@ -335,10 +407,10 @@ mod tests {
     fn wrong_joint_count_and_unknown_mode_are_refused() {
         let p = fr3();
         let mut f = SafetyFilter::new(&p, &p.home);
-        assert_eq!(f.admit(&cmd(&p.home[..6])), Err(Refusal::JointCount { expected: 7, found: 6 }));
+        assert_eq!(f.admit(&cmd(&p.home[..6]), false), Err(Refusal::JointCount { expected: 7, found: 6 }));
         let mut c = cmd(&p.home);
         c.mode = 9;
-        assert_eq!(f.admit(&c), Err(Refusal::UnknownMode(9)));
+        assert_eq!(f.admit(&c, false), Err(Refusal::UnknownMode(9)));
     }
 
     #[test]
@@ -348,14 +420,17 @@ mod tests {
         let mut f = SafetyFilter::new(&p, &p.home);
         let mut q = p.home.clone();
         q[3] = 0.0; // joint 4 of the FR3 must stay below −0.1169
-        assert!(matches!(f.admit(&cmd(&q)), Err(Refusal::Position { joint: 3, .. })));
+        assert!(matches!(f.admit(&cmd(&q), false), Err(Refusal::Position { joint: 3, .. })));
         assert_eq!((f.rejected, f.clamped), (1, 0));
 
         p.limit_policy = LimitPolicy::Clamp;
         let mut f = SafetyFilter::new(&p, &p.home);
-        let t = f.admit(&cmd(&q)).unwrap();
+        let t = f.admit(&cmd(&q), false).unwrap();
         assert!(t.clamped);
-        assert_eq!(t.position[3], -0.1169);
+        // Into the range where the FR3's joint 4 may rest: a little below its q_max of −0.1169 rad, where the
+        // braking curve's bound reaches zero.
+        assert_eq!(t.position[3], f.position_range(3).1);
+        assert!(t.position[3] < -0.1169 && t.position[3] > -0.17, "{}", t.position[3]);
         assert_eq!((f.rejected, f.clamped), (0, 1));
     }
 
@@ -366,15 +441,61 @@ mod tests {
         let mut f = SafetyFilter::new(&p, &p.home);
         let mut q = p.home.clone();
         q[0] += 0.1; // 100 rad/s implied at 1 kHz
-        assert!(matches!(f.admit(&cmd(&q)), Err(Refusal::Rate { joint: 0, quantity: "implied velocity", .. })));
+        assert!(matches!(f.admit(&cmd(&q), false), Err(Refusal::Rate { joint: 0, quantity: "implied velocity", .. })));
         q[0] = p.home[0] + 1e-3 * 1e-3 * 1e-3 * 1000.0; // 1e-6 rad: jerk 1000 rad/s³ from rest
-        assert!(f.admit(&cmd(&q)).is_ok());
+        assert!(f.admit(&cmd(&q), false).is_ok());
         let mut c = cmd(&p.home);
         c.velocity[1] = 3.0;
-        assert!(matches!(f.admit(&c), Err(Refusal::Rate { joint: 1, quantity: "velocity", .. })));
+        assert!(matches!(f.admit(&c, false), Err(Refusal::Rate { joint: 1, quantity: "velocity", .. })));
         let mut c = cmd(&p.home);
         c.gripper = 0.5;
-        assert!(matches!(f.admit(&c), Err(Refusal::Gripper { .. })));
+        assert!(matches!(f.admit(&c, false), Err(Refusal::Gripper { .. })));
+        for speed in [-0.1, f64::NAN] {
+            let mut c = cmd(&p.home);
+            c.gripper = 0.04;
+            c.gripper_speed = speed;
+            assert!(matches!(f.admit(&c, false), Err(Refusal::GripperSpeed(_))), "speed {speed}");
+        }
+    }
+
+    /// A jump that is too big for one tick is the controller's fault when it is on time (clamped, or refused
+    /// under `reject`), and timing's when it answered an old frame: then it is smoothed and not counted.
+    #[test]
+    fn a_late_jump_is_smoothed_but_not_counted_as_out_of_limits() {
+        for policy in [LimitPolicy::Clamp, LimitPolicy::Reject] {
+            let mut p = fr3();
+            p.limit_policy = policy;
+            let mut f = SafetyFilter::new(&p, &p.home);
+            let mut q = p.home.clone();
+            q[0] += 0.01;
+            let t = f.admit(&cmd(&q), true).unwrap();
+            assert!(t.late_step && !t.clamped, "{policy:?}");
+            assert_eq!((f.clamped, f.rejected), (0, 0), "{policy:?}");
+            assert_ne!(f.step(Some(&t.position))[0], q[0], "smoothed, not applied");
+            // The same jump on time is out of limits.
+            let on_time = f.admit(&cmd(&q), false);
+            assert_eq!(f.clamped + f.rejected, 1, "{policy:?}: {on_time:?}");
+        }
+    }
+
+    /// The FR3's velocity bound depends on position: a command whose stated velocity is fine in the middle of
+    /// joint 1's range is out of limits near its end.
+    #[test]
+    fn the_fr3_velocity_intent_is_judged_at_the_target_position() {
+        let mut p = fr3();
+        p.limit_policy = LimitPolicy::Reject;
+        let mut f = SafetyFilter::new(&p, &p.home);
+        let mut c = cmd(&p.home);
+        c.velocity[0] = 2.0;
+        assert!(f.admit(&c, false).is_ok());
+        c.position[0] = 2.7;
+        match f.admit(&c, false) {
+            Err(Refusal::Rate { joint: 0, quantity: "velocity", value, limit }) => {
+                assert_eq!(value, 2.0);
+                assert!(limit < 0.5, "{limit}");
+            }
+            other => panic!("{other:?}"),
+        }
     }
 
     /// Random, often wild targets (inside the position limits after admission): the applied setpoint never
@@ -384,27 +505,37 @@ mod tests {
         let r1 = Profile::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/r1_lite.toml")).unwrap();
         for mut p in [fr3(), r1] {
             p.limit_policy = LimitPolicy::Clamp;
-            random_targets_stay_within_limits(&p);
+            random_targets_stay_within_limits(&p, 20_000, 700, 7);
+            // Targets switched often, mid-motion: the hardest case for a falling velocity bound.
+            random_targets_stay_within_limits(&p, 20_000, 97, 11);
         }
     }
 
-    fn random_targets_stay_within_limits(p: &Profile) {
+    /// Targets drawn over the whole range and up to 20 % beyond it (so clamping is exercised), switched every
+    /// `hold` ticks, with braking phases; half of them at a position limit itself (where the FR3's velocity bound
+    /// narrows). Every tick's finite differences are checked against the robot's own bounds, the velocity one at
+    /// the position reached (independently of the filter's planning envelope).
+    fn random_targets_stay_within_limits(p: &Profile, ticks: usize, hold: usize, seed: u64) {
         let mut f = SafetyFilter::new(p, &p.home);
-        let mut rng = Lcg(7);
+        let bounds = p.velocity_bounds();
+        let mut rng = Lcg(seed);
         let dt = p.period_s();
         let mut target = [0.0; MAX_JOINTS];
         let (mut v_prev, mut a_prev) = ([0.0; MAX_JOINTS], [0.0; MAX_JOINTS]);
         let mut q_prev = arr(&p.home);
-        for tick in 0..20_000 {
-            if tick % 700 == 0 {
+        for tick in 0..ticks {
+            if tick % hold == 0 {
                 let mut q = vec![0.0; p.joints];
                 #[allow(clippy::needless_range_loop)]
                 for i in 0..p.joints {
-                    // Up to 20 % beyond the range on either side, so clamping is exercised.
                     let span = p.q_max[i] - p.q_min[i];
-                    q[i] = p.q_min[i] - 0.2 * span + 1.4 * span * rng.unit();
+                    q[i] = match (rng.unit() * 4.0) as u32 {
+                        0 => p.q_min[i] - 0.2 * span * rng.unit(),
+                        1 => p.q_max[i] + 0.2 * span * rng.unit(),
+                        _ => p.q_min[i] - 0.2 * span + 1.4 * span * rng.unit(),
+                    };
                 }
-                target = f.admit(&cmd(&q)).unwrap().position;
+                target = f.admit(&cmd(&q), false).unwrap().position;
             }
             let braking = tick % 2900 > 2500;
             let q = arr(f.step(if braking { None } else { Some(&target) }));
@@ -412,8 +543,13 @@ mod tests {
                 let v = (q[i] - q_prev[i]) / dt;
                 let a = (v - v_prev[i]) / dt;
                 let j = (a - a_prev[i]) / dt;
+                let (v_lo, v_hi) = bounds[i].hard(q[i]);
                 assert!(q[i] >= p.q_min[i] && q[i] <= p.q_max[i], "tick {tick} joint {i}: q {}", q[i]);
-                assert!(v.abs() <= p.dq_max[i] * (1.0 + 1e-6), "tick {tick} joint {i}: v {v}");
+                assert!(
+                    v <= v_hi + 1e-9 && v >= v_lo - 1e-9,
+                    "tick {tick} joint {i}: v {v} at q {} not in [{v_lo}, {v_hi}]",
+                    q[i]
+                );
                 assert!(a.abs() <= p.ddq_max[i] * (1.0 + 1e-6), "tick {tick} joint {i}: a {a}");
                 assert!(j.abs() <= p.jerk_max[i] * (1.0 + 1e-6), "tick {tick} joint {i}: j {j}");
                 v_prev[i] = v;
@@ -421,7 +557,7 @@ mod tests {
             }
             q_prev = q;
         }
-        assert_eq!(f.position_guard_hits, 0);
+        assert_eq!((f.position_guard_hits, f.infeasible_steps), (0, 0));
     }
 
     /// A stream that respects every limit (a slow sine) is applied exactly, tick for tick, and never counted as
@@ -433,12 +569,12 @@ mod tests {
         let mut q = p.home.clone();
         for k in 0..2000 {
             q[0] = p.home[0] + 0.2 * (1.0 - (k as f64 * 1e-3 * std::f64::consts::PI).cos());
-            let t = f.admit(&cmd(&q)).unwrap().position;
+            let t = f.admit(&cmd(&q), false).unwrap().position;
             assert_eq!(f.step(Some(&t))[0], q[0], "tick {k}");
         }
         assert_eq!(f.clamped, 0);
         q[0] += 2.0 * (q[0] - f.position()[0]) + 1e-3; // a skipped tick: twice the step and more
-        let t = f.admit(&cmd(&q)).unwrap().position;
+        let t = f.admit(&cmd(&q), false).unwrap().position;
         assert_ne!(f.step(Some(&t))[0], q[0]);
         assert_eq!(f.clamped, 1);
     }
@@ -449,7 +585,7 @@ mod tests {
         let mut f = SafetyFilter::new(&p, &p.home);
         let mut q = p.home.clone();
         q[0] += 0.5;
-        let t = f.admit(&cmd(&q)).unwrap().position;
+        let t = f.admit(&cmd(&q), false).unwrap().position;
         for _ in 0..2000 {
             f.step(Some(&t));
         }
@@ -457,7 +593,7 @@ mod tests {
         assert!(f.at_rest());
         // Start moving, then brake: at rest within a second at FR3's limits.
         q[0] -= 1.0;
-        let t = f.admit(&cmd(&q)).unwrap().position;
+        let t = f.admit(&cmd(&q), false).unwrap().position;
         for _ in 0..300 {
             f.step(Some(&t));
         }
@@ -475,14 +611,14 @@ mod tests {
         // A setpoint far faster than the limit (no command can cause it; a corrupted state could) leaves no
         // acceleration within every bound: the filter takes the middle of the empty interval and counts it.
         let mut f = SafetyFilter::new(&p, &p.home);
-        f.v[0] = 3.0 * f.v_max[0];
+        f.v[0] = 3.0 * p.dq_max[0];
         f.step(None);
         assert!(f.infeasible_steps >= 1, "{}", f.infeasible_steps);
         assert_eq!(f.position_guard_hits, 0);
         // A joint at full speed a micro-radian below its limit cannot stop in one tick: the guard stops it there.
         let mut g = SafetyFilter::new(&p, &p.home);
         g.q[0] = g.q_max[0] - 1e-6;
-        g.v[0] = g.v_max[0];
+        g.v[0] = p.dq_max[0];
         g.step(None);
         assert_eq!(g.position_guard_hits, 1);
         assert_eq!(g.position()[0], g.q_max[0]);

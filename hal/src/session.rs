@@ -100,6 +100,17 @@ impl Supervisor {
         false
     }
 
+    /// An error of the HAL itself (its backend or its ports): the active session ends at once, braking to rest
+    /// and holding with [`HoldReason::HalError`]; a new session resumes as after any hold. Returns true if a
+    /// session was ended.
+    pub fn on_hal_error(&mut self) -> bool {
+        if let Mode::Active { session } = self.mode {
+            self.mode = Mode::Holding { session, reason: HoldReason::HalError };
+            return true;
+        }
+        false
+    }
+
     /// Called once per tick; returns true when the session just timed out.
     pub fn on_tick(&mut self, now_ns: u64) -> bool {
         if let Mode::Active { session } = self.mode
@@ -163,6 +174,18 @@ mod tests {
         assert!(!s.on_controller_lost(14 * MS, 2 * MS));
         assert_eq!(s.on_command(4, false, MS), Decision::StaleSession);
         assert_eq!(s.on_command(5, false, MS), Decision::Follow);
+    }
+
+    #[test]
+    fn a_hal_error_ends_the_session_and_a_new_one_resumes() {
+        let mut s = Supervisor::new(20 * MS);
+        assert!(!s.on_hal_error(), "nothing to end while idle");
+        s.on_command(3, false, 0);
+        assert!(s.on_hal_error());
+        assert_eq!(s.mode(), Mode::Holding { session: 3, reason: HoldReason::HalError });
+        assert!(!s.on_hal_error(), "reported once");
+        assert_eq!(s.on_command(3, false, MS), Decision::StaleSession);
+        assert_eq!(s.on_command(4, false, MS), Decision::Follow);
     }
 
     #[test]

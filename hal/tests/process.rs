@@ -11,10 +11,8 @@ use mars_hal::profile::Profile;
 use mars_ipc::node::create_node;
 use mars_ipc::*;
 
-// One real-time rig at a time on this machine, across test binaries (see the file).
-#[path = "../../testing/rt_rig_lock.rs"]
-#[allow(dead_code)] // not every helper is used here
-mod rt_rig_lock;
+// One real-time rig at a time on this machine, across test binaries (see `mars_rt::rig_lock`).
+use mars_rt::rig_lock::{RtRigLock, rt_rig_lock};
 
 fn profile_path(name: &str) -> String {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs").join(name).display().to_string()
@@ -43,7 +41,7 @@ struct Rig {
     profile: Profile,
     hal: Proc,
     /// Declared last: released after the HAL was killed.
-    _rt: rt_rig_lock::RtRigLock,
+    _rt: RtRigLock,
 }
 
 impl Rig {
@@ -58,7 +56,7 @@ impl Rig {
 
     /// Start `mars-hal` with the profile file at `path`.
     fn start_at(path: &str, extra: &[&str]) -> Self {
-        let rt = rt_rig_lock::rt_rig_lock();
+        let rt = rt_rig_lock().expect("taking the real-time rig lock");
         let robot = unique_robot();
         let ns = RobotNamespace::new(&robot).unwrap();
         let (node, _) = create_node("hal-test").unwrap();
@@ -157,22 +155,23 @@ fn a_valid_command_stream_is_tracked() {
 #[test]
 fn every_bad_command_is_refused_and_never_applied() {
     let rig = Rig::start("r1_lite.toml"); // limit_policy = "reject"
-    let home = rig.profile.home.clone();
     let before = rig.latest();
+    // Each answers the newest frame (so none is late) and starts from the HAL's own setpoint.
+    let (here, seq) = (before.applied_position[..6].to_vec(), before.seq);
     let send = |c: JointCommand| rig.commands.send(&c).unwrap();
-    let mut nan = JointCommand::position(5, 1, 0, &home);
+    let mut nan = JointCommand::position(5, 1, seq, &here);
     nan.position[2] = f64::NAN;
     send(nan);
-    let mut beyond = JointCommand::position(5, 2, 0, &home);
+    let mut beyond = JointCommand::position(5, 2, seq, &here);
     beyond.position[0] = rig.profile.q_max[0] + 0.1;
     send(beyond);
-    let mut jump = JointCommand::position(5, 3, 0, &home);
+    let mut jump = JointCommand::position(5, 3, seq, &here);
     jump.position[1] += 0.5; // 100 rad/s implied at 200 Hz
     send(jump);
-    let mut fast = JointCommand::position(5, 4, 0, &home);
+    let mut fast = JointCommand::position(5, 4, seq, &here);
     fast.velocity[3] = 10.0;
     send(fast);
-    send(JointCommand::position(5, 5, 0, &home[..5])); // wrong joint count
+    send(JointCommand::position(5, 5, seq, &here[..5])); // wrong joint count
     let s = rig.wait_for("five refusals", Duration::from_secs(5), |s| s.rejected_commands >= 5);
     assert_eq!(s.rejected_commands, 5);
     assert_eq!(s.session, 0, "no refused command may start a session");
@@ -360,16 +359,23 @@ fn nan_sensor_is_flagged_and_never_reaches_the_applied_setpoint() {
     }
 }
 
-/// FR3 with a command timeout of `ms`, written to a temp file that is removed when dropped.
+/// An FR3 profile changed for one test, written to a temp file that is removed when dropped.
 struct TempProfile(std::path::PathBuf);
 impl TempProfile {
-    fn fr3_with_timeout(ms: u32) -> Self {
+    /// The FR3 profile with `from` replaced by `to` (which must occur).
+    fn fr3_with(from: &str, to: &str) -> Self {
         let text = std::fs::read_to_string(profile_path("fr3.toml")).unwrap();
-        let text = text.replace("command_timeout_ms = 20.0", &format!("command_timeout_ms = {ms}.0"));
-        assert!(text.contains(&format!("command_timeout_ms = {ms}.0")));
+        assert!(text.contains(from), "{from:?} not in fr3.toml");
         let path = std::env::temp_dir().join(format!("{}.toml", unique_robot()));
-        std::fs::write(&path, text).unwrap();
+        std::fs::write(&path, text.replacen(from, to, 1)).unwrap();
         Self(path)
+    }
+    fn fr3_with_timeout(ms: u32) -> Self {
+        Self::fr3_with("command_timeout_ms = 20.0", &format!("command_timeout_ms = {ms}.0"))
+    }
+    /// The sim arm starts at `q` with the gripper at `gripper` (as a real arm the HAL finds there).
+    fn fr3_starting_at(q: &[f64], gripper: f64) -> Self {
+        Self::fr3_with("[sim]\n", &format!("[sim]\nstart = {q:?}\nstart_gripper = {gripper}\n"))
     }
     fn path(&self) -> String {
         self.0.display().to_string()
@@ -600,14 +606,14 @@ fn core_flag_pins_the_loop_thread() {
 #[test]
 fn a_command_answering_an_old_frame_is_counted_late_not_out_of_limits() {
     let rig = Rig::start("fr3.toml");
-    let home = rig.profile.home.clone();
-    // On time: answers the newest frame.
+    // On time: answers the newest frame, holding the HAL's own setpoint (the measured start).
     let s = rig.latest();
-    rig.commands.send(&JointCommand::position(9, 1, s.seq, &home)).unwrap();
+    let here = s.applied_position[..7].to_vec();
+    rig.commands.send(&JointCommand::position(9, 1, s.seq, &here)).unwrap();
     let s = rig.wait_for("the session", Duration::from_secs(5), |f| f.session == 9 && f.last_command_seq == 1);
     assert_eq!(s.late_commands, 0);
     // Late: answers a frame 50 ticks old (the same target, so nothing about it is out of limits).
-    rig.commands.send(&JointCommand::position(9, 2, s.seq.saturating_sub(50), &home)).unwrap();
+    rig.commands.send(&JointCommand::position(9, 2, s.seq.saturating_sub(50), &here)).unwrap();
     let s = rig.wait_for("the late command", Duration::from_secs(5), |f| f.last_command_seq == 2);
     assert_eq!(s.late_commands, 1);
     assert_eq!((s.rejected_commands, s.clamped_commands), (0, 0));
@@ -629,4 +635,110 @@ fn a_stopped_and_continued_hal_keeps_running() {
     let later = rig.wait_for("frames after SIGCONT", Duration::from_secs(5), |f| f.seq > s.seq + 200);
     assert!(later.seq > s.seq);
     assert!(rig.hal.0.try_wait().unwrap().is_none(), "the HAL exited after SIGCONT");
+}
+
+/// A restarted HAL (systemd's `Restart=on-failure`) finds the arm wherever it is: it holds it there and leaves
+/// the gripper as it is, it does not jump to `home` or close the gripper.
+#[test]
+fn the_hal_starts_from_the_measured_pose_and_gripper_not_from_home() {
+    let start = [0.3, -0.2, 0.1, -2.0, 0.2, 1.9, 0.5];
+    let profile = TempProfile::fr3_starting_at(&start, 0.031);
+    let rig = Rig::start_at(&profile.path(), &[]);
+    let frames = collect(&rig, Duration::from_secs(5), |s| s.seq >= 300);
+    assert!(frames.len() > 100, "{} frames", frames.len());
+    // The setpoint is the first measurement (the sim's noise is 1e-5 rad) and never changes.
+    let held = frames[0].applied_position;
+    for s in &frames {
+        assert_eq!(s.session, 0);
+        assert_eq!(s.applied_position, held, "seq {}", s.seq);
+        for (i, q) in start.iter().enumerate() {
+            assert!((held[i] - q).abs() < 1e-4, "joint {i}: holds {} not the measured {q}", held[i]);
+            assert!((s.position[i] - q).abs() < 1e-3, "the arm stays where it was: {}", s.position[i]);
+        }
+        assert_eq!(s.gripper_target, 0.031, "seq {}", s.seq);
+        assert!((s.gripper - 0.031).abs() < 1e-12, "the gripper stays where it was: {}", s.gripper);
+    }
+}
+
+/// A measured pose outside the limits: mars-hal refuses to start, says why, publishes and commands nothing.
+#[test]
+fn a_start_outside_the_limits_is_refused_and_nothing_is_commanded() {
+    let _rt = rt_rig_lock().expect("taking the real-time rig lock");
+    let profile = TempProfile::fr3_starting_at(&[0.0, -0.7854, 0.0, -0.05, 0.0, 1.5708, 0.7854], 0.04);
+    let robot = unique_robot();
+    let ns = RobotNamespace::new(&robot).unwrap();
+    let (node, _) = create_node("hal-test").unwrap();
+    let states = StateReader::new(&node, &ns).unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_mars-hal"))
+        .args(["--profile", &profile.path(), "--robot", &robot, "--duration-s", "5"])
+        .env("RUST_LOG", "warn")
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{stderr}");
+    assert!(
+        stderr.contains("joint 3 is at -0.0500 rad, outside") && stderr.contains("nothing was commanded"),
+        "{stderr}"
+    );
+    assert!(states.receive().unwrap().is_none(), "a HAL that refused to start published a frame");
+}
+
+/// A streaming controller; the backend's read fails for 5 ticks while the arm moves. The HAL brakes to rest and
+/// holds (HalError), flags the frames, keeps running, and follows a new session afterwards.
+#[test]
+fn a_backend_error_while_moving_brakes_and_holds_and_the_hal_keeps_running() {
+    let rig = Rig::start_with("fr3.toml", &["--read-error-at-tick", "1200", "--read-error-ticks", "5"]);
+    let start = rig.latest();
+    let here = start.applied_position[..7].to_vec();
+    // Moving at ~0.2 rad/s on every joint when the errors come (tick 1200 ≈ 1.2 s after the start).
+    let last = rig.stream(1, 2.0, |t| here.iter().map(|h| h + 0.2 * t).collect());
+    assert!(last.seq > 1300, "the stream outlived the errors: {}", last.seq);
+    let frames = collect(&rig, Duration::from_secs(2), |s| s.seq > last.seq + 1000);
+    let s = rig.wait_for("the hold", Duration::from_secs(1), |s| s.seq >= last.seq);
+    assert_eq!(s.hold_reason, HoldReason::HalError as u32, "{s:?}");
+    assert!(s.is(status::BACKEND_ERROR) && s.is(status::HOLDING) && s.is(status::AT_REST), "{s:?}");
+    assert_eq!(s.backend_errors, 5);
+    assert!(frames.iter().all(|f| f.fault == 0), "reads work again after the 5 errors");
+    // A new session is followed.
+    let held = s.applied_position[..7].to_vec();
+    let resumed = rig.stream(2, 0.3, |_| held.clone());
+    let s = rig.wait_for("the new session", Duration::from_secs(1), |s| s.seq > resumed.seq);
+    assert_eq!((s.session, s.hold_reason), (2, HoldReason::None as u32));
+}
+
+/// The backend fails for good while the arm moves: the HAL brakes to rest, publishes that, then exits 1 saying
+/// why (and only then).
+#[test]
+fn a_fatal_backend_error_brakes_to_rest_and_then_exits() {
+    let mut rig = Rig::start_with("fr3.toml", &["--fatal-at-tick", "1000"]);
+    let start = rig.latest();
+    let here = start.applied_position[..7].to_vec();
+    // Stream a motion (~0.3 rad/s on every joint) and keep every frame until the process ends.
+    let (t0, mut seq, mut frames) = (Instant::now(), 0, Vec::new());
+    let status = loop {
+        while let Some(f) = rig.states.receive().unwrap() {
+            seq += 1;
+            let t = t0.elapsed().as_secs_f64();
+            let q: Vec<f64> = here.iter().map(|h| h - 0.3 * t).collect();
+            rig.commands.send(&JointCommand::position(1, seq, f.seq, &q)).unwrap();
+            frames.push(f);
+        }
+        if let Some(status) = rig.hal.0.try_wait().unwrap() {
+            break status;
+        }
+        assert!(t0.elapsed() < Duration::from_secs(10), "mars-hal still running 10 s after its backend failed");
+        std::thread::sleep(Duration::from_micros(200));
+    };
+    while let Some(f) = rig.states.receive().unwrap() {
+        frames.push(f);
+    }
+    assert_eq!(status.code(), Some(1), "{status:?}");
+    let moving = frames.iter().find(|f| f.seq == 1000).expect("the frame of the failure");
+    assert!(moving.applied_velocity[..7].iter().all(|v| v.abs() > 0.2), "moving when it failed: {moving:?}");
+    let after: Vec<&RobotState> = frames.iter().filter(|f| f.seq > 1000).collect();
+    let last = after.last().expect("frames after the failure");
+    assert!(last.is(status::AT_REST), "the last frame before the exit is at rest: {last:?}");
+    assert_eq!(last.hold_reason, HoldReason::HalError as u32);
+    assert!(after.iter().all(|f| f.fault & fault::NO_MEASUREMENT != 0), "every frame after the failure is flagged");
+    assert!(after.len() > 50, "it braked over {} frames before exiting", after.len());
 }

@@ -10,10 +10,12 @@
 //! - [`names`]: the per-robot service namespace.
 //! - [`wire`]: typed publishers/subscribers for state, command and camera frames.
 //! - [`liveness`]: heartbeats over iceoryx2 events and a WaitSet watch that tells when the other side died.
+//! - [`heartbeat_thread`]: a loop's heartbeat beaten from an ordinary thread while the loop makes progress.
 //! - [`node`]: node creation that first cleans up what dead processes left behind.
 
 pub mod clock;
 pub mod command;
+pub mod heartbeat_thread;
 pub mod image;
 pub mod liveness;
 pub mod names;
@@ -23,6 +25,7 @@ pub mod state;
 pub mod wire;
 
 pub use command::{CommandMode, JointCommand};
+pub use heartbeat_thread::{HeartbeatReport, HeartbeatThread};
 pub use image::{ImageEncoding, ImageHeader};
 pub use liveness::{ControllerLiveness, HalLiveness, Heartbeat, Peer, PeerWatch, Side};
 pub use names::{NameError, RobotNamespace};

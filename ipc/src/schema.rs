@@ -12,7 +12,8 @@ use iceoryx2::prelude::ZeroCopySend;
 /// v3: `RobotState::applied_velocity` / `applied_acceleration`.
 /// v4: late / last-resort / backend-error counters, `status::LAST_RESORT` and `BACKEND_ERROR`,
 /// `HoldReason::HalError`, `RobotState::gripper_target`, `JointCommand::gripper_speed`.
-pub const SCHEMA_VERSION: u32 = 4;
+/// v5: `fault::NO_MEASUREMENT`, `RobotState::duplicate_commands`; the gripper fields are a target, sent on change.
+pub const SCHEMA_VERSION: u32 = 5;
 
 /// The iceoryx2 user header of state and command frames.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ZeroCopySend)]

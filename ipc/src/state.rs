@@ -31,6 +31,8 @@ pub mod fault {
     pub const NAN_SENSOR: u32 = 1 << 1;
     /// The HAL found a non-finite measured position or velocity, whatever the backend said.
     pub const NON_FINITE_MEASUREMENT: u32 = 1 << 2;
+    /// The backend could not read the robot this tick: the measurements are the last ones read.
+    pub const NO_MEASUREMENT: u32 = 1 << 3;
 }
 
 /// Why the HAL is holding, in [`RobotState::hold_reason`].
@@ -104,6 +106,10 @@ pub struct RobotState {
     /// Commands that reached the HAL after the tick they answered for had passed (their `state_seq` was not
     /// the newest frame's): counted apart from out-of-limit commands, since the cause is timing, not content.
     pub late_commands: u64,
+    /// Position commands that answered a frame an earlier followed command had already answered (the controller
+    /// ticked twice between two frames, so the second is a tick ahead): the first is the tick's command, these
+    /// are not followed. Counted apart from out-of-limit and late commands.
+    pub duplicate_commands: u64,
     /// Ticks in which the safety filter's position guard stopped a joint at its limit, breaking the
     /// acceleration/jerk limits on purpose (a last resort; expected to stay 0).
     pub position_guard_hits: u64,
@@ -139,6 +145,7 @@ impl Default for RobotState {
             rejected_commands: 0,
             clamped_commands: 0,
             late_commands: 0,
+            duplicate_commands: 0,
             position_guard_hits: 0,
             infeasible_steps: 0,
             backend_errors: 0,

@@ -5,7 +5,7 @@
 //! systemd notifications (`READY=1` after the HAL handshake, `WATCHDOG=1` only while both loops make progress
 //! and nothing tripped — the sd-notify crate allocates and opens a socket per call), log lines for trips as
 //! soon as the servo publishes them, and the handshake timeout. The iceoryx2 liveness heartbeat beats from a
-//! thread of its own ([`crate::heartbeat`]), only while the servo loop advances.
+//! thread of its own ([`mars_ipc::heartbeat_thread`]), only while the servo loop advances.
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -15,11 +15,11 @@ use std::time::{Duration, Instant};
 use anyhow::Context;
 use mars_engine::{Engine, EngineConfig};
 use mars_hal::profile::Profile;
+use mars_ipc::{HeartbeatThread, Side};
 use tracing::{error, info};
 
 use crate::chunk::{MAX_ACTION, MAX_CHUNK, TimedChunk};
 use crate::config::DaemonConfig;
-use crate::heartbeat::HeartbeatThread;
 use crate::latency::{Channel, Collector};
 use crate::policy_loop::{PolicyChannels, PolicyLoop};
 use crate::report::Summary;
@@ -142,15 +142,20 @@ pub fn run(p: Prepared) -> anyhow::Result<Outcome> {
         .context("spawning the servo thread")?;
     opened_rx.recv().context("the servo thread died while opening the wire")??;
     // Beats while the servo's tick counter advances; a syscall the servo thread does not make itself.
-    let heartbeat = match HeartbeatThread::start(&cfg.robot, status.clone()) {
-        Ok(h) => h,
-        Err(e) => {
-            // Nothing was commanded yet: the servo loop ends at once on a stop request before the handshake.
-            status.stop_requested.store(true, Ordering::Release);
-            let _ = servo.join();
-            return Err(e);
-        }
-    };
+    let ticks = status.clone();
+    let progress = move || ticks.ticks.load(Ordering::Acquire);
+    let heartbeat =
+        match HeartbeatThread::start(&cfg.robot, Side::Controller, &format!("marsd-{}", cfg.robot), progress)
+            .context("opening the liveness heartbeat")
+        {
+            Ok(h) => h,
+            Err(e) => {
+                // Nothing was commanded yet: the servo loop ends at once on a stop request before the handshake.
+                status.stop_requested.store(true, Ordering::Release);
+                let _ = servo.join();
+                return Err(e);
+            }
+        };
     // Signals only set flags; the main thread turns them into a safe stop. A second SIGINT/SIGTERM while
     // stopping exits at once (status 1); the HAL then brakes on command loss. Registered after the wire is
     // open: `ServoWire::open` makes iceoryx2 install its own handlers, which replace whatever is there, and

@@ -4,11 +4,10 @@
 //! the servo thread shares the newest usable state with the [`policy_loop`] through [`shared`]; the policy
 //! loop's time-stamped chunk ([`chunk`]) comes back the same way; [`servo`] turns it into a reference, smooths
 //! it with ruckig ([`smoothing`]), checks it ([`limits`]) and the command leaves in [`servo_loop`]. Around
-//! them: [`watchdog`], [`daemon`] (setup, signals, systemd), [`heartbeat`] (liveness, off the RT thread), [`latency`] + [`plots`] + [`traces`] + [`report`], [`rt`]
+//! them: [`watchdog`], [`daemon`] (setup, signals, systemd), the liveness heartbeat (`mars_ipc::heartbeat_thread`, off the RT thread), [`latency`] + [`plots`] + [`traces`] + [`report`], [`rt`]
 //! (pinning, SCHED_FIFO, the ticker), [`alloc_count`], the HIL [`task`], and the `mars-hil` tools ([`cli`],
 //! [`bench`]).
 
-pub mod alloc_count;
 pub mod bench;
 pub mod chunk;
 pub mod cli;
@@ -16,13 +15,11 @@ pub mod config;
 pub mod daemon;
 pub mod doctor;
 pub mod frame;
-pub mod heartbeat;
 pub mod latency;
 pub mod limits;
 pub mod plots;
 pub mod policy_loop;
 pub mod report;
-pub mod rt;
 pub mod servo;
 pub mod servo_loop;
 pub mod shared;
@@ -33,3 +30,7 @@ pub mod task;
 pub mod timeliness;
 pub mod traces;
 pub mod watchdog;
+
+/// The real-time discipline shared with the HAL (crate `mars-rt`), under the names this crate's modules use.
+pub use mars_rt as rt;
+pub use mars_rt::alloc_count;

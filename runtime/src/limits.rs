@@ -1,9 +1,11 @@
 //! The last check before a command leaves: inside the position limits, and — by finite differences over the
 //! commands actually sent, the way the robot sees the stream — inside the velocity, acceleration and jerk
-//! limits. The smoother is built never to fail this; if it ever does, the command is not sent and the
-//! watchdog trips.
+//! limits. The velocity bound is the robot's at the commanded position (the FR3's depends on it: see
+//! `mars_hal::velocity_limits`). The smoother is built never to fail this; if it ever does, the command is not
+//! sent and the watchdog trips.
 
 use mars_hal::profile::Profile;
+use mars_hal::velocity_limits::{JointVelocityBound, VelocityLimits};
 use mars_ipc::MAX_JOINTS;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -20,8 +22,9 @@ pub struct LimitCheck {
     dt: f64,
     q_min: [f64; MAX_JOINTS],
     q_max: [f64; MAX_JOINTS],
-    /// Velocity, acceleration and jerk bounds, with a relative tolerance for floating-point rounding.
-    bounds: [[f64; MAX_JOINTS]; 3],
+    velocity: [JointVelocityBound; MAX_JOINTS],
+    /// Acceleration and jerk bounds, with a relative tolerance for floating-point rounding.
+    bounds: [[f64; MAX_JOINTS]; 2],
     /// The last (up to) three positions sent, newest first.
     recent: [[f64; MAX_JOINTS]; 3],
     known: usize,
@@ -39,14 +42,17 @@ impl LimitCheck {
             dt: p.period_s(),
             q_min: [0.0; MAX_JOINTS],
             q_max: [0.0; MAX_JOINTS],
-            bounds: [[0.0; MAX_JOINTS]; 3],
+            velocity: [JointVelocityBound::new(VelocityLimits::Constant, 0, 0.0); MAX_JOINTS],
+            bounds: [[0.0; MAX_JOINTS]; 2],
             recent: [[0.0; MAX_JOINTS]; 3],
             known: 0,
             violations: 0,
         };
-        c.q_min[..n].copy_from_slice(&p.q_min);
-        c.q_max[..n].copy_from_slice(&p.q_max);
-        for (k, lim) in [&p.dq_max, &p.ddq_max, &p.jerk_max].into_iter().enumerate() {
+        let (q_min, q_max) = p.position_limits();
+        c.q_min[..n].copy_from_slice(&q_min);
+        c.q_max[..n].copy_from_slice(&q_max);
+        c.velocity[..n].copy_from_slice(&p.velocity_bounds());
+        for (k, lim) in [&p.ddq_max, &p.jerk_max].into_iter().enumerate() {
             for (bound, &l) in c.bounds[k][..n].iter_mut().zip(lim) {
                 *bound = l * (1.0 + ROUNDING);
             }
@@ -98,14 +104,16 @@ impl LimitCheck {
             if q[j] < self.q_min[j] || q[j] > self.q_max[j] {
                 return Err(Violation::Position { joint: j });
             }
-            if self.known >= 1 && ((q[j] - r[0][j]) / dt).abs() > self.bounds[0][j] {
+            let (v_lo, v_hi) = self.velocity[j].hard(q[j]);
+            let v = (q[j] - r[0][j]) / dt;
+            if self.known >= 1 && (v > v_hi + ROUNDING * v_hi.abs() || v < v_lo - ROUNDING * v_lo.abs()) {
                 return Err(Violation::Velocity { joint: j });
             }
-            if self.known >= 2 && ((q[j] - 2.0 * r[0][j] + r[1][j]) / (dt * dt)).abs() > self.bounds[1][j] {
+            if self.known >= 2 && ((q[j] - 2.0 * r[0][j] + r[1][j]) / (dt * dt)).abs() > self.bounds[0][j] {
                 return Err(Violation::Acceleration { joint: j });
             }
             let jerk = (q[j] - 3.0 * r[0][j] + 3.0 * r[1][j] - r[2][j]) / (dt * dt * dt);
-            if self.known >= 3 && jerk.abs() > self.bounds[2][j] {
+            if self.known >= 3 && jerk.abs() > self.bounds[1][j] {
                 return Err(Violation::Jerk { joint: j });
             }
         }
@@ -159,5 +167,27 @@ mod tests {
         assert_eq!(c.admit(&q), Err(Violation::Jerk { joint: 2 }));
         c.restart();
         assert_eq!(c.admit(&q), Ok(()), "after a restart no difference is taken across the gap");
+    }
+
+    /// The FR3's velocity bound near a limit is far below `dq_max`: 1 rad/s is fine in the middle of joint 1's
+    /// range and out of limits 0.05 rad from its end.
+    #[test]
+    fn the_velocity_bound_is_the_robots_at_the_commanded_position() {
+        let p = profile();
+        let mut c = LimitCheck::new(&p);
+        let mut q = p.home.clone();
+        c.admit(&q).unwrap();
+        q[0] += 1e-3; // 1 rad/s
+        assert_eq!(c.admit(&q), Ok(()));
+        c.restart();
+        q[0] = 2.69;
+        c.admit(&q).unwrap();
+        q[0] += 1e-3;
+        assert_eq!(c.admit(&q), Err(Violation::Velocity { joint: 0 }));
+        // Moving away from that limit, the other side of the bound applies: 1 rad/s is fine.
+        q[0] -= 2e-3;
+        c.restart();
+        c.admit(&[2.69, q[1], q[2], q[3], q[4], q[5], q[6]]).unwrap();
+        assert_eq!(c.admit(&q), Ok(()));
     }
 }

@@ -8,12 +8,12 @@ use serde::Serialize;
 
 use crate::config::DaemonConfig;
 use crate::frame::FrameCounts;
-use crate::heartbeat::HeartbeatReport;
 use crate::latency::{Channel, Totals};
 use crate::policy_loop::{EpisodeResult, PolicyReport};
 use crate::rt::RtStatus;
 use crate::servo::StopCause;
 use crate::servo_loop::ServoReport;
+use mars_ipc::HeartbeatReport;
 
 #[derive(Debug, Clone, Serialize)]
 pub struct KStats {
@@ -41,6 +41,9 @@ pub struct DeadlineMisses {
     /// The same, as the HAL counted it (a command whose `state_seq` was not its newest frame), since the
     /// handshake.
     pub hal_late_commands: u64,
+    /// Second commands answering one HAL frame (the servo ticked twice between two frames), which the HAL did not
+    /// follow: as the HAL counted them.
+    pub hal_duplicate_commands: u64,
 }
 
 /// Out-of-limit commands, wherever they were caught. Late commands are timing, not content: they are in
@@ -178,6 +181,7 @@ impl Summary {
                 starved_ticks: s.counters.starved_ticks,
                 late_commands: s.counters.late_commands,
                 hal_late_commands: s.hal.late,
+                hal_duplicate_commands: s.hal.duplicate,
             },
             limit_violations: LimitViolations {
                 final_check: s.counters.limit_violations,
@@ -270,7 +274,7 @@ impl std::fmt::Display for Summary {
         let l = &self.limit_violations;
         writeln!(
             f,
-            "  of {} commands: {} out of limits (final check {}, HAL rejected {}, HAL clamped {}); {} late for the HAL's tick (HAL's count {}); re-synchronised {}",
+            "  of {} commands: {} out of limits (final check {}, HAL rejected {}, HAL clamped {}); {} late for the HAL's tick (HAL's count {}), {} second answers to one frame; re-synchronised {}",
             self.commands_sent,
             l.total(),
             l.final_check,
@@ -278,6 +282,7 @@ impl std::fmt::Display for Summary {
             l.hal_clamped,
             d.late_commands,
             d.hal_late_commands,
+            d.hal_duplicate_commands,
             l.resyncs
         )?;
         let h = &self.hal_last_resorts;

@@ -17,8 +17,6 @@ use crate::smoothing::{Kinematics, Limits, Smoother, SmoothingError};
 use crate::timeliness::CommandTimeliness;
 use crate::watchdog::{ServoWatchdog, Trip};
 
-/// The gripper is not part of the jerk-limited joint trajectory: during a reset it moves at this speed (m/s).
-const GRIPPER_RESET_SPEED: f64 = 0.1;
 /// A reset waits until the measured gripper is this close to its target (m).
 const GRIPPER_TOLERANCE: f64 = 0.002;
 
@@ -88,6 +86,8 @@ pub struct HalCounts {
     pub clamped: u64,
     /// Commands that arrived after the tick they answered had passed.
     pub late: u64,
+    /// Second commands answering one frame (this controller ticked twice between two frames): not followed.
+    pub duplicate: u64,
     /// Ticks the safety filter's position guard stopped a joint at its limit (breaking acc/jerk limits).
     pub position_guard_hits: u64,
     /// Ticks no setpoint satisfied every limit and the filter took the middle of the empty interval.
@@ -102,6 +102,7 @@ impl HalCounts {
             rejected: f.rejected_commands,
             clamped: f.clamped_commands,
             late: f.late_commands,
+            duplicate: f.duplicate_commands,
             position_guard_hits: f.position_guard_hits,
             infeasible_steps: f.infeasible_steps,
             backend_errors: f.backend_errors,
@@ -113,6 +114,7 @@ impl HalCounts {
             rejected: self.rejected.saturating_sub(start.rejected),
             clamped: self.clamped.saturating_sub(start.clamped),
             late: self.late.saturating_sub(start.late),
+            duplicate: self.duplicate.saturating_sub(start.duplicate),
             position_guard_hits: self.position_guard_hits.saturating_sub(start.position_guard_hits),
             infeasible_steps: self.infeasible_steps.saturating_sub(start.infeasible_steps),
             backend_errors: self.backend_errors.saturating_sub(start.backend_errors),
@@ -159,9 +161,10 @@ impl ServoTick {
         let n = profile.joints;
         let margin = cfg.servo.position_margin;
         let (mut q_lo, mut q_hi) = ([0.0; MAX_JOINTS], [0.0; MAX_JOINTS]);
+        let (q_min, q_max) = profile.position_limits();
         for j in 0..n {
-            q_lo[j] = profile.q_min[j] + margin;
-            q_hi[j] = profile.q_max[j] - margin;
+            q_lo[j] = q_min[j] + margin;
+            q_hi[j] = q_max[j] - margin;
         }
         Ok(Self {
             n,
@@ -334,8 +337,8 @@ impl ServoTick {
         let motion = match self.phase {
             Phase::Idle => self.smoother.track(&self.pose[..self.n], &target_v[..self.n]).copied(),
             Phase::Resetting => {
-                let step = GRIPPER_RESET_SPEED * self.dt_ns as f64 * 1e-9;
-                self.gripper += (self.gripper_target - self.gripper).clamp(-step, step);
+                // The gripper is a target the HAL moves to at its own rate: sent as it is, awaited in `settled`.
+                self.gripper = self.gripper_target;
                 let r = self.smoother.track(&self.pose[..self.n], &target_v[..self.n]).copied();
                 if r.is_ok() && self.settled() {
                     let mut hold = [0.0; MAX_ACTION];

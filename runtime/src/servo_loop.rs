@@ -3,7 +3,7 @@
 //! [`ServoTick`], send its command, record latencies. Nothing in the loop allocates (except iceoryx2's one
 //! pooled block per sent sample, see [`crate::alloc_count`]), locks, prints or blocks (the sleep to the next
 //! deadline is the only syscall that waits): `tests/alloc_free_tick.rs` runs it against a live HAL under a
-//! counting allocator. The liveness heartbeat, a syscall, beats from [`crate::heartbeat`] instead.
+//! counting allocator. The liveness heartbeat, a syscall, beats from [`mars_ipc::heartbeat_thread`] instead.
 
 use std::sync::Arc;
 use std::time::Duration;

@@ -10,11 +10,17 @@
 //!
 //! Storage is `Ruckig<MAX_JOINTS>` with the joints beyond `n` disabled, so one type serves 6- and 7-joint robots.
 //!
+//! Position-dependent velocity bounds (the FR3's, `mars_hal::velocity_limits`): ruckig takes constant limits, so
+//! before every step the smoother hands it the bounds at the current position, from their braking envelope
+//! (which falls no faster than half the acceleration limit, so ruckig, braking at up to 90 % of it, keeps up)
+//! tightened by A²/J for ruckig's jerk-limited lag, scaled like every other limit.
+//!
 //! Allocation caveat: rsruckig formats a `String` when *it* reports an error. [`Smoother`] validates, clamps and
 //! range-checks every input first so ruckig's validation never fails; only a numerical failure inside ruckig (never
 //! seen in the randomized tests) would allocate, on that error path alone.
 
 use mars_hal::profile::Profile;
+use mars_hal::velocity_limits::JointVelocityBound;
 use mars_ipc::MAX_JOINTS;
 use rsruckig::prelude::*;
 
@@ -30,6 +36,8 @@ pub const MAX_ABS_POSITION: f64 = 1e3;
 /// A state counts as at rest below these (rad/s, rad/s²): ruckig's stop ends at zero up to rounding.
 const REST_VELOCITY: f64 = 1e-9;
 const REST_ACCELERATION: f64 = 1e-6;
+/// Ruckig refuses a velocity limit of 0: where the bound is 0 (at a position limit), this is the limit.
+const MIN_VELOCITY_LIMIT: f64 = 1e-9;
 
 /// Per-joint kinematic limits of the robot (absolute values; only the first `n` entries are used).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -37,13 +45,20 @@ pub struct Limits {
     pub velocity: [f64; MAX_JOINTS],
     pub acceleration: [f64; MAX_JOINTS],
     pub jerk: [f64; MAX_JOINTS],
+    /// Velocity bounds that depend on position (capped by `velocity`), if the robot has them.
+    pub position_dependent: Option<[JointVelocityBound; MAX_JOINTS]>,
 }
 
 impl Limits {
-    /// The profile's `dq_max`, `ddq_max` and `jerk_max`. Entries the profile lacks stay 0, which
-    /// [`Smoother::new`] rejects.
+    /// The profile's `dq_max`, `ddq_max`, `jerk_max` and position-dependent velocity bounds. Entries the profile
+    /// lacks stay 0, which [`Smoother::new`] rejects.
     pub fn from_profile(profile: &Profile) -> Self {
-        let mut l = Limits { velocity: [0.0; MAX_JOINTS], acceleration: [0.0; MAX_JOINTS], jerk: [0.0; MAX_JOINTS] };
+        let mut l = Limits {
+            velocity: [0.0; MAX_JOINTS],
+            acceleration: [0.0; MAX_JOINTS],
+            jerk: [0.0; MAX_JOINTS],
+            position_dependent: None,
+        };
         for (dst, src) in [
             (&mut l.velocity, &profile.dq_max),
             (&mut l.acceleration, &profile.ddq_max),
@@ -51,6 +66,12 @@ impl Limits {
         ] {
             let k = src.len().min(MAX_JOINTS);
             dst[..k].copy_from_slice(&src[..k]);
+        }
+        let bounds = profile.velocity_bounds();
+        if bounds.iter().any(JointVelocityBound::depends_on_position) {
+            let mut b = [bounds[0]; MAX_JOINTS];
+            b[..bounds.len().min(MAX_JOINTS)].copy_from_slice(&bounds[..bounds.len().min(MAX_JOINTS)]);
+            l.position_dependent = Some(b);
         }
         l
     }
@@ -95,6 +116,9 @@ pub struct Smoother {
     n: usize,
     /// Scaled limits, as given to ruckig.
     max_velocity: [f64; MAX_JOINTS],
+    safety_factor: f64,
+    /// Position-dependent velocity bounds, tightened for ruckig's lag, and the braking their envelope allows.
+    position_dependent: Option<([JointVelocityBound; MAX_JOINTS], [f64; MAX_JOINTS])>,
     otg: Ruckig<MAX_JOINTS, ThrowErrorHandler>,
     input: InputParameter<MAX_JOINTS>,
     output: OutputParameter<MAX_JOINTS>,
@@ -147,9 +171,21 @@ impl Smoother {
         }
         input.control_interface = ControlInterface::Position;
         input.synchronization = Synchronization::Time;
+        let position_dependent = limits.position_dependent.map(|bounds| {
+            let (mut tight, mut brake) = (bounds, [0.0; MAX_JOINTS]);
+            for i in 0..n {
+                let (a, j) = (limits.acceleration[i], limits.jerk[i]);
+                tight[i] = bounds[i].tightened(a * a / j);
+                brake[i] = 0.5 * a;
+            }
+            input.min_velocity = Some(DataArrayOrVec::Stack(max_velocity.map(|v| -v)));
+            (tight, brake)
+        });
         let mut s = Smoother {
             n,
             max_velocity,
+            safety_factor,
+            position_dependent,
             otg: Ruckig::new(None, dt_s),
             input,
             output: OutputParameter::new(None),
@@ -204,19 +240,40 @@ impl Smoother {
         }
         let saved = (self.input.control_interface, self.targets());
         self.input.control_interface = ControlInterface::Position;
+        self.velocity_limits_here();
         for i in 0..n {
-            let v_max = self.max_velocity[i];
+            let (v_min, v_max) = self.velocity_range(i);
             self.input.target_position[i] = target_position[i];
-            self.input.target_velocity[i] = target_velocity[i].clamp(-v_max, v_max);
+            self.input.target_velocity[i] = target_velocity[i].clamp(v_min, v_max);
             self.input.target_acceleration[i] = 0.0;
         }
         self.step(saved)
+    }
+
+    /// This step's velocity limits of joint `i` as handed to ruckig.
+    fn velocity_range(&self, i: usize) -> (f64, f64) {
+        let lo = self.input.min_velocity.as_ref().map_or(-self.input.max_velocity[i], |v| v[i]);
+        (lo, self.input.max_velocity[i])
+    }
+
+    /// Position-dependent bounds: ruckig gets this step's limits at the current position.
+    fn velocity_limits_here(&mut self) {
+        let Some((bounds, brake)) = &self.position_dependent else { return };
+        let sf = self.safety_factor;
+        for i in 0..self.n {
+            let (lo, hi) = bounds[i].envelope(self.state.position[i], brake[i]);
+            self.input.max_velocity[i] = (sf * hi).clamp(MIN_VELOCITY_LIMIT, self.max_velocity[i]);
+            if let Some(min) = self.input.min_velocity.as_mut() {
+                min[i] = (sf * lo).clamp(-self.max_velocity[i], -MIN_VELOCITY_LIMIT);
+            }
+        }
     }
 
     /// One step of a time-optimal jerk-limited stop (velocity interface to v = 0, a = 0), from the previous output.
     pub fn brake(&mut self) -> Result<&Kinematics, SmoothingError> {
         let saved = (self.input.control_interface, self.targets());
         self.input.control_interface = ControlInterface::Velocity;
+        self.velocity_limits_here();
         for i in 0..self.n {
             self.input.target_velocity[i] = 0.0;
             self.input.target_acceleration[i] = 0.0;

@@ -5,6 +5,8 @@
 //! however small, is a system-allocator call and fails the test.
 
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
 use mars_hal::profile::Profile;
@@ -15,9 +17,6 @@ use mars_runtime::config::DaemonConfig;
 use mars_runtime::daemon;
 
 // One real-time rig at a time on this machine, across test binaries (see the file).
-#[path = "../../testing/rt_rig_lock.rs"]
-#[allow(dead_code)] // not every helper is used here
-mod rt_rig_lock;
 
 #[global_allocator]
 static ALLOC: CountingAlloc = CountingAlloc;
@@ -73,32 +72,36 @@ fn the_counter_sees_allocations_made_on_purpose() {
     assert_eq!(freed_elsewhere, (0, 1));
 }
 
+/// Both real-time loops of a demo run, marsd's servo tick and the HAL's, as the demo runs them (the HAL in a
+/// thread of this process, so its allocations are counted too).
 #[test]
-fn servo_tick_makes_no_heap_allocation_over_two_episodes() {
-    let _rt = rt_rig_lock::rt_rig_lock();
+fn servo_tick_and_hal_loop_make_no_heap_allocation_over_two_episodes() {
+    let _rt = mars_runtime::rt::rig_lock::rt_rig_lock().expect("taking the real-time rig lock");
     let root = root();
     let robot = format!("t{}-alloc", std::process::id());
     let profile = Profile::load(&root.join("configs/fr3.toml")).unwrap();
     profile.validate().unwrap();
-    {
-        let (profile, robot) = (profile.clone(), robot.clone());
+    let stop_hal = Arc::new(AtomicBool::new(false));
+    let hal = {
+        let (profile, robot, stop) = (profile.clone(), robot.clone(), stop_hal.clone());
         let hal_core = DaemonConfig::load(&root.join("configs/marsd.toml")).unwrap().servo.core;
-        // Runs until this process ends (the test does not wait for it).
         std::thread::Builder::new()
             .name("hal".into())
             .spawn(move || {
                 // As the demo runs it: a robot's own loop, real-time and above the servo loop on the servo's core
-                // (at normal priority a busy machine starves it into a stale-state trip).
+                // (at normal priority a busy machine starves it into a stale-state trip), its memory locked.
                 let opts = RunOptions {
                     robot,
                     duration: Some(Duration::from_secs(600)),
                     core: hal_core,
                     rt_priority: Some(85),
+                    lock_memory: true,
+                    stop: Some(stop),
                 };
                 mars_hal::runner::run(&profile, &mut SimBackend::new(&profile), &opts)
             })
-            .unwrap();
-    }
+            .unwrap()
+    };
     let mut cfg = DaemonConfig::load(&root.join("configs/marsd.toml")).unwrap();
     for p in [&mut cfg.profile, &mut cfg.task, &mut cfg.checkpoint] {
         *p = root.join(&p);
@@ -135,4 +138,17 @@ fn servo_tick_makes_no_heap_allocation_over_two_episodes() {
     }
     assert!(json.pointer("/wire/heartbeat/beats").and_then(|v| v.as_u64()).unwrap() > 100);
     let _ = std::fs::remove_dir_all(out);
+
+    // The HAL's loop: after warm-up, one pooled block per state frame it published and nothing else.
+    stop_hal.store(true, Ordering::Release);
+    let report = hal.join().unwrap().unwrap();
+    println!("{report}");
+    let (counts, frames) = report.allocations_after_warmup.expect("the counting allocator is installed");
+    assert!(frames > 5000, "only {frames} frames after warm-up");
+    assert_eq!(
+        counts,
+        Counts { system: 0, pooled: frames },
+        "after warm-up the HAL loop may take exactly one pooled block per frame published ({frames}) and nothing else"
+    );
+    assert_eq!(report.errors.total(), 0);
 }

@@ -6,14 +6,13 @@ use std::path::Path;
 use std::process::Command;
 use std::time::{Duration, Instant};
 
-// It runs a SCHED_FIFO thread on the servo core: one real-time rig at a time on this machine (see the file).
-#[path = "../../testing/rt_rig_lock.rs"]
-#[allow(dead_code)] // not every helper is used here
-mod rt_rig_lock;
+// It runs a SCHED_FIFO thread on the servo core: one real-time rig at a time on this machine (see
+// `mars_rt::rig_lock`).
+use mars_runtime::rt::rig_lock::rt_rig_lock;
 
 #[test]
 fn marsd_doctor_measures_prints_a_verdict_and_writes_every_field() {
-    let _rt = rt_rig_lock::rt_rig_lock();
+    let _rt = rt_rig_lock().expect("taking the real-time rig lock");
     let out = std::env::temp_dir().join(format!("mars-doctor-test-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&out);
     let started = Instant::now();

@@ -54,7 +54,15 @@ fn allocations_in(f: impl FnOnce()) -> usize {
     ALLOCS.with(|n| n.get())
 }
 
+/// The FR3 with constant velocity limits (`dq_max`): the official ruckig and the closed forms, the oracles of most
+/// tests here, plan with constant limits. The FR3's position-dependent bounds have a test of their own below.
 fn fr3() -> Profile {
+    let mut p = fr3_position_dependent();
+    p.velocity_limits = mars_hal::velocity_limits::VelocityLimits::Constant;
+    p
+}
+
+fn fr3_position_dependent() -> Profile {
     Profile::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/fr3.toml")).unwrap()
 }
 
@@ -145,7 +153,8 @@ fn apply(s: &mut Smoother, cmd: &Cmd) -> Kinematics {
 
 #[test]
 fn track_and_brake_do_not_allocate() {
-    let p = fr3();
+    // With the FR3's position-dependent bounds: their per-step limits must not allocate either.
+    let p = fr3_position_dependent();
     let cmds = commands(1, 7, &p.home, &p, 5000);
     let mut s = smoother(&p, 7);
     let mut last = Kinematics::default();
@@ -211,6 +220,57 @@ fn finite_differences_of_the_command_stream_stay_inside_the_profile_limits() {
     }
     // The streams do push against the limits, or the test would prove nothing.
     assert!(worst.iter().all(|w| *w > 0.8 * DEFAULT_SAFETY_FACTOR), "{worst:?}");
+}
+
+/// The FR3's velocity bound shrinks toward each position limit: random targets anywhere in marsd's target range
+/// (the profile's range less marsd's 0.02 rad margin), many right at its ends, held for random times or braked
+/// from: the finite differences stay within the bound at the position reached, and the accelerations and jerks
+/// within their limits.
+#[test]
+fn finite_differences_stay_inside_the_fr3_position_dependent_velocity_bound() {
+    let p = fr3_position_dependent();
+    let bounds = p.velocity_bounds();
+    let (lo, hi) = p.position_limits();
+    let dt = p.period_s();
+    let mut rng = StdRng::seed_from_u64(5);
+    let mut s = smoother(&p, 7);
+    let mut prev = [p.home.clone(), p.home.clone(), p.home.clone()];
+    let (mut worst_v, mut near_limit_ticks) = (0.0f64, 0usize);
+    let seeds_ticks = std::env::var("SMOOTHING_SEEDS").ok().and_then(|s| s.parse::<usize>().ok()).unwrap_or(12);
+    for _ in 0..seeds_ticks * 6 {
+        let mut target = [0.0; 7];
+        for i in 0..7 {
+            let (a, b) = (lo[i] + 0.02, hi[i] - 0.02);
+            target[i] = match rng.random_range(0..4u32) {
+                0 => a,
+                1 => b,
+                _ => rng.random_range(a..b),
+            };
+        }
+        let brake_after = rng.random_range(100..2500usize);
+        for tick in 0..2500 {
+            let out = if tick < brake_after { *s.track(&target, &[0.0; 7]).unwrap() } else { *s.brake().unwrap() };
+            for i in 0..7 {
+                let q = out.position[i];
+                let v = (q - prev[0][i]) / dt;
+                let a = (q - 2.0 * prev[0][i] + prev[1][i]) / (dt * dt);
+                let j = (q - 3.0 * prev[0][i] + 3.0 * prev[1][i] - prev[2][i]) / (dt * dt * dt);
+                let (v_lo, v_hi) = bounds[i].hard(q);
+                assert!(v <= v_hi + 1e-9 && v >= v_lo - 1e-9, "joint {i} at {q}: v {v} not in [{v_lo}, {v_hi}]");
+                assert!(a.abs() <= p.ddq_max[i] * (1.0 + 1e-6), "joint {i}: a {a}");
+                assert!(j.abs() <= p.jerk_max[i] * (1.0 + 1e-6), "joint {i}: j {j}");
+                if v_hi < 0.9 * p.dq_max[i] && v > 0.0 {
+                    near_limit_ticks += 1;
+                    worst_v = worst_v.max(v / v_hi);
+                }
+            }
+            prev = [out.position[..7].to_vec(), prev[0].clone(), prev[1].clone()];
+        }
+    }
+    eprintln!(
+        "moving up where the bound is below 90 % of dq_max: {near_limit_ticks} joint-ticks, at most {worst_v:.3} of the bound"
+    );
+    assert!(near_limit_ticks > 1000, "the targets must drive joints into the narrowed zone: {near_limit_ticks}");
 }
 
 /// Closed-form time-optimal rest-to-rest duration of one DoF over `d` with limits `v`, `a`, `j`.
@@ -485,7 +545,12 @@ fn one_joint_matches_the_closed_form_time_optimal_duration() {
     // An oracle independent of any ruckig: 1-DoF rest-to-rest motions in the three regimes (cruise, acceleration
     // limit without cruise, jerk-only), through the smoother's 1-joint configuration.
     let (v, a, j) = (2.0, 10.0, 5000.0);
-    let mut l = Limits { velocity: [0.0; MAX_JOINTS], acceleration: [0.0; MAX_JOINTS], jerk: [0.0; MAX_JOINTS] };
+    let mut l = Limits {
+        velocity: [0.0; MAX_JOINTS],
+        acceleration: [0.0; MAX_JOINTS],
+        jerk: [0.0; MAX_JOINTS],
+        position_dependent: None,
+    };
     (l.velocity[0], l.acceleration[0], l.jerk[0]) = (v, a, j);
     let dt = 0.001;
     for d in [3.0, 0.2, 1e-4, -0.7] {

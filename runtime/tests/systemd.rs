@@ -7,9 +7,6 @@ use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 // One real-time rig at a time on this machine, across test binaries (see the file).
-#[path = "../../testing/rt_rig_lock.rs"]
-#[allow(dead_code)] // not every helper is used here
-mod rt_rig_lock;
 
 /// A child process killed when dropped, so a failing test leaves nothing running.
 struct Proc(Child);
@@ -43,7 +40,7 @@ fn receive(sock: &UnixDatagram, until: &str, deadline: Instant) -> Vec<String> {
 
 #[test]
 fn ready_after_the_hal_handshake_watchdog_pings_and_stopping_on_sigterm() {
-    let _rt = rt_rig_lock::rt_rig_lock();
+    let _rt = mars_runtime::rt::rig_lock::rt_rig_lock().expect("taking the real-time rig lock");
     let dir = std::env::temp_dir().join(format!("marsd-notify-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let sock_path = dir.join("notify.sock");

@@ -88,7 +88,10 @@ fn main() -> std::process::ExitCode {
         },
         Command::Bench { args } => mars_runtime::bench::run(args),
         Command::Marsd { args } => return mars_runtime::cli::marsd(args),
-        Command::Hal { args } => mars_hal::cli::run_hal(args).map(|report| println!("{report}")),
+        Command::Hal { args } => {
+            let code = mars_hal::cli::report_and_exit_code(mars_hal::cli::run_hal(args));
+            return std::process::ExitCode::from(code as u8);
+        }
         Command::Demos { task, n, seed, out } => cli::demos(&task.task, &task.profile, n, seed, &out),
         Command::EvalSim { checkpoint, task, episodes, seed, out } => {
             cli::eval(&checkpoint, &task.task, &task.profile, episodes, seed, out.as_deref()).map(|_| ())

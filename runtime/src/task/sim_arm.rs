@@ -3,6 +3,7 @@
 //! must produce demos the plant can follow) and the in-process evaluation (which must run policies the same way).
 
 use mars_hal::backend::{Backend, Measurement};
+use mars_hal::gripper::GripperMove;
 use mars_hal::profile::Profile;
 use mars_hal::sim::SimBackend;
 use mars_ipc::MAX_JOINTS;
@@ -54,13 +55,14 @@ impl SimArm {
         let sim = SimBackend::new(&profile);
         let mut setpoint = [0.0; MAX_JOINTS];
         setpoint[..profile.joints].copy_from_slice(&profile.home);
-        let measured = Measurement { position: setpoint, gripper: profile.gripper_min, ..Default::default() };
+        let gripper = profile.sim.start_gripper.unwrap_or(profile.gripper_max);
+        let measured = Measurement { position: setpoint, gripper, ..Default::default() };
         Self {
             sim,
             joints: profile.joints,
             dt: profile.period_s(),
             ticks_per_action: task.ticks_per_action,
-            gripper_setpoint: profile.gripper_min,
+            gripper_setpoint: gripper,
             profile,
             setpoint,
             measured,
@@ -121,8 +123,11 @@ impl SimArm {
                 self.setpoint[i] = from[i] + s * (target[i] - from[i]);
             }
             self.gripper_setpoint = g_from + s * (target[n] - g_from);
-            // The sim neither fails nor refuses; an error here would be a bug in it.
-            self.sim.apply(&self.setpoint[..n], self.gripper_setpoint).expect("sim backend apply");
+            // The sim neither fails nor refuses; an error here would be a bug in it. The gripper gets the ramp's
+            // width each tick and moves toward it at its top speed, as the HAL passes targets on.
+            self.sim.apply(&self.setpoint[..n]).expect("sim backend apply");
+            let width = GripperMove { width: self.gripper_setpoint, speed: self.profile.gripper_speed_max };
+            self.sim.move_gripper(width).expect("sim backend gripper");
             self.measured = self.sim.read().expect("sim backend read");
             self.t_s += self.dt;
             if on_tick(&self.measured.position[..n], self.measured.gripper, self.t_s) {

@@ -22,9 +22,12 @@ use mars_ipc::{CommandReader, JointCommand, RobotNamespace, RobotState, StateRea
 use mars_runtime::stall::{self, Evidence, FrameGap, StealSample};
 pub use mars_runtime::stall::{log_time_of_day, now_time_of_day};
 
-#[path = "../../../testing/rt_rig_lock.rs"]
-mod rt_rig_lock;
-pub use rt_rig_lock::{rt_rig_lock, rt_rig_lock_held, rt_rig_lock_path};
+pub use mars_runtime::rt::rig_lock::{RtRigLock, rt_rig_lock_held, rt_rig_lock_path};
+
+/// Takes the machine-wide real-time rig lock (see `mars_rt::rig_lock`) for the test's whole run.
+pub fn rt_rig_lock() -> RtRigLock {
+    mars_runtime::rt::rig_lock::rt_rig_lock().expect("taking the real-time rig lock")
+}
 
 fn assert_rig_locked(what: &str) {
     assert!(rt_rig_lock_held(), "{what} is a real-time process: hold rt_rig_lock() for the whole test");

@@ -1,27 +1,25 @@
-//! marsd's liveness heartbeat, off the real-time thread.
+//! A side's liveness heartbeat, beaten from an ordinary thread instead of its real-time loop.
 //!
-//! An iceoryx2 `notify` is a syscall; the SCHED_FIFO servo thread must not make one every few ticks. This
-//! ordinary (SCHED_OTHER) thread beats instead, but only while the servo loop makes progress: it watches the
-//! servo's tick counter ([`Status::ticks`]) and stays silent when it stops advancing, so a stuck servo still
-//! looks dead to the HAL's liveness watch. Failed notifications are counted for the report.
+//! An iceoryx2 `notify` is a syscall; a SCHED_FIFO loop (the HAL's, marsd's servo) must not make one every few
+//! ticks. This ordinary (SCHED_OTHER) thread beats instead, but only while the loop makes progress: it reads the
+//! loop's tick counter through `progress` and stays silent when it stops advancing, so a stuck loop still looks
+//! dead to the other side's liveness watch. Failed notifications are counted for the report.
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::thread::JoinHandle;
 
-use anyhow::Context;
-use mars_ipc::liveness::{HEARTBEAT_PERIOD, Side};
-use mars_ipc::node::create_node;
-use mars_ipc::{Heartbeat, RobotNamespace};
-
-use crate::shared::Status;
+use crate::liveness::{HEARTBEAT_PERIOD, Heartbeat, Side};
+use crate::names::RobotNamespace;
+use crate::node::create_node;
+use crate::wire::WireError;
 
 /// What the heartbeat thread did.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize)]
 pub struct HeartbeatReport {
-    /// Notifications attempted (one per period in which the servo's tick counter advanced).
+    /// Notifications attempted (one per period in which the loop's tick counter advanced).
     pub beats: u64,
-    /// Periods without a beat because the servo's tick counter had not moved.
+    /// Periods without a beat because the loop's tick counter had not moved.
     pub withheld: u64,
     /// Notifications iceoryx2 refused.
     pub errors: u64,
@@ -34,20 +32,24 @@ pub struct HeartbeatThread {
 }
 
 impl HeartbeatThread {
-    /// Opens the controller's heartbeat (its own iceoryx2 node: ports belong to the thread that made them) and
-    /// starts beating while `status.ticks` advances.
-    pub fn start(robot: &str, status: Arc<Status>) -> anyhow::Result<Self> {
+    /// Opens `side`'s heartbeat (on an iceoryx2 node of its own, `node_name`: ports belong to the thread that
+    /// made them) and starts beating while the counter read by `progress` advances.
+    pub fn start(
+        robot: &str,
+        side: Side,
+        node_name: &str,
+        progress: impl Fn() -> u64 + Send + 'static,
+    ) -> Result<Self, WireError> {
         let ns = RobotNamespace::new(robot)?;
-        let node_name = format!("marsd-{robot}-heartbeat");
+        let node_name = node_name.to_owned();
         let stop = Arc::new(AtomicBool::new(false));
-        let (opened_tx, opened_rx) = std::sync::mpsc::channel::<anyhow::Result<()>>();
+        let (opened_tx, opened_rx) = std::sync::mpsc::channel::<Result<(), WireError>>();
         let flag = stop.clone();
         let thread = std::thread::Builder::new()
-            .name("marsd-heartbeat".into())
+            .name(format!("{node_name}-heartbeat"))
             .spawn(move || {
-                let opened = create_node(&node_name)
-                    .map_err(anyhow::Error::from)
-                    .and_then(|(node, _)| Ok((Heartbeat::new(&node, &ns, Side::Controller)?, node)));
+                let opened =
+                    create_node(&node_name).and_then(|(node, _)| Ok((Heartbeat::new(&node, &ns, side)?, node)));
                 let (mut heartbeat, _node) = match opened {
                     Ok(h) => {
                         let _ = opened_tx.send(Ok(()));
@@ -58,10 +60,10 @@ impl HeartbeatThread {
                         return HeartbeatReport::default();
                     }
                 };
-                beat_while_progressing(&mut heartbeat, &status, &flag)
+                beat_while_progressing(&mut heartbeat, &progress, &flag)
             })
-            .context("spawning the heartbeat thread")?;
-        opened_rx.recv().context("the heartbeat thread died while opening its port")??;
+            .map_err(|e| WireError::Node(format!("spawning the heartbeat thread: {e}")))?;
+        opened_rx.recv().map_err(|_| WireError::Node("the heartbeat thread died while opening its port".into()))??;
         Ok(Self { stop, thread })
     }
 
@@ -72,11 +74,15 @@ impl HeartbeatThread {
     }
 }
 
-fn beat_while_progressing(heartbeat: &mut Heartbeat, status: &Status, stop: &AtomicBool) -> HeartbeatReport {
+fn beat_while_progressing(
+    heartbeat: &mut Heartbeat,
+    progress: &impl Fn() -> u64,
+    stop: &AtomicBool,
+) -> HeartbeatReport {
     let mut report = HeartbeatReport::default();
     let mut last_ticks = None;
     while !stop.load(Ordering::Acquire) {
-        let ticks = status.ticks.load(Ordering::Acquire);
+        let ticks = progress();
         if last_ticks != Some(ticks) {
             last_ticks = Some(ticks);
             report.beats += 1;
@@ -93,9 +99,10 @@ fn beat_while_progressing(heartbeat: &mut Heartbeat, status: &Status, stop: &Ato
 
 #[cfg(test)]
 mod tests {
+    use std::sync::atomic::AtomicU64;
     use std::time::{Duration, Instant};
 
-    use mars_ipc::{Peer, PeerWatch};
+    use crate::{Peer, PeerWatch};
 
     use super::*;
 
@@ -116,16 +123,18 @@ mod tests {
         let robot = format!("t{}-heartbeat", std::process::id());
         let ns = RobotNamespace::new(&robot).unwrap();
         let hal_view = PeerWatch::controller(&ns).unwrap();
-        let status = Arc::new(Status::default());
-        let heartbeat = HeartbeatThread::start(&robot, status.clone()).unwrap();
+        let ticks = Arc::new(AtomicU64::new(0));
+        let counter = ticks.clone();
+        let heartbeat =
+            HeartbeatThread::start(&robot, Side::Controller, "test", move || counter.load(Ordering::Acquire)).unwrap();
 
         // A servo that ticks: the HAL sees a live controller.
         let ticking = Arc::new(AtomicBool::new(true));
         let servo = {
-            let (status, ticking) = (status.clone(), ticking.clone());
+            let (ticks, ticking) = (ticks.clone(), ticking.clone());
             std::thread::spawn(move || {
                 while ticking.load(Ordering::Acquire) {
-                    status.ticks.fetch_add(1, Ordering::Release);
+                    ticks.fetch_add(1, Ordering::Release);
                     std::thread::sleep(Duration::from_millis(1));
                 }
             })

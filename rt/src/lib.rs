@@ -1,8 +1,13 @@
-//! Real-time setup of a loop thread (core pinning, SCHED_FIFO, locked memory) and the clock it runs on.
+//! The real-time discipline both loops keep, the HAL's and marsd's servo: setup of a loop thread (core pinning,
+//! SCHED_FIFO, locked memory), the absolute-deadline [`Ticker`] it runs on, per-thread allocation counting
+//! ([`alloc_count`]) and the machine-wide lock that keeps two real-time rigs apart ([`rig_lock`]).
 //!
 //! Setup is best-effort by design: a container or an unprivileged user is refused SCHED_FIFO and mlockall,
-//! and the daemon must still run there (tests, CI, a laptop). But a refusal is never silent: it is logged once,
+//! and a loop must still run there (tests, CI, a laptop). But a refusal is never silent: it is logged once,
 //! at setup, from the thread concerned, saying what was refused, why, and which setting allows it.
+
+pub mod alloc_count;
+pub mod rig_lock;
 
 use std::time::Duration;
 
