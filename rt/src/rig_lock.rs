@@ -6,7 +6,9 @@
 //!
 //! It is std's `File::lock`, an flock(2) that the kernel releases when the holding process dies, so a killed run
 //! never leaves it locked. The lock is re-entrant per thread (a test may start two rigs), and
-//! [`rt_rig_lock_held`] lets a spawner check that its caller took it.
+//! [`rt_rig_lock_held`] lets a spawner check that its caller took it. A process started by one that holds the
+//! lock for it (a test running `mars-hil demo`) is told so by [`HELD_BY_PARENT`] naming its parent's pid: its
+//! own `rt_rig_lock` then returns at once instead of waiting for its parent forever.
 
 use std::cell::RefCell;
 use std::fs::{File, OpenOptions, TryLockError};
@@ -14,9 +16,19 @@ use std::marker::PhantomData;
 use std::path::PathBuf;
 use std::time::Instant;
 
+/// Environment variable a lock holder sets, to its own pid, for the children it runs under its lock.
+pub const HELD_BY_PARENT: &str = "MARS_RT_RIG_LOCK_HELD_BY_PID";
+
 thread_local! {
-    /// The locked file and how many guards of this thread hold it.
-    static HELD: RefCell<Option<(File, u32)>> = const { RefCell::new(None) };
+    /// The locked file (`None` when the parent holds it for us) and how many guards of this thread hold it.
+    static HELD: RefCell<Option<(Option<File>, u32)>> = const { RefCell::new(None) };
+}
+
+/// Whether this process's parent holds the lock for it (see [`HELD_BY_PARENT`]).
+fn held_by_parent() -> bool {
+    // SAFETY: getppid cannot fail.
+    let parent = unsafe { libc::getppid() };
+    std::env::var(HELD_BY_PARENT).ok().and_then(|v| v.parse::<i32>().ok()) == Some(parent)
 }
 
 /// Holds the lock until dropped (on the thread that took it).
@@ -36,6 +48,7 @@ pub fn rt_rig_lock() -> std::io::Result<RtRigLock> {
     HELD.with_borrow_mut(|held| {
         match held {
             Some((_, n)) => *n += 1,
+            None if held_by_parent() => *held = Some((None, 1)),
             None => {
                 let path = rt_rig_lock_path();
                 let named = |e: std::io::Error| std::io::Error::new(e.kind(), format!("{}: {e}", path.display()));
@@ -50,7 +63,7 @@ pub fn rt_rig_lock() -> std::io::Result<RtRigLock> {
                     }
                     Err(TryLockError::Error(e)) => return Err(named(e)),
                 }
-                *held = Some((file, 1));
+                *held = Some((Some(file), 1));
             }
         }
         Ok(RtRigLock { _thread_bound: PhantomData })

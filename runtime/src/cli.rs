@@ -101,6 +101,9 @@ impl Drop for Reaped {
 pub fn demo(args: DemoArgs) -> anyhow::Result<u8> {
     let exe = std::env::current_exe().context("locating this executable")?;
     let cfg = crate::config::DaemonConfig::load(&args.marsd.config)?;
+    // One real-time rig at a time on this machine (a second demo, the benchmark or the HIL tests would take this
+    // rig's cores): wait for the one running, if any.
+    let _rig = crate::rt::rig_lock::rt_rig_lock().context("taking the real-time rig lock")?;
     // A namespace of its own, so a demo never meets another run's HAL or controller.
     let robot = args.marsd.robot.clone().unwrap_or_else(|| format!("{}-demo-{}", cfg.robot, std::process::id()));
     let out = args.marsd.out.clone().unwrap_or_else(|| cfg.out.clone());

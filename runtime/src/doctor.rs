@@ -321,6 +321,8 @@ pub fn run(config: &Path, seconds: f64, out: Option<&Path>) -> anyhow::Result<Re
         command_timeout_ms: profile.command_timeout_ms,
         servo_core: cfg.servo.core,
     };
+    // Its wake-up measurement is a real-time thread on the servo core: not beside another real-time rig.
+    let _rig = crate::rt::rig_lock::rt_rig_lock().context("taking the real-time rig lock")?;
     let period = Duration::from_secs_f64(profile.period_s());
     let wakeups = measure_wakeups(seconds, period, cfg.servo.core, cfg.servo.priority, cfg.servo.lock_memory)?;
     let machine = inspect_machine();

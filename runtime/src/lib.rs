@@ -26,6 +26,7 @@ pub mod shared;
 pub mod smoothing;
 pub mod stall;
 pub mod stall_watch;
+pub mod tally;
 pub mod task;
 pub mod timeliness;
 pub mod traces;

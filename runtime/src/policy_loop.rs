@@ -43,7 +43,8 @@ pub struct EpisodeResult {
 /// Totals of the policy loop.
 #[derive(Debug, Clone, Default, Serialize)]
 pub struct PolicyReport {
-    pub episodes: Vec<EpisodeResult>,
+    /// Totals over every episode, and the last `traces_kept` results.
+    pub episodes: crate::tally::EpisodeTally,
     /// The last `traces_kept` episodes' traces, oldest first.
     #[serde(skip)]
     pub traces: Vec<EpisodeTrace>,
@@ -84,9 +85,11 @@ pub struct PolicyLoop {
 
 impl PolicyLoop {
     pub fn run(mut self, cfg: &DaemonConfig) -> PolicyReport {
-        let mut report = PolicyReport::default();
+        let mut report = PolicyReport {
+            episodes: crate::tally::EpisodeTally::new(self.task.cfg.grasps.len(), cfg.traces_kept),
+            ..Default::default()
+        };
         let episodes = if cfg.episodes == 0 { u64::MAX } else { cfg.episodes as u64 };
-        report.episodes.reserve(cfg.episodes.min(10_000));
         if !self.wait_for(|s| s.hal_ready.load(Ordering::Acquire)) {
             return report;
         }
@@ -108,7 +111,7 @@ impl PolicyLoop {
             }
             let rest = self.task.rest_action(&pose_v);
             match self.episode(cfg, episode, &rest, &mut faults, &mut traces, &mut report) {
-                Some(result) => report.episodes.push(result),
+                Some(result) => report.episodes.add(result),
                 None => break,
             }
         }

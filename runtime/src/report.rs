@@ -127,6 +127,7 @@ pub struct Summary {
     /// Whether SCHED_FIFO, the core pinning and mlockall were applied, per loop thread.
     pub realtime: Vec<RtStatus>,
     pub latency: Totals,
+    /// The last `traces_kept` episodes' results (the counts above cover every episode).
     pub episode_results: Vec<EpisodeResult>,
     /// Episode traces dropped from the plot (only the last `traces_kept` are kept).
     pub traces_dropped: u64,
@@ -141,15 +142,8 @@ impl Summary {
         latency: Totals,
         run: RunFacts,
     ) -> Self {
-        let successes = p.episodes.iter().filter(|e| e.success).count();
-        let counts: Vec<usize> = (0..mode_names.len())
-            .map(|m| p.episodes.iter().filter(|e| e.success && e.mode == Some(m)).count())
-            .collect();
-        let total: usize = counts.iter().sum();
-        let gamma = match counts.iter().min() {
-            Some(&min) if total > 0 => counts.len() as f64 * min as f64 / total as f64,
-            _ => 0.0,
-        };
+        let t = &p.episodes;
+        let counts = t.mode_successes.iter().map(|&c| c as usize);
         let mean = |c: Channel| latency.stats(c).map_or(0.0, |s| s.mean);
         let (stop, trip) = match s.cause {
             Some(StopCause::Trip(t)) => ("trip", Some(t.to_string())),
@@ -161,11 +155,11 @@ impl Summary {
             checkpoint: cfg.checkpoint.clone(),
             stop,
             trip,
-            episodes: p.episodes.len(),
-            successes,
-            success_rate: if p.episodes.is_empty() { 0.0 } else { successes as f64 / p.episodes.len() as f64 },
+            episodes: t.episodes as usize,
+            successes: t.successes as usize,
+            success_rate: t.success_rate(),
             modes: mode_names.iter().cloned().zip(counts).collect(),
-            gamma,
+            gamma: t.gamma(),
             k: KStats {
                 calls: p.inferences,
                 requested_mean: mean(Channel::KRequested),
@@ -207,7 +201,7 @@ impl Summary {
             servo_samples_sent: s.samples_sent_after_warmup,
             realtime: run.realtime,
             latency,
-            episode_results: p.episodes.clone(),
+            episode_results: t.recent.iter().cloned().collect(),
             traces_dropped: p.traces_dropped,
         }
     }

@@ -11,7 +11,9 @@ use std::time::Duration;
 use iceoryx2::prelude::*;
 use mars_ipc::clock::monotonic_ns;
 use mars_ipc::node::create_node;
-use mars_ipc::{CommandWriter, FrameReceiveError, PeerWatch, RobotNamespace, RobotState, StateReader};
+use mars_ipc::{
+    CommandWriter, FrameReceiveError, FrameSendError, JointCommand, PeerWatch, RobotNamespace, RobotState, StateReader,
+};
 
 use crate::chunk::TimedChunk;
 use crate::latency::{Channel, Recorder};
@@ -48,6 +50,28 @@ impl ServoWire {
             hal: PeerWatch::hal(&ns)?,
             _node: node,
         })
+    }
+}
+
+/// What the servo loop needs of the wire: [`ServoWire`], or a stand-in for the HAL in tests.
+pub trait ServoPorts {
+    /// The next state frame, if any.
+    fn receive_state(&self) -> Result<Option<RobotState>, FrameReceiveError>;
+    /// Sends a command; allocation-free on both outcomes (but iceoryx2's block per sample).
+    fn send_command(&self, cmd: &JointCommand) -> Result<usize, FrameSendError>;
+    /// Deaths and exits of the HAL the liveness watch has seen so far.
+    fn hal_losses(&self) -> u64;
+}
+
+impl ServoPorts for ServoWire {
+    fn receive_state(&self) -> Result<Option<RobotState>, FrameReceiveError> {
+        self.states.receive()
+    }
+    fn send_command(&self, cmd: &JointCommand) -> Result<usize, FrameSendError> {
+        self.commands.send(cmd)
+    }
+    fn hal_losses(&self) -> u64 {
+        self.hal.losses()
     }
 }
 
@@ -121,14 +145,14 @@ const LIVENESS_GRACE: Duration = Duration::from_millis(100);
 
 pub fn run_servo(
     mut tick: ServoTick,
-    wire: ServoWire,
+    wire: impl ServoPorts,
     mut ch: ServoChannels,
     mut rec: Recorder,
     cfg: ServoLoopConfig,
 ) -> ServoReport {
     let mut ticker = Ticker::new(cfg.period);
     let period_ns = cfg.period.as_nanos() as u64;
-    let losses_at_start = wire.hal.losses();
+    let losses_at_start = wire.hal_losses();
     let interval_ns = cfg.interval.as_nanos() as u64;
     let mut next_interval = monotonic_ns() + interval_ns;
     let (mut schema_refusals, mut receive_port_errors) = (0u64, 0u64);
@@ -143,7 +167,7 @@ pub fn run_servo(
         // Newest state frame: older ones queued behind it are superseded.
         let mut newest: Option<RobotState> = None;
         loop {
-            match wire.states.receive() {
+            match wire.receive_state() {
                 Ok(Some(s)) => {
                     tick.note_frame_timing(&s);
                     newest = Some(s);
@@ -170,7 +194,7 @@ pub fn run_servo(
             chunk,
             request: ch.requests.pop().ok(),
             stop_requested: ch.status.stop_requested.load(std::sync::atomic::Ordering::Acquire),
-            hal_gone: wire.hal.losses() != losses_at_start,
+            hal_gone: wire.hal_losses() != losses_at_start,
         };
         let out = tick.tick(&input);
 
@@ -178,7 +202,7 @@ pub fn run_servo(
             // The only place the servo thread may allocate: iceoryx2's one block per sample, from the RT pool.
             let sent = {
                 let _pool = crate::alloc_count::RtPoolScope::enter();
-                wire.commands.send(cmd)
+                wire.send_command(cmd)
             };
             if let Some(trip) = sends.record(sent.is_ok()) {
                 tick.trip(trip);
@@ -220,10 +244,10 @@ pub fn run_servo(
     // HAL died — the report should name the cause, not the symptom.
     if matches!(tick.stop_cause(), Some(StopCause::Trip(crate::watchdog::Trip::StaleState))) {
         let until = std::time::Instant::now() + LIVENESS_GRACE;
-        while std::time::Instant::now() < until && wire.hal.losses() == losses_at_start {
+        while std::time::Instant::now() < until && wire.hal_losses() == losses_at_start {
             std::thread::sleep(Duration::from_millis(1));
         }
-        if wire.hal.losses() != losses_at_start {
+        if wire.hal_losses() != losses_at_start {
             tick.blame_hal_death();
             ch.status.set_trip(crate::watchdog::Trip::HalDied);
         }

@@ -13,6 +13,9 @@ use serde::Serialize;
 
 /// A gap in the HAL's frames at least this long counts as a stall (the watchdog's budget is 20 ms).
 pub const MIN_GAP_MS: f64 = 15.0;
+/// Steal in the window at least this large (ms, summed over the CPUs) counts as a stall: the hypervisor took as
+/// much CPU time as the frame-gap threshold. (The counter's resolution is 10 ms, one tick of 1/USER_HZ.)
+pub const MIN_STEAL_MS: f64 = MIN_GAP_MS;
 /// How long before the trip a stall still explains it: the slowest timing detector (stale state or the HAL's
 /// command timeout, 20 ms each) plus the 2 ms in which marsd logs a trip, with room for a stalled logger.
 pub const BEFORE_TRIP_MS: f64 = 100.0;
@@ -111,9 +114,10 @@ pub struct Evidence {
 }
 
 impl Evidence {
-    /// Whether the machine stalled around the trip: a HAL frame gap, or stolen CPU time, in the window.
+    /// Whether the machine stalled around the trip: a HAL frame gap, or at least [`MIN_STEAL_MS`] of stolen CPU
+    /// time, in the window.
     pub fn is_stall(&self) -> bool {
-        self.gap.is_some() || self.steal_ms.is_some_and(|s| s > 0.0)
+        self.gap.is_some() || self.steal_ms.is_some_and(|s| s >= MIN_STEAL_MS)
     }
 }
 
@@ -258,6 +262,10 @@ mod tests {
         let e = around_trip(trip, &[], &grew);
         assert_eq!(e.steal_ms, Some(30.0));
         assert!(e.is_stall());
+        // One tick of steal (10 ms) is less than a stall that could explain a 20 ms timing trip.
+        let tick = [s(9_880, 150.0), s(10_020, 160.0)];
+        assert_eq!(around_trip(trip, &[], &tick).steal_ms, Some(10.0));
+        assert!(!around_trip(trip, &[], &tick).is_stall());
         // Samples that end before the window closes bracket nothing.
         assert_eq!(around_trip(trip, &[], &grew[..2]).steal_ms, None);
     }

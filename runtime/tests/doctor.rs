@@ -19,6 +19,7 @@ fn marsd_doctor_measures_prints_a_verdict_and_writes_every_field() {
     let o = Command::new(env!("CARGO_BIN_EXE_marsd"))
         .current_dir(Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/..")))
         .args(["doctor", "--seconds", "1"])
+        .env(mars_runtime::rt::rig_lock::HELD_BY_PARENT, std::process::id().to_string())
         .arg("--out")
         .arg(&out)
         .output()

@@ -68,7 +68,8 @@ fn ready_after_the_hal_handshake_watchdog_pings_and_stopping_on_sigterm() {
     let _hal = Proc(
         Command::new(env!("CARGO_BIN_EXE_mars-hil"))
             .current_dir(root())
-            .args(["hal", "--profile", "configs/fr3.toml", "--robot", &robot])
+            // As the demo runs it: real-time, above marsd's servo loop on the servo's core.
+            .args(["hal", "--profile", "configs/fr3.toml", "--robot", &robot, "--core", "1", "--rt-priority", "85"])
             .stderr(Stdio::null())
             .stdout(Stdio::null())
             .spawn()

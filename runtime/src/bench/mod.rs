@@ -298,6 +298,8 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         "--policies must include mars (its run is the one measured against cyclictest)"
     );
     let cfg = crate::config::DaemonConfig::load(&args.config)?;
+    // One real-time rig at a time: cyclictest and the demo rigs measured here must not share the cores.
+    let _rig = crate::rt::rig_lock::rt_rig_lock().context("taking the real-time rig lock")?;
     let profile = mars_hal::profile::Profile::load(&cfg.profile)?;
     let period_us = (profile.period_s() * 1e6).round() as u64;
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;

@@ -138,6 +138,8 @@ impl Proc {
         let stdout = logs.join(format!("{name}.stdout"));
         let stderr = logs.join(format!("{name}.stderr"));
         cmd.current_dir(root())
+            // The test holds the real-time rig lock for its children (a demo or doctor child takes it too).
+            .env(mars_runtime::rt::rig_lock::HELD_BY_PARENT, std::process::id().to_string())
             .env("RUST_LOG", "info")
             .env_remove("IOX2_LOG_LEVEL")
             .stdin(Stdio::null())
