@@ -81,6 +81,11 @@ impl LimitCheck {
         self.known = 3;
     }
 
+    /// The velocity of joint `j` over the last two commands accepted (a finite difference, as the robot takes it).
+    pub fn last_velocity(&self, j: usize) -> Option<f64> {
+        (self.known >= 2).then(|| (self.recent[0][j] - self.recent[1][j]) / self.dt)
+    }
+
     /// Checks `q` as the next command after the ones accepted so far; accepted commands join the stream.
     pub fn admit(&mut self, q: &[f64]) -> Result<(), Violation> {
         let verdict = self.verdict(q);

@@ -438,7 +438,13 @@ impl ServoTick {
     fn resync(&mut self, f: &RobotState) {
         let n = self.n;
         let ours = &self.smoother.state().position[..n];
-        if self.seq == 0 || (f.last_command_seq == self.seq && f.applied_position[..n] == *ours) {
+        // In step: the HAL applied our last command, and the one before it in the tick before (its velocity, a
+        // finite difference, is ours). A HAL tick without a new command (we skipped one of its frames) leaves the
+        // position right but stops the joints: that needs a resync as much as a late command does.
+        let in_step = (0..n).all(|j| {
+            self.limits.last_velocity(j).is_none_or(|v| (f.applied_velocity[j] - v).abs() <= 1e-9 * (1.0 + v.abs()))
+        });
+        if self.seq == 0 || (f.last_command_seq == self.seq && f.applied_position[..n] == *ours && in_step) {
             return;
         }
         // The HAL's velocity and acceleration are finite differences over the last tick, i.e. the values half a

@@ -16,8 +16,9 @@
 //! tightened by A²/J for ruckig's jerk-limited lag, scaled like every other limit.
 //!
 //! Allocation caveat: rsruckig formats a `String` when *it* reports an error. [`Smoother`] validates, clamps and
-//! range-checks every input first so ruckig's validation never fails; only a numerical failure inside ruckig (never
-//! seen in the randomized tests) would allocate, on that error path alone.
+//! range-checks every input first so ruckig's validation never fails; only a numerical failure inside ruckig would
+//! allocate, on that error path alone. With time synchronisation such failures did occur (see `Smoother::new`);
+//! without it none is seen in the randomized tests here and in `tests/servo_hal_timing.rs`.
 
 use mars_hal::profile::Profile;
 use mars_hal::velocity_limits::JointVelocityBound;
@@ -38,6 +39,8 @@ const REST_VELOCITY: f64 = 1e-9;
 const REST_ACCELERATION: f64 = 1e-6;
 /// Ruckig refuses a velocity limit of 0: where the bound is 0 (at a position limit), this is the limit.
 const MIN_VELOCITY_LIMIT: f64 = 1e-9;
+/// A position-dependent velocity limit is raised only once the bound exceeds ruckig's by this fraction.
+const LIMIT_HYSTERESIS: f64 = 0.01;
 
 /// Per-joint kinematic limits of the robot (absolute values; only the first `n` entries are used).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -170,7 +173,12 @@ impl Smoother {
             input.enabled[i] = active;
         }
         input.control_interface = ControlInterface::Position;
-        input.synchronization = Synchronization::Time;
+        // Every joint time-optimal on its own, not stretched to end with the slowest: the servo re-plans every
+        // tick toward a moving reference, where a shared end time buys nothing, and ruckig (rsruckig and the C++
+        // original alike) can fail to find one from a state at the very end of a motion when its input changes
+        // there ("error in step 2", reproduced in tests/servo_hal_timing.rs) — a trip on a healthy robot, and an
+        // allocation on its error path.
+        input.synchronization = Synchronization::None;
         let position_dependent = limits.position_dependent.map(|bounds| {
             let (mut tight, mut brake) = (bounds, [0.0; MAX_JOINTS]);
             for i in 0..n {
@@ -256,15 +264,24 @@ impl Smoother {
         (lo, self.input.max_velocity[i])
     }
 
-    /// Position-dependent bounds: ruckig gets this step's limits at the current position.
+    /// Position-dependent bounds: ruckig gets this step's limits at the current position. A change of a limit
+    /// makes ruckig plan anew, so a limit moves only once the bound is [`LIMIT_HYSTERESIS`] away from the one
+    /// ruckig has (a lag the 10 % safety factor covers: ruckig's limit stays below 0.9 / 0.99 of the bound).
     fn velocity_limits_here(&mut self) {
         let Some((bounds, brake)) = &self.position_dependent else { return };
         let sf = self.safety_factor;
+        let far = |new: f64, old: f64| (new - old).abs() > LIMIT_HYSTERESIS * old.abs();
         for i in 0..self.n {
             let (lo, hi) = bounds[i].envelope(self.state.position[i], brake[i]);
-            self.input.max_velocity[i] = (sf * hi).clamp(MIN_VELOCITY_LIMIT, self.max_velocity[i]);
+            let hi = (sf * hi).clamp(MIN_VELOCITY_LIMIT, self.max_velocity[i]);
+            if far(hi, self.input.max_velocity[i]) {
+                self.input.max_velocity[i] = hi;
+            }
             if let Some(min) = self.input.min_velocity.as_mut() {
-                min[i] = (sf * lo).clamp(-self.max_velocity[i], -MIN_VELOCITY_LIMIT);
+                let lo = (sf * lo).clamp(-self.max_velocity[i], -MIN_VELOCITY_LIMIT);
+                if far(lo, min[i]) {
+                    min[i] = lo;
+                }
             }
         }
     }
@@ -314,14 +331,13 @@ impl Smoother {
     }
 
     fn step(&mut self, saved: (ControlInterface, [[f64; MAX_JOINTS]; 3])) -> Result<&Kinematics, SmoothingError> {
-        let ok = matches!(
-            self.otg.update(&self.input, &mut self.output),
-            Ok(RuckigResult::Working | RuckigResult::Finished)
-        ) && (0..self.n).all(|i| {
-            self.output.new_position[i].is_finite()
-                && self.output.new_velocity[i].is_finite()
-                && self.output.new_acceleration[i].is_finite()
-        });
+        let r = self.otg.update(&self.input, &mut self.output);
+        let ok = r.is_ok_and(|r| matches!(r, RuckigResult::Working | RuckigResult::Finished))
+            && (0..self.n).all(|i| {
+                self.output.new_position[i].is_finite()
+                    && self.output.new_velocity[i].is_finite()
+                    && self.output.new_acceleration[i].is_finite()
+            });
         if !ok {
             // Put the targets back and drop ruckig's cached plan: `calculate` may have half-written the
             // trajectory, and an unchanged input would otherwise be sampled from it next tick.

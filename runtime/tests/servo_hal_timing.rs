@@ -1,0 +1,201 @@
+//! marsd's servo tick and the HAL's tick, both as plain logic, on one simulated clock: the HAL ticks every
+//! millisecond; the servo ticks 300 µs after each HAL tick, except that (seeded, at random) it sometimes ticks
+//! twice between two HAL ticks (two answers to one frame), wakes so late that it skips a frame (the HAL gets no
+//! command in one tick), or sends a command that reaches the HAL only after its next tick (a late command).
+//! That is what a noisy machine does to the two processes; the test makes it happen thousands of times in a few
+//! seconds, deterministically, while the servo runs reset motions between random poses.
+//!
+//! Whatever the timing, the servo's smoother never fails, the HAL never has to clamp a command (late ones and
+//! second answers are timing, counted apart), and the HAL's applied setpoints stay within every limit.
+
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use mars_hal::backend::Backend;
+use mars_hal::control::HalControl;
+use mars_hal::events::EventLogger;
+use mars_hal::profile::Profile;
+use mars_hal::sim::SimBackend;
+use mars_ipc::{JointCommand, MAX_JOINTS, RobotState};
+use mars_runtime::config::DaemonConfig;
+use mars_runtime::servo::{ServoTick, StopCause, TickInput};
+use mars_runtime::shared::{Phase, Request};
+
+const MS: u64 = 1_000_000;
+
+fn root() -> PathBuf {
+    Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/..")).canonicalize().unwrap()
+}
+
+/// Tiny deterministic generator.
+struct Lcg(u64);
+impl Lcg {
+    fn unit(&mut self) -> f64 {
+        self.0 = self.0.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        (self.0 >> 11) as f64 / (1u64 << 53) as f64
+    }
+}
+
+#[derive(Debug, Default)]
+struct Outcome {
+    stop: Option<StopCause>,
+    resets: u64,
+    clamped: u64,
+    rejected: u64,
+    late: u64,
+    duplicates: u64,
+    last_resorts: u64,
+    worst: [f64; 3],
+}
+
+/// Runs `resets` reset motions with the servo ticking as described in the module doc, for seed `seed`.
+fn run(seed: u64, resets: u64, p_fault: f64) -> Outcome {
+    let root = root();
+    let cfg = DaemonConfig::load(&root.join("configs/marsd.toml")).unwrap();
+    let mut profile = Profile::load(&root.join("configs/fr3.toml")).unwrap();
+    profile.sim.seed = seed;
+    let mut sim = SimBackend::new(&profile);
+    let mut hal = HalControl::start(&profile, &sim.read().unwrap()).unwrap();
+    let (mut ev, logger) = EventLogger::start(4096, Duration::from_millis(5), |_| {}).unwrap();
+    let mut servo = ServoTick::new(&cfg, &profile, 7).unwrap();
+    let mut rng = Lcg(seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1);
+    let n = profile.joints;
+    let (q_lo, q_hi) = profile.position_limits();
+
+    // Frames in flight to the servo and commands in flight to the HAL, with the time they were sent.
+    let mut to_servo: Vec<RobotState> = Vec::new();
+    let mut to_hal: Vec<JointCommand> = Vec::new();
+    // Commands that reach the HAL only after its next tick: while `delaying`, every command sent (the wire is
+    // FIFO: a later one cannot overtake a delayed one).
+    let mut delayed: Vec<JointCommand> = Vec::new();
+    let mut delaying = false;
+    let mut out = Outcome::default();
+    let mut episode = 0;
+    let mut finishing = false;
+    let mut prev: Vec<[f64; MAX_JOINTS]> = Vec::new();
+    // Servo tick times not yet run (planned one HAL period ahead).
+    let mut servo_ticks: Vec<u64> = Vec::new();
+    'run: for k in 1..200_000u64 {
+        let h = k * MS;
+        // The servo's ticks before this HAL tick: each sees the frames published by then and sends a command
+        // that the HAL takes at its first tick after it.
+        while let Some(&now) = servo_ticks.first()
+            && now < h
+        {
+            servo_ticks.remove(0);
+            let arrived: Vec<RobotState> = to_servo.iter().filter(|f| f.timestamp_ns <= now).copied().collect();
+            to_servo.retain(|f| f.timestamp_ns > now);
+            for f in &arrived {
+                servo.note_frame_timing(f);
+            }
+            let request = match servo.phase() {
+                Phase::Idle | Phase::Ready if !finishing => {
+                    if episode == resets {
+                        finishing = true;
+                        Some(Request::Finish)
+                    } else {
+                        episode += 1;
+                        let mut pose = [0.0; MAX_JOINTS];
+                        for j in 0..n {
+                            let (lo, hi) = (q_lo[j] + 0.3, q_hi[j] - 0.3);
+                            pose[j] = lo + (hi - lo) * rng.unit();
+                        }
+                        Some(Request::MoveTo { episode, pose, gripper: 0.07 })
+                    }
+                }
+                _ => None,
+            };
+            let input = TickInput {
+                now_ns: now,
+                missed: 0,
+                frame: arrived.last(),
+                chunk: None,
+                request,
+                stop_requested: false,
+                hal_gone: false,
+            };
+            if let Some(cmd) = servo.tick(&input).command {
+                if delaying { delayed.push(cmd) } else { to_hal.push(cmd) }
+            }
+            if servo.phase() == Phase::Finished {
+                break 'run;
+            }
+        }
+
+        // The HAL's tick at k ms: read, the commands that arrived, step, apply, publish.
+        hal.begin_tick(h);
+        hal.on_read(sim.read(), &mut ev);
+        for c in to_hal.drain(..) {
+            hal.on_command(&c, &mut ev);
+        }
+        to_hal.append(&mut delayed);
+        delaying = false;
+        let step = hal.step(20, &mut ev);
+        let (setpoint, gripper) = (step.setpoint.to_vec(), step.gripper);
+        let r = sim.apply(&setpoint);
+        hal.on_apply(r, &mut ev);
+        if let Some(g) = gripper {
+            let r = sim.move_gripper(g);
+            hal.on_gripper(r, &mut ev);
+        }
+        let frame = hal.state_frame(h);
+        // The HAL's applied stream, differentiated like the robot does.
+        prev.push(frame.applied_position);
+        if prev.len() > 4 {
+            prev.remove(0);
+        }
+        if prev.len() == 4 {
+            for j in 0..n {
+                let v = (prev[3][j] - prev[2][j]) * 1e3;
+                let a = (prev[3][j] - 2.0 * prev[2][j] + prev[1][j]) * 1e6;
+                let jerk = (prev[3][j] - 3.0 * prev[2][j] + 3.0 * prev[1][j] - prev[0][j]) * 1e9;
+                let ratios = [v / profile.dq_max[j], a / profile.ddq_max[j], jerk / profile.jerk_max[j]];
+                for (w, x) in out.worst.iter_mut().zip(ratios) {
+                    *w = w.max(x.abs());
+                }
+            }
+        }
+        to_servo.push(frame);
+
+        // The servo's ticks in this period: normally one at +0.3 ms; sometimes one more at +0.8 (a double tick:
+        // two answers to this frame); sometimes the one at +0.3 comes at +1.2 instead (after the HAL's next tick
+        // and frame: this frame is skipped); sometimes its command is delivered after the HAL's next tick.
+        let u = rng.unit() / p_fault;
+        if u < 1.0 {
+            servo_ticks.extend([h + 300_000, h + 800_000]);
+        } else if u < 2.0 {
+            servo_ticks.push(h + 1_200_000);
+        } else {
+            delaying = u < 3.0;
+            servo_ticks.push(h + 300_000);
+        }
+        servo_ticks.sort_unstable();
+    }
+    drop(ev);
+    logger.finish();
+    let last = hal.state_frame(0);
+    out.stop = servo.stop_cause();
+    out.resets = episode;
+    out.clamped = last.clamped_commands;
+    out.rejected = last.rejected_commands;
+    out.late = last.late_commands;
+    out.duplicates = last.duplicate_commands;
+    out.last_resorts = last.position_guard_hits + last.infeasible_steps;
+    out
+}
+
+#[test]
+fn a_noisy_servo_timing_never_fails_the_smoother_nor_makes_the_hal_clamp() {
+    let (mut late, mut duplicates) = (0, 0);
+    for seed in 0..30 {
+        let o = run(seed, 12, 0.02);
+        eprintln!("seed {seed}: {o:?}");
+        assert_eq!(o.stop, Some(StopCause::Finished), "seed {seed}: {o:?}");
+        assert_eq!(o.resets, 12, "seed {seed}");
+        assert_eq!((o.clamped, o.rejected, o.last_resorts), (0, 0, 0), "seed {seed}: {o:?}");
+        assert!(o.worst.iter().all(|w| *w <= 1.0 + 1e-6), "seed {seed}: {o:?}");
+        late += o.late;
+        duplicates += o.duplicates;
+    }
+    assert!(late > 100 && duplicates > 100, "the timing faults happened: {late} late, {duplicates} duplicates");
+}
