@@ -11,7 +11,7 @@ use mars_policy::checkpoint::{self, CheckpointMeta};
 use mars_policy::config::PolicyConfig;
 use mars_policy::dataset::history_window;
 use mars_policy::inference::MarsPolicy;
-use mars_policy::model::{MarsModel, steps_for};
+use mars_policy::model::MarsModel;
 use mars_policy::normalize::{Normalizer, Stats};
 use mars_policy::rollout::ChunkPolicy;
 use mars_policy::train::{Trained, init_model, randn};
@@ -71,7 +71,7 @@ fn candle_call(
     let emb = model.encode(&o).unwrap();
     let w = model.weights(&emb, &h).unwrap();
     let w_inf = w.flatten_all().unwrap().max(0).unwrap().to_scalar::<f32>().unwrap();
-    std::hint::black_box(steps_for(w_inf, cfg.k_max));
+    std::hint::black_box(cfg.steps_for(w_inf));
     let a0 = MarsModel::source(&h, &w, &eps).unwrap();
     let mut chunk = model.integrate(&a0, &emb, k).unwrap().flatten_all().unwrap().to_vec1::<f32>().unwrap();
     norm.action.denormalize(&mut chunk);

@@ -3,7 +3,7 @@
 
 use mars_policy::config::{EncoderConfig, ModelConfig, PolicyKind};
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Dims {
     pub obs: usize,
     /// D: action dimensions.
@@ -23,6 +23,8 @@ pub struct Dims {
     /// Sinusoid features of the time embedding: max(W, 32).
     pub freq: usize,
     pub k_max: usize,
+    /// ‖w‖∞ that gets K_max steps (`ModelConfig::k_full_w`).
+    pub k_full_w: f32,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -67,6 +69,7 @@ impl Dims {
             mlp_hidden: cfg.dit_width * cfg.dit_mlp_ratio,
             freq,
             k_max: cfg.k_max,
+            k_full_w: cfg.k_full_w,
         })
     }
 

@@ -53,7 +53,7 @@ pub fn observe(
         Modality::Fixed(w) => b.w.fill(*w),
     }
     mm.linear(&b.emb, 1, &wt.cond_in, &mut b.cond);
-    steps_for(b.w.iter().copied().fold(f32::NEG_INFINITY, f32::max), d.k_max)
+    steps_for(b.w.iter().copied().fold(f32::NEG_INFINITY, f32::max) / d.k_full_w, d.k_max)
 }
 
 /// a0 = (1 − w)⊙history + w⊙ε into `b.a`, w per action dimension, in the candle model's op order.

@@ -9,7 +9,7 @@ use mars_engine::{Engine, EngineConfig};
 use mars_policy::checkpoint;
 use mars_policy::config::PolicyKind;
 use mars_policy::inference::MarsPolicy;
-use mars_policy::model::{MarsModel, steps_for};
+use mars_policy::model::MarsModel;
 use mars_policy::rollout::ChunkPolicy;
 use rand::SeedableRng;
 use rand::rngs::StdRng;
@@ -60,7 +60,7 @@ fn compare_on(dir: &Path, cfg: EngineConfig, draw: Draw) -> f32 {
         let w = model.weights(&emb, &hist_t).unwrap();
         let a0 = MarsModel::source(&hist_t, &w, &eps_t).unwrap();
         let w = to_vec(&w);
-        let k_want = steps_for(w.iter().copied().fold(f32::MIN, f32::max), m.k_max);
+        let k_want = m.steps_for(w.iter().copied().fold(f32::MIN, f32::max));
         ks_requested.push(k_want);
 
         for k in 1..=m.k_max {
@@ -96,6 +96,17 @@ fn every_policy_kind_matches_candle_for_k_1_to_10() {
         compare(&dir, EngineConfig::default());
         std::fs::remove_dir_all(&dir).unwrap();
     }
+}
+
+/// A calibrated K(w) (`train.k_full_quantile`): training writes `model.k_full_w` < 1 into the checkpoint, and
+/// the engine requests the K that the candle model's rule gives with it.
+#[test]
+fn calibrated_k_of_w_matches_candle() {
+    let dir = trained_checkpoint(PolicyKind::Mars, "eq-kfull", |cfg| cfg.train.k_full_quantile = Some(0.5));
+    let meta = checkpoint::load_meta(&dir).unwrap();
+    assert!(meta.model.k_full_w > 0.0 && meta.model.k_full_w < 1.0, "k_full_w = {}", meta.model.k_full_w);
+    compare(&dir, EngineConfig::default());
+    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 /// A scheduler that sees the history, 20 tokens (several microkernel column groups), 3 heads of 16, other

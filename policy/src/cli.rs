@@ -100,13 +100,48 @@ pub fn eval(
     seed: u64,
     exec_horizon: usize,
 ) -> anyhow::Result<EvalReport> {
+    eval_with_steps(checkpoint_dir, layout, rollouts, seed, exec_horizon, StepsAblation::default())
+}
+
+/// How an ablation changes the step count of a checkpoint's K(w); the default changes nothing.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct StepsAblation {
+    /// Exactly this many Euler steps.
+    pub steps: Option<usize>,
+    /// K(w) with this `k_full_w` instead of the checkpoint's.
+    pub k_full_w: Option<f32>,
+}
+
+/// `eval` under a step-count ablation; an ablated run writes `eval_k<steps>.json` or `eval_kfull<w>.json`, so
+/// it never replaces the checkpoint's own evaluation.
+pub fn eval_with_steps(
+    checkpoint_dir: &Path,
+    layout: &Path,
+    rollouts: usize,
+    seed: u64,
+    exec_horizon: usize,
+    ablation: StepsAblation,
+) -> anyhow::Result<EvalReport> {
     anyhow::ensure!(rollouts > 0, "--rollouts must be at least 1");
+    anyhow::ensure!(ablation.steps != Some(0), "--steps must be at least 1");
+    if let Some(w) = ablation.k_full_w {
+        anyhow::ensure!(w > 0.0 && w <= 1.0, "--k-full-w is {w}, must lie in (0, 1]");
+    }
     let layout = Layout::load(layout)?;
     let (mut policy, meta) = MarsPolicy::load(checkpoint_dir, seed)?;
+    policy.force_steps(ablation.steps);
+    if let Some(w) = ablation.k_full_w {
+        policy.set_k_full_w(w);
+    }
     let report = evaluate(&layout, &mut policy, rollouts, seed, exec_horizon)?;
+    let (name, file) = match (ablation.steps, ablation.k_full_w) {
+        (Some(k), _) => (format!("{} (K = {k})", meta.kind.name()), format!("eval_k{k}.json")),
+        (None, Some(w)) => (format!("{} (k_full_w = {w})", meta.kind.name()), format!("eval_kfull{w}.json")),
+        (None, None) => (meta.kind.name().to_string(), "eval.json".to_string()),
+    };
     println!("{}", EvalReport::table_header());
-    println!("{}", report.to_table_row(meta.kind.name()));
-    write_json(&checkpoint_dir.join("eval.json"), &report)?;
+    println!("{}", report.to_table_row(&name));
+    write_json(&checkpoint_dir.join(file), &report)?;
     Ok(report)
 }
 
@@ -134,6 +169,34 @@ pub fn mean_w_in_region(policy: &MarsPolicy, demos: &[Demo], region: &Rect) -> a
     let hist = Tensor::from_vec(hist, (n, cfg.history_len, cfg.action_dim), &Device::Cpu)?;
     let w = model.weights(&model.encode(&obs)?, &hist)?;
     Ok(Some(w.max(1)?.mean_all()?.to_scalar::<f32>()?))
+}
+
+/// Where the diversity loss acts on a trained checkpoint: per region, S_next vs S_curr, ReLU activity, w and
+/// the neighbours' make-up, as a table (also written to `<checkpoint>/diagnose.json`).
+pub fn diagnose(checkpoint_dir: &Path, demos: &Path, layout: &Path, seed: u64) -> anyhow::Result<()> {
+    let layout = Layout::load(layout)?;
+    let set = load_demos(demos)?;
+    let (policy, meta) = MarsPolicy::load(checkpoint_dir, seed)?;
+    let stats = crate::diagnose::diagnose(&policy, &set.demos, &layout, meta.train.knn_m, seed)?;
+    let model = policy.model();
+    let data = crate::dataset::Dataset::from_demos(&set.demos, &model.cfg, meta.train.knn_m)?;
+    let mut w_inf = crate::train::w_inf_values(model, &data.tensors(&model.cfg, &Device::Cpu)?)?;
+    let q: Vec<String> = [0.5, 0.9, 0.95, 0.99, 1.0]
+        .iter()
+        .map(|&q| format!("q{} {:.3}", q * 100.0, crate::train::quantile(&mut w_inf, q)))
+        .collect();
+    println!(
+        "{} on {} ({} demos), m = {}, S in normalised action units, S_curr averaged over noise draws.\n\
+         ‖w‖∞ over the demo samples: {} (checkpoint's k_full_w {}).\n",
+        meta.kind,
+        layout.name,
+        set.demos.len(),
+        meta.train.knn_m,
+        q.join(", "),
+        model.cfg.k_full_w
+    );
+    println!("{}", crate::diagnose::table(&stats));
+    write_json(&checkpoint_dir.join("diagnose.json"), &stats)
 }
 
 pub fn plot(run: &Path, layout: &Path) -> anyhow::Result<()> {
@@ -175,6 +238,7 @@ pub fn plot(run: &Path, layout: &Path) -> anyhow::Result<()> {
     Ok(())
 }
 
+#[derive(Clone)]
 pub struct BenchmarkOptions {
     pub demos: usize,
     pub epochs: Option<usize>,
@@ -189,7 +253,12 @@ pub struct BenchmarkOptions {
 /// Demos → train the policies (`jobs` at a time) → evaluate each, one after the other so that latencies are
 /// measured on an otherwise idle machine → `results.md` (the table and the paper's claims, checked) and the
 /// plots, all under `out`.
-pub fn benchmark(out: &Path, config: &Path, layout_path: &Path, o: &BenchmarkOptions) -> anyhow::Result<()> {
+pub fn benchmark(
+    out: &Path,
+    config: &Path,
+    layout_path: &Path,
+    o: &BenchmarkOptions,
+) -> anyhow::Result<Vec<crate::report::Row>> {
     let demos_path = out.join("demos.json");
     demos(layout_path, o.demos, o.seed, &demos_path)?;
     let set = load_demos(&demos_path)?;
@@ -253,5 +322,5 @@ pub fn benchmark(out: &Path, config: &Path, layout_path: &Path, o: &BenchmarkOpt
     std::fs::write(out.join("results.md"), &md).with_context(|| format!("cannot write {}", out.display()))?;
     plot(out, layout_path)?;
     println!("\n{md}");
-    Ok(())
+    Ok(rows)
 }

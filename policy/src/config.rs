@@ -98,6 +98,16 @@ pub struct ModelConfig {
     pub dit_mlp_ratio: usize,
     pub k_max: usize,
     pub noise_a2a_w: f32,
+    /// The ‖w‖∞ that gets the full K_max steps: K(w) = ⌈K_max · min(1, ‖w‖∞ / k_full_w)⌉. The paper's K(w)
+    /// is the case 1. Training with `train.calibrate_k` sets it to the largest ‖w‖∞ over the training
+    /// samples, because the diversity loss's equilibrium (w ≈ S_next / E|ε_i − ε_j|) puts w well below 1 even
+    /// at a real fork, and few Euler steps there average the modes (see `mars diagnose`, README).
+    #[serde(default = "one")]
+    pub k_full_w: f32,
+}
+
+fn one() -> f32 {
+    1.0
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -111,6 +121,10 @@ pub struct TrainConfig {
     pub lambda_div: f64,
     /// m: nearest neighbours in history space for the diversity loss.
     pub knn_m: usize,
+    /// After training MARS, set `model.k_full_w` to this quantile of ‖w‖∞ over the training samples, so the
+    /// most multimodal share 1 − q of the samples gets K_max steps (absent: the paper's K(w), k_full_w = 1).
+    #[serde(default)]
+    pub k_full_quantile: Option<f64>,
     pub seed: u64,
 }
 
@@ -146,6 +160,11 @@ impl PolicyConfig {
 }
 
 impl ModelConfig {
+    /// K(w) for this model: ⌈K_max · min(1, ‖w‖∞ / k_full_w)⌉, at least 1.
+    pub fn steps_for(&self, w_inf: f32) -> usize {
+        crate::model::steps_for(w_inf / self.k_full_w, self.k_max)
+    }
+
     pub fn validate(&self) -> Result<(), ConfigError> {
         let positive = [
             ("model.obs_dim", self.obs_dim),
@@ -184,6 +203,9 @@ impl ModelConfig {
                 format!("({}) must divide model.dit_width ({})", self.dit_heads, self.dit_width),
             ));
         }
+        if !(self.k_full_w > 0.0 && self.k_full_w <= 1.0) {
+            return Err(invalid("model.k_full_w", format!("is {}, must lie in (0, 1]", self.k_full_w)));
+        }
         if !(0.0..=1.0).contains(&self.noise_a2a_w) {
             return Err(invalid("model.noise_a2a_w", format!("is {}, must lie in [0, 1]", self.noise_a2a_w)));
         }
@@ -210,6 +232,11 @@ impl TrainConfig {
         ] {
             if !v.is_finite() || v < 0.0 {
                 return Err(invalid(field, format!("is {v}, must be a finite number ≥ 0")));
+            }
+        }
+        if let Some(q) = self.k_full_quantile {
+            if !(q > 0.0 && q <= 1.0) {
+                return Err(invalid("train.k_full_quantile", format!("is {q}, must lie in (0, 1]")));
             }
         }
         if self.lr == 0.0 {

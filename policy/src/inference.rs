@@ -17,11 +17,13 @@ pub struct MarsPolicy {
     model: MarsModel,
     normalizer: Normalizer,
     rng: StdRng,
+    /// Forces the ODE step count (an ablation); `None` uses K(w).
+    steps: Option<usize>,
 }
 
 impl MarsPolicy {
     pub fn new(model: MarsModel, normalizer: Normalizer, seed: u64) -> Self {
-        Self { model, normalizer, rng: StdRng::seed_from_u64(seed) }
+        Self { model, normalizer, rng: StdRng::seed_from_u64(seed), steps: None }
     }
 
     pub fn load(dir: &Path, seed: u64) -> anyhow::Result<(Self, CheckpointMeta)> {
@@ -37,6 +39,16 @@ impl MarsPolicy {
     /// Re-seed the noise generator (one seed per rollout makes each rollout reproducible on its own).
     pub fn reseed(&mut self, seed: u64) {
         self.rng = StdRng::seed_from_u64(seed);
+    }
+
+    /// Integrate with exactly `steps` Euler steps instead of K(w) (`None`: back to K(w)).
+    pub fn force_steps(&mut self, steps: Option<usize>) {
+        self.steps = steps;
+    }
+
+    /// Ablation: evaluate a checkpoint with another K(w) scale (`model.k_full_w`).
+    pub fn set_k_full_w(&mut self, k_full_w: f32) {
+        self.model.cfg.k_full_w = k_full_w;
     }
 
     pub fn model(&self) -> &MarsModel {
@@ -87,7 +99,7 @@ impl ChunkPolicy for MarsPolicy {
         let obs = Tensor::from_vec(obs, (1, cfg.obs_dim), &dev)?;
         let hist = Tensor::from_vec(hist, (1, h, d), &dev)?;
         let eps = randn(&mut self.rng, &[1, c, d], &dev)?;
-        let (chunk, w, k) = self.model.sample(&obs, &hist, &eps)?;
+        let (chunk, w, k) = self.model.sample_with_steps(&obs, &hist, &eps, self.steps)?;
         let mut chunk = chunk.flatten_all()?.to_vec1::<f32>()?;
         self.normalizer.action.denormalize(&mut chunk);
         Ok(Prediction { chunk, w: w.flatten_all()?.to_vec1::<f32>()?, k })

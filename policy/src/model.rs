@@ -88,10 +88,22 @@ impl MarsModel {
     /// One inference on normalised inputs: returns (chunk [B, C, D], w [B, D], K). `eps`: [B, C, D] ~ N(0, I).
     /// K follows the most multimodal sample in the batch (batch 1 at run time).
     pub fn sample(&self, obs: &Tensor, history: &Tensor, eps: &Tensor) -> Result<(Tensor, Tensor, usize)> {
+        self.sample_with_steps(obs, history, eps, None)
+    }
+
+    /// `sample` with the step count forced to `steps` instead of K(w): an ablation that separates what the
+    /// learned field does from what few Euler steps do to it.
+    pub fn sample_with_steps(
+        &self,
+        obs: &Tensor,
+        history: &Tensor,
+        eps: &Tensor,
+        steps: Option<usize>,
+    ) -> Result<(Tensor, Tensor, usize)> {
         let emb = self.encode(obs)?;
         let w = self.weights(&emb, history)?;
         let w_inf = w.flatten_all()?.max(0)?.to_scalar::<f32>()?;
-        let k = steps_for(w_inf, self.cfg.k_max);
+        let k = steps.unwrap_or_else(|| self.cfg.steps_for(w_inf)).max(1);
         let a0 = Self::source(history, &w, eps)?;
         Ok((self.integrate(&a0, &emb, k)?, w, k))
     }

@@ -222,7 +222,39 @@ pub fn train_with_progress(cfg: &PolicyConfig, demos: &[Demo], bar: indicatif::P
         log.push(e);
     }
     bar.finish_and_clear();
-    Ok(Trained { cfg: cfg.clone(), model, varmap, normalizer: data.normalizer, log })
+    let mut model = model;
+    let mut cfg = cfg.clone();
+    if let (Some(q), PolicyKind::Mars) = (cfg.train.k_full_quantile, cfg.kind) {
+        let top = quantile(&mut w_inf_values(&model, &tensors)?, q);
+        // A scheduler that never left 0 has no fork to give the budget to: keep the paper's scale then.
+        cfg.model.k_full_w = if top > 1e-3 { top.min(1.0) } else { 1.0 };
+        model.cfg.k_full_w = cfg.model.k_full_w;
+        tracing::info!(policy = %cfg.kind, k_full_w = cfg.model.k_full_w, "K(w) calibrated: this ‖w‖∞ gets K_max steps");
+    }
+    Ok(Trained { cfg, model, varmap, normalizer: data.normalizer, log })
+}
+
+/// ‖w‖∞ of the trained scheduler on every training sample.
+pub fn w_inf_values(model: &MarsModel, data: &DatasetTensors) -> candle_core::Result<Vec<f32>> {
+    let n = data.obs.dim(0)?;
+    let mut out = Vec::with_capacity(n);
+    for start in (0..n).step_by(4096) {
+        let len = (n - start).min(4096);
+        let emb = model.encode(&data.obs.narrow(0, start, len)?)?;
+        let w = model.weights(&emb, &data.history.narrow(0, start, len)?)?;
+        out.extend(w.max(1)?.to_vec1::<f32>()?);
+    }
+    Ok(out)
+}
+
+/// The nearest-rank q-quantile (q in [0, 1]) of `v`; 0 for an empty slice. Sorts `v`.
+pub fn quantile(v: &mut [f32], q: f64) -> f32 {
+    if v.is_empty() {
+        return 0.0;
+    }
+    v.sort_by(f32::total_cmp);
+    let rank = ((q.clamp(0.0, 1.0) * v.len() as f64).ceil() as usize).clamp(1, v.len());
+    v[rank - 1]
 }
 
 pub fn progress_bar(kind: PolicyKind) -> indicatif::ProgressBar {

@@ -74,6 +74,77 @@ fn benchmark_writes_results_checkpoints_and_plots() {
     assert!(String::from_utf8_lossy(&out.stdout).contains("| mars |"));
 }
 
+/// The layout family on a tiny setting (two layouts of the shipped family, two seeds), then `diagnose` and the
+/// step ablations of `eval` on one of its checkpoints.
+#[test]
+fn family_writes_a_table_per_layout_and_the_verdicts() {
+    let dir = tmp("family");
+    let cfg = tiny_config(&dir);
+    let layouts = dir.join("layouts");
+    std::fs::create_dir_all(&layouts).unwrap();
+    for name in ["three_passages", "four_passages"] {
+        let src = format!("{}/../configs/nav2d_family/{name}.toml", env!("CARGO_MANIFEST_DIR"));
+        std::fs::copy(src, layouts.join(format!("{name}.toml"))).unwrap();
+    }
+    let out = mars(&[
+        "family",
+        "--out",
+        dir.to_str().unwrap(),
+        "--config",
+        cfg.to_str().unwrap(),
+        "--layouts",
+        layouts.to_str().unwrap(),
+        "--seeds",
+        "2",
+        "--demos",
+        "6",
+        "--epochs",
+        "1",
+        "--rollouts",
+        "2",
+        "--jobs",
+        "2",
+    ]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let md = std::fs::read_to_string(dir.join("family.md")).unwrap();
+    for want in ["## three_passages", "## four_uneven_passages", "| mars |", "| fm |", "MARS mean K ≤ 3"] {
+        assert!(md.contains(want), "family.md lacks {want:?}:\n{md}");
+    }
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("family.json")).unwrap()).unwrap();
+    assert_eq!(json.as_array().map(Vec::len), Some(2), "one result per layout");
+    let run = dir.join("three_passages/seed1");
+    let meta: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(run.join("mars/policy.json")).unwrap()).unwrap();
+    let k_full_w = meta["model"]["k_full_w"].as_f64().unwrap();
+    assert!(k_full_w > 0.0 && k_full_w < 1.0, "the calibrated K(w) scale is saved with the checkpoint: {k_full_w}");
+
+    let layout = layouts.join("three_passages.toml");
+    let (ckpt, layout) = (run.join("mars"), layout.to_str().unwrap().to_string());
+    let out = mars(&[
+        "diagnose",
+        "--checkpoint",
+        ckpt.to_str().unwrap(),
+        "--demos",
+        run.join("demos.json").to_str().unwrap(),
+        "--layout",
+        &layout,
+    ]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(String::from_utf8_lossy(&out.stdout).contains("| entry_gate |"));
+    for ablation in [["--steps", "3"], ["--k-full-w", "0.5"]] {
+        let args = ["eval", "--checkpoint", ckpt.to_str().unwrap(), "--layout", &layout, "--rollouts", "2"];
+        let out = mars(&[&args[..], &ablation[..]].concat());
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    }
+    let forced: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(ckpt.join("eval_k3.json")).unwrap()).unwrap();
+    assert_eq!(forced["mean_k"].as_f64(), Some(3.0), "--steps 3 integrates with exactly 3 steps");
+    assert!(ckpt.join("eval_kfull0.5.json").exists());
+    let out = mars(&["eval", "--checkpoint", ckpt.to_str().unwrap(), "--layout", &layout, "--k-full-w", "0"]);
+    assert!(!out.status.success() && String::from_utf8_lossy(&out.stderr).contains("--k-full-w"));
+}
+
 #[test]
 fn bad_input_fails_with_a_clear_message_and_nonzero_exit() {
     let dir = tmp("bad");

@@ -89,3 +89,24 @@ fn k_of_w_rule() {
     assert_eq!(steps_for(f32::NAN, 10), 10, "a NaN weight takes the safe, full budget");
     assert_eq!(PolicyKind::Fm.fixed_w(&common::tiny_config(PolicyKind::Fm).model), Some(1.0));
 }
+
+#[test]
+fn calibrated_k_gives_the_full_budget_from_k_full_w_on() {
+    let mut m = common::tiny_config(PolicyKind::Mars).model;
+    assert_eq!(m.k_full_w, 1.0, "the paper's K(w) unless calibrated");
+    m.k_max = 10;
+    m.k_full_w = 0.4;
+    assert_eq!(m.steps_for(0.04), 1);
+    assert_eq!(m.steps_for(0.2), 5);
+    assert_eq!(m.steps_for(0.4), 10);
+    assert_eq!(m.steps_for(0.9), 10, "clamped to K_max");
+}
+
+#[test]
+fn quantile_is_nearest_rank() {
+    let mut v = vec![0.5f32, 0.1, 0.4, 0.2, 0.3];
+    assert_eq!(mars_policy::train::quantile(&mut v, 1.0), 0.5);
+    assert_eq!(mars_policy::train::quantile(&mut v, 0.5), 0.3);
+    assert_eq!(mars_policy::train::quantile(&mut v, 0.01), 0.1);
+    assert_eq!(mars_policy::train::quantile(&mut [], 0.5), 0.0);
+}

@@ -3,6 +3,7 @@
 use clap::{Parser, Subcommand};
 use mars_policy::cli;
 use mars_policy::config::PolicyKind;
+use mars_policy::family;
 use std::path::PathBuf;
 
 // candle allocates a fresh buffer for every op; mimalloc made backward passes 3–4× faster than glibc here.
@@ -60,6 +61,24 @@ enum Command {
         /// Actions executed from each chunk before re-planning.
         #[arg(long, default_value_t = cli::DEFAULT_EXEC_HORIZON)]
         exec_horizon: usize,
+        /// Ablation: integrate with exactly this many Euler steps instead of K(w) (writes eval_k<N>.json).
+        #[arg(long)]
+        steps: Option<usize>,
+        /// Ablation: K(w) with this ‖w‖∞ getting K_max steps instead of the checkpoint's `model.k_full_w`.
+        #[arg(long)]
+        k_full_w: Option<f32>,
+    },
+    /// Where the diversity loss acts on a checkpoint: per layout region, S_next vs S_curr, how often
+    /// ReLU(S_next − S_curr) is active, w, and which demos the neighbours come from.
+    Diagnose {
+        #[arg(long)]
+        checkpoint: PathBuf,
+        #[arg(long, default_value = "runs/nav2d/demos.json")]
+        demos: PathBuf,
+        #[arg(long, default_value = "configs/nav2d.toml")]
+        layout: PathBuf,
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
     },
     /// Draw the PNG plots of a run directory (demos, rollouts coloured by ‖w‖∞, K per step, losses).
     Plot {
@@ -93,13 +112,39 @@ enum Command {
         #[arg(long)]
         jobs: Option<usize>,
     },
+    /// The benchmark on every layout of a folder over several training seeds; checks MARS's mode targets
+    /// against FM on the means; writes family.md and family.json.
+    Family {
+        #[arg(long, default_value = "runs/family")]
+        out: PathBuf,
+        #[arg(long, default_value = "configs/policy.toml")]
+        config: PathBuf,
+        #[arg(long, default_value = "configs/nav2d_family")]
+        layouts: PathBuf,
+        /// Training seeds 0..N.
+        #[arg(long, default_value_t = 3)]
+        seeds: u64,
+        #[arg(long, default_value_t = 200)]
+        demos: usize,
+        #[arg(long)]
+        epochs: Option<usize>,
+        #[arg(long, default_value_t = 100)]
+        rollouts: usize,
+        #[arg(long, default_value_t = cli::DEFAULT_EXEC_HORIZON)]
+        exec_horizon: usize,
+        /// Policies to compare (default: MARS and FM, the targets' two sides).
+        #[arg(long, value_enum, value_delimiter = ',')]
+        policies: Vec<PolicyKind>,
+        #[arg(long)]
+        jobs: Option<usize>,
+    },
 }
 
 fn main() -> std::process::ExitCode {
     let args = Args::parse();
     let cores = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1);
     let jobs = match &args.command {
-        Command::Benchmark { jobs, .. } => jobs.unwrap_or(cores).max(1),
+        Command::Benchmark { jobs, .. } | Command::Family { jobs, .. } => jobs.unwrap_or(cores).max(1),
         _ => 1,
     };
     cli::init_runtime_env(jobs);
@@ -109,14 +154,22 @@ fn main() -> std::process::ExitCode {
             let out = out.unwrap_or_else(|| PathBuf::from("runs/nav2d").join(policy.name()));
             cli::train(policy, &config, &demos, &out, epochs, seed).map(|_| ())
         }
-        Command::Eval { checkpoint, layout, rollouts, seed, exec_horizon } => {
-            cli::eval(&checkpoint, &layout, rollouts, seed, exec_horizon).map(|_| ())
+        Command::Eval { checkpoint, layout, rollouts, seed, exec_horizon, steps, k_full_w } => {
+            let ablation = cli::StepsAblation { steps, k_full_w };
+            cli::eval_with_steps(&checkpoint, &layout, rollouts, seed, exec_horizon, ablation).map(|_| ())
         }
+        Command::Diagnose { checkpoint, demos, layout, seed } => cli::diagnose(&checkpoint, &demos, &layout, seed),
         Command::Plot { run, layout } => cli::plot(&run, &layout),
         Command::Benchmark { out, config, layout, demos, epochs, rollouts, seed, exec_horizon, policies, .. } => {
             let policies = if policies.is_empty() { PolicyKind::ALL.to_vec() } else { policies };
             let opts = cli::BenchmarkOptions { demos, epochs, rollouts, seed, exec_horizon, policies, jobs };
-            cli::benchmark(&out, &config, &layout, &opts)
+            cli::benchmark(&out, &config, &layout, &opts).map(|_| ())
+        }
+        Command::Family { out, config, layouts, seeds, demos, epochs, rollouts, exec_horizon, policies, .. } => {
+            let policies = if policies.is_empty() { vec![PolicyKind::Mars, PolicyKind::Fm] } else { policies };
+            let bench = cli::BenchmarkOptions { demos, epochs, rollouts, seed: 0, exec_horizon, policies, jobs };
+            let opts = family::FamilyOptions { bench, seeds, targets: family::Targets::default() };
+            family::run(&out, &config, &layouts, &opts).map(|_| ())
         }
     };
     match result {

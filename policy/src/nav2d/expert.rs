@@ -1,5 +1,6 @@
 //! The scripted expert: follows a (perturbed) route through a chosen passage with a pure-pursuit target.
-//! Demos are balanced across passages so the data is genuinely multimodal at the junction.
+//! Demos are spread across the passages in the layout's shares (balanced by default), so the data is genuinely
+//! multimodal at the junction.
 
 use anyhow::{Context, bail};
 use rand::rngs::StdRng;
@@ -127,16 +128,32 @@ pub fn follow_route<R: Rng + ?Sized>(
     Ok((demo, outcome))
 }
 
-/// `n` expert demos, passage `i % n_passages` for demo `i` (so counts differ by at most one), each
-/// verified in the simulator to reach the goal without collision through its intended passage.
-/// Deterministic for a given seed.
+/// The passage of each of `n` demos: smooth weighted round-robin over the shares, so every prefix of the
+/// sequence is as close to the shares as whole demos allow (equal shares give 0, 1, …, k−1, 0, 1, …).
+pub fn passage_schedule(shares: &[f32], n: usize) -> Vec<usize> {
+    let total: f32 = shares.iter().sum();
+    let mut credit = vec![0.0f32; shares.len()];
+    (0..n)
+        .map(|_| {
+            for (c, s) in credit.iter_mut().zip(shares) {
+                *c += s;
+            }
+            // The first of the largest credits: ties go to the lower passage index.
+            let pick = (0..credit.len()).fold(0, |best, i| if credit[i] > credit[best] { i } else { best });
+            credit[pick] -= total;
+            pick
+        })
+        .collect()
+}
+
+/// `n` expert demos through the passages in the layout's shares (see [`passage_schedule`]), each verified in
+/// the simulator to reach the goal without collision through its intended passage. Deterministic for a given
+/// seed.
 pub fn generate_demos(layout: &Layout, n: usize, seed: u64) -> anyhow::Result<Vec<Demo>> {
     layout.validate()?;
     let mut rng = StdRng::seed_from_u64(seed);
-    let k = layout.n_passages();
     let mut demos = Vec::with_capacity(n);
-    for i in 0..n {
-        let passage = i % k;
+    for (i, passage) in passage_schedule(&layout.demo_shares(), n).into_iter().enumerate() {
         let mut last = None;
         for _ in 0..layout.expert.max_attempts {
             let start = layout.sample_start(&mut rng);
@@ -201,6 +218,32 @@ mod tests {
         assert_eq!(counts, [50; 4]);
         assert_eq!(generate_demos(&layout, 200, 7).expect("demos"), demos);
         assert_ne!(generate_demos(&layout, 200, 8).expect("demos"), demos);
+    }
+
+    #[test]
+    fn schedule_follows_the_shares_in_every_prefix() {
+        assert_eq!(passage_schedule(&[1.0; 4], 9), vec![0, 1, 2, 3, 0, 1, 2, 3, 0]);
+        let shares = [0.25, 0.45, 0.30];
+        let plan = passage_schedule(&shares, 200);
+        for n in [20, 100, 200] {
+            for (p, s) in shares.iter().enumerate() {
+                let got = plan[..n].iter().filter(|&&q| q == p).count() as f32;
+                assert!((got - s * n as f32).abs() <= 1.0, "prefix {n}, passage {p}: {got} demos for share {s}");
+            }
+        }
+    }
+
+    #[test]
+    fn the_family_layouts_give_demos_in_their_shares() {
+        for name in ["three_passages", "four_passages", "five_passages"] {
+            let path = format!("{}/../configs/nav2d_family/{name}.toml", env!("CARGO_MANIFEST_DIR"));
+            let layout = Layout::load(std::path::Path::new(&path)).expect("family layout");
+            let demos = generate_demos(&layout, 40, 3).expect("demos");
+            for (p, s) in layout.demo_shares().iter().enumerate() {
+                let got = demos.iter().filter(|d| d.mode == Some(p)).count() as f32;
+                assert!((got - s * 40.0).abs() <= 1.0, "{name}: passage {p} has {got} of 40 demos, share {s}");
+            }
+        }
     }
 
     #[test]

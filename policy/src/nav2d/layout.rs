@@ -137,7 +137,14 @@ pub struct ExpertSpec {
 #[serde(deny_unknown_fields)]
 pub struct Route {
     pub passage: String,
+    /// This passage's share of the demos, relative to the other routes' (default 1: balanced demos).
+    #[serde(default = "equal_share")]
+    pub share: f32,
     pub waypoints: Vec<[f32; 2]>,
+}
+
+fn equal_share() -> f32 {
+    1.0
 }
 
 /// A nav2d world. Fields are public for inspection and for tests that break one on purpose; anything
@@ -215,6 +222,15 @@ impl Layout {
     pub fn route(&self, index: usize) -> Option<&[[f32; 2]]> {
         let name = &self.passages.get(index)?.name;
         self.routes.iter().find(|r| &r.passage == name).map(|r| r.waypoints.as_slice())
+    }
+
+    /// Each passage's share of the demos, in mode order, summing to 1.
+    pub fn demo_shares(&self) -> Vec<f32> {
+        let raw: Vec<f32> = (0..self.n_passages())
+            .map(|i| self.routes.iter().find(|r| r.passage == self.passages[i].name).map_or(0.0, |r| r.share))
+            .collect();
+        let total: f32 = raw.iter().sum();
+        raw.iter().map(|s| s / total).collect()
     }
 
     /// A start position: the nominal start with uniform per-axis jitter.
@@ -369,6 +385,9 @@ impl Layout {
             };
             if self.routes[..i].iter().any(|r| r.passage == route.passage) {
                 return Err(invalid(format!("{field}.passage"), format!("passage `{}` has two routes", route.passage)));
+            }
+            if !(route.share.is_finite() && route.share > 0.0) {
+                return Err(invalid(format!("{field}.share"), format!("must be positive, got {}", route.share)));
             }
             let Some(last) = route.waypoints.last() else {
                 return Err(invalid(format!("{field}.waypoints"), "is empty"));

@@ -4,7 +4,7 @@
 use super::attention::SelfAttention;
 use super::linear::Linear;
 use super::mlp::{Activation, Mlp};
-use super::norm::{layer_norm_no_affine, modulate, per_token};
+use super::norm::{layer_norm_no_affine, modulate, per_token, token_expansion};
 use super::time_embed::TimeEmbedding;
 use candle_core::{Module, Result, Tensor};
 use candle_nn::{VarBuilder, init};
@@ -28,14 +28,13 @@ impl DitBlock {
         })
     }
 
-    /// `x`: [B, T, W]; `c`: [B, W] (already passed through SiLU).
-    fn forward(&self, x: &Tensor, c: &Tensor) -> Result<Tensor> {
+    /// `x`: [B, T, W]; `c`: [B, W] (already passed through SiLU); `expand`: [B·T, B] from `token_expansion`.
+    fn forward(&self, x: &Tensor, c: &Tensor, expand: &Tensor) -> Result<Tensor> {
         let m = self.ada.forward(c)?.chunk(6, 1)?;
-        let h = modulate(&layer_norm_no_affine(x, LN_EPS)?, &m[0], &m[1])?;
-        let t = x.dim(1)?;
-        let x = (x + (self.attn.forward(&h)? * per_token(&m[2], t)?)?)?;
-        let h = modulate(&layer_norm_no_affine(&x, LN_EPS)?, &m[3], &m[4])?;
-        x.clone() + (self.mlp.forward(&h)? * per_token(&m[5], t)?)?
+        let h = modulate(&layer_norm_no_affine(x, LN_EPS)?, &m[0], &m[1], expand)?;
+        let x = (x + (self.attn.forward(&h)? * per_token(&m[2], expand)?)?)?;
+        let h = modulate(&layer_norm_no_affine(&x, LN_EPS)?, &m[3], &m[4], expand)?;
+        x.clone() + (self.mlp.forward(&h)? * per_token(&m[5], expand)?)?
     }
 }
 
@@ -90,11 +89,13 @@ impl Dit {
     pub fn forward(&self, a: &Tensor, tau: &Tensor, obs_emb: &Tensor) -> Result<Tensor> {
         let c = self.condition(tau, obs_emb)?;
         let mut x = self.action_in.forward(a)?.broadcast_add(&self.pos)?;
+        let (b, t, _) = x.dims3()?;
+        let expand = token_expansion(b, t, &x)?;
         for block in &self.blocks {
-            x = block.forward(&x, &c)?;
+            x = block.forward(&x, &c, &expand)?;
         }
         let m = self.final_ada.forward(&c)?.chunk(2, 1)?;
-        let x = modulate(&layer_norm_no_affine(&x, LN_EPS)?, &m[0], &m[1])?;
+        let x = modulate(&layer_norm_no_affine(&x, LN_EPS)?, &m[0], &m[1], &expand)?;
         self.action_out.forward(&x)
     }
 }
