@@ -177,9 +177,9 @@ pub fn diagnose(checkpoint_dir: &Path, demos: &Path, layout: &Path, seed: u64) -
     let layout = Layout::load(layout)?;
     let set = load_demos(demos)?;
     let (policy, meta) = MarsPolicy::load(checkpoint_dir, seed)?;
-    let stats = crate::diagnose::diagnose(&policy, &set.demos, &layout, meta.train.knn_m, seed)?;
     let model = policy.model();
     let data = crate::dataset::Dataset::from_demos(&set.demos, &model.cfg, meta.train.knn_m)?;
+    let stats = crate::diagnose::diagnose(&policy, &set.demos, &data, &layout, seed)?;
     let mut w_inf = crate::train::w_inf_values(model, &data.tensors(&model.cfg, &Device::Cpu)?)?;
     let q: Vec<String> = [0.5, 0.9, 0.95, 0.99, 1.0]
         .iter()

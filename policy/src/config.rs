@@ -99,8 +99,8 @@ pub struct ModelConfig {
     pub k_max: usize,
     pub noise_a2a_w: f32,
     /// The ‖w‖∞ that gets the full K_max steps: K(w) = ⌈K_max · min(1, ‖w‖∞ / k_full_w)⌉. The paper's K(w)
-    /// is the case 1. Training with `train.calibrate_k` sets it to the largest ‖w‖∞ over the training
-    /// samples, because the diversity loss's equilibrium (w ≈ S_next / E|ε_i − ε_j|) puts w well below 1 even
+    /// is the case 1. Training with `train.k_full_quantile` sets it to that quantile of ‖w‖∞ over the
+    /// training samples, because the diversity loss's equilibrium (w ≈ S_next / E|ε_i − ε_j|) puts w well below 1 even
     /// at a real fork, and few Euler steps there average the modes (see `mars diagnose`, README).
     #[serde(default = "one")]
     pub k_full_w: f32,

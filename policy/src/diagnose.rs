@@ -44,16 +44,17 @@ pub fn region_names(layout: &Layout) -> Vec<String> {
     names
 }
 
+/// `data` is `Dataset::from_demos(demos, …)` with the checkpoint's m (the caller builds it once: the kNN is
+/// the slow part).
 pub fn diagnose(
     policy: &MarsPolicy,
     demos: &[Demo],
+    data: &Dataset,
     layout: &Layout,
-    m: usize,
     seed: u64,
 ) -> anyhow::Result<Vec<RegionStats>> {
     let model = policy.model();
     let cfg = &model.cfg;
-    let data = Dataset::from_demos(demos, cfg, m)?;
     let (c, d, h) = (cfg.chunk_len, cfg.action_dim, cfg.history_len);
     // Sample index → (demo, its passage); the dataset lays demos out one after the other.
     let owner: Vec<(usize, Option<usize>)> =
@@ -70,17 +71,10 @@ pub fn diagnose(
             continue;
         }
         let n = idx.len();
-        let pick = |src: &[f32], width: usize| -> Vec<f32> {
-            idx.iter().flat_map(|&i| src[i as usize * width..(i as usize + 1) * width].iter().copied()).collect()
-        };
-        let obs = Tensor::from_vec(pick(&data.obs, cfg.obs_dim), (n, cfg.obs_dim), &dev)?;
-        let hist = Tensor::from_vec(pick(&data.history, h * d), (n, h, d), &dev)?;
-        let nbr_idx: Vec<u32> = pick_u32(&data.neighbours, &idx, data.m);
-        let nbr_hist: Vec<f32> = nbr_idx
-            .iter()
-            .flat_map(|&j| data.history[j as usize * h * d..(j as usize + 1) * h * d].iter().copied())
-            .collect();
-        let nbr_hist = Tensor::from_vec(nbr_hist, (n, data.m, h, d), &dev)?;
+        let obs = Tensor::from_vec(rows(&data.obs, &idx, cfg.obs_dim), (n, cfg.obs_dim), &dev)?;
+        let hist = Tensor::from_vec(rows(&data.history, &idx, h * d), (n, h, d), &dev)?;
+        let nbr_idx = rows(&data.neighbours, &idx, data.m);
+        let nbr_hist = Tensor::from_vec(rows(&data.history, &nbr_idx, h * d), (n, data.m, h, d), &dev)?;
         let w = model.weights(&model.encode(&obs)?, &hist)?;
         let mut s_curr = Tensor::zeros((n, d), candle_core::DType::F32, &dev)?;
         for _ in 0..DRAWS {
@@ -89,7 +83,7 @@ pub fn diagnose(
             s_curr = (s_curr + losses::dispersion(&own, &others)?)?;
         }
         let s_curr: Vec<f32> = (s_curr / DRAWS as f64)?.flatten_all()?.to_vec1()?;
-        let s_next = pick(&data.s_next, d);
+        let s_next = rows(&data.s_next, &idx, d);
         let active = s_next.iter().zip(&s_curr).filter(|(a, b)| a > b).count() as f32 / (n * d) as f32;
         let (mut same, mut other) = (0usize, 0usize);
         for (k, &i) in idx.iter().enumerate() {
@@ -117,7 +111,8 @@ pub fn diagnose(
     Ok(out)
 }
 
-fn pick_u32(src: &[u32], idx: &[u32], width: usize) -> Vec<u32> {
+/// Rows `idx` of the row-major table `src` whose rows are `width` wide, one after the other.
+fn rows<T: Copy>(src: &[T], idx: &[u32], width: usize) -> Vec<T> {
     idx.iter().flat_map(|&i| src[i as usize * width..(i as usize + 1) * width].iter().copied()).collect()
 }
 

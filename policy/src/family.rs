@@ -183,7 +183,7 @@ pub fn run(out: &Path, config: &Path, layouts_dir: &Path, o: &FamilyOptions) -> 
         for seed in 0..o.seeds {
             let dir = out.join(&layout.name).join(format!("seed{seed}"));
             println!("\n=== {} (seed {seed}) → {}", layout.name, dir.display());
-            let bench = BenchmarkOptions { seed, policies: o.bench.policies.clone(), ..o.bench.clone() };
+            let bench = BenchmarkOptions { seed, ..o.bench.clone() };
             runs.push(benchmark(&dir, config, file, &bench)?);
             if seed == 0 {
                 let set = crate::cli::load_demos(&dir.join("demos.json"))?;

@@ -173,7 +173,7 @@ pub fn train_with_progress(cfg: &PolicyConfig, demos: &[Demo], bar: indicatif::P
     let device = Device::Cpu;
     let data = Dataset::from_demos(demos, &cfg.model, cfg.train.knn_m)?;
     let tensors = data.tensors(&cfg.model, &device)?;
-    let (model, varmap) = init_model(cfg, &device)?;
+    let (mut model, varmap) = init_model(cfg, &device)?;
     let mut opts = optimizers(&varmap, cfg)?;
     let mut rng = StdRng::seed_from_u64(cfg.train.seed ^ 0x4d41_5253); // "MARS": batches ≠ init stream
     let mut order: Vec<u32> = (0..data.len as u32).collect();
@@ -222,14 +222,17 @@ pub fn train_with_progress(cfg: &PolicyConfig, demos: &[Demo], bar: indicatif::P
         log.push(e);
     }
     bar.finish_and_clear();
-    let mut model = model;
     let mut cfg = cfg.clone();
     if let (Some(q), PolicyKind::Mars) = (cfg.train.k_full_quantile, cfg.kind) {
         let top = quantile(&mut w_inf_values(&model, &tensors)?, q);
-        // A scheduler that never left 0 has no fork to give the budget to: keep the paper's scale then.
-        cfg.model.k_full_w = if top > 1e-3 { top.min(1.0) } else { 1.0 };
+        if top > 1e-3 {
+            cfg.model.k_full_w = top.min(1.0);
+            tracing::info!(policy = %cfg.kind, k_full_w = cfg.model.k_full_w, "K(w) calibrated: this ‖w‖∞ gets K_max steps");
+        } else {
+            // A scheduler that never left 0 has no fork to give the budget to: keep the paper's scale.
+            tracing::warn!(policy = %cfg.kind, quantile = q, w_inf = top, "K(w) not calibrated: ‖w‖∞ ≈ 0 on the training samples; k_full_w stays 1");
+        }
         model.cfg.k_full_w = cfg.model.k_full_w;
-        tracing::info!(policy = %cfg.kind, k_full_w = cfg.model.k_full_w, "K(w) calibrated: this ‖w‖∞ gets K_max steps");
     }
     Ok(Trained { cfg, model, varmap, normalizer: data.normalizer, log })
 }

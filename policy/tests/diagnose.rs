@@ -19,8 +19,8 @@ fn neighbours_cross_passages_at_the_fork_and_not_inside_a_passage() {
     // Untrained weights: the neighbour make-up and S_next depend on the demos only.
     let (model, _) = init_model(&cfg, &Device::Cpu).unwrap();
     let data = mars_policy::dataset::Dataset::from_demos(&demos, &cfg.model, 8).unwrap();
-    let policy = MarsPolicy::new(model, data.normalizer, 0);
-    let stats = diagnose(&policy, &demos, &layout, 8, 0).unwrap();
+    let policy = MarsPolicy::new(model, data.normalizer.clone(), 0);
+    let stats = diagnose(&policy, &demos, &data, &layout, 0).unwrap();
     let get = |name: &str| stats.iter().find(|s| s.region == name).unwrap_or_else(|| panic!("no {name} in {stats:?}"));
 
     let gate = get("entry_gate");

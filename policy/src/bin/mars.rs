@@ -62,7 +62,7 @@ enum Command {
         #[arg(long, default_value_t = cli::DEFAULT_EXEC_HORIZON)]
         exec_horizon: usize,
         /// Ablation: integrate with exactly this many Euler steps instead of K(w) (writes eval_k<N>.json).
-        #[arg(long)]
+        #[arg(long, conflicts_with = "k_full_w")]
         steps: Option<usize>,
         /// Ablation: K(w) with this ‖w‖∞ getting K_max steps instead of the checkpoint's `model.k_full_w`.
         #[arg(long)]
