@@ -45,6 +45,10 @@ impl Dims {
             EncoderConfig::StateMlp { hidden } => *hidden,
             other => return Err(format!("encoder {other:?} is not supported (only state-mlp)")),
         };
+        if cfg.source_std != 1.0 {
+            // Only the Fig. S3 ablation trains with another source scale; nothing deploys it.
+            return Err(format!("model.source_std is {}: the engine samples ε ~ N(0, I) only", cfg.source_std));
+        }
         let freq = cfg.dit_width.max(32);
         if !freq.is_multiple_of(2) {
             // The sinusoid gives 2·⌊freq/2⌋ features but the time MLP expects freq: the candle model cannot

@@ -118,6 +118,14 @@ fn checkpoints_the_engine_cannot_run_are_refused_at_load() {
     assert!(matches!(e, LoadError::Unsupported { .. }), "{e}");
     assert!(e.to_string().contains("dit_width 33"), "{e}");
     std::fs::remove_dir_all(&dir).unwrap();
+
+    // The Fig. S3 ablation's FM with a scaled source: the engine samples N(0, I) only, so it refuses.
+    let mut wide = tiny_config(PolicyKind::Fm);
+    wide.model.source_std = 2.0;
+    let dir = perturbed_checkpoint(&wide, "err-source-std");
+    let e = Engine::load(&dir, cfg).err().expect("scaled source loaded");
+    assert!(matches!(e, LoadError::Unsupported { .. }) && e.to_string().contains("source_std"), "{e}");
+    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]

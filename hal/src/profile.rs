@@ -232,10 +232,10 @@ impl Profile {
         if !(s.position_noise_std.is_finite() && s.position_noise_std >= 0.0) {
             return bad(format!("sim.position_noise_std = {} must be ≥ 0", s.position_noise_std));
         }
-        if let Some(start) = &s.start {
-            if start.len() != self.joints || start.iter().any(|x| !x.is_finite()) {
-                return bad(format!("sim.start must be {} finite joint positions", self.joints));
-            }
+        if let Some(start) = &s.start
+            && (start.len() != self.joints || start.iter().any(|x| !x.is_finite()))
+        {
+            return bad(format!("sim.start must be {} finite joint positions", self.joints));
         }
         if s.start_gripper.is_some_and(|g| !g.is_finite()) {
             return bad("sim.start_gripper must be a finite number".into());

@@ -181,13 +181,13 @@ mod tests {
     /// libfranka's formula written out independently, term for term, for a few positions.
     #[test]
     fn the_fr3_bound_is_libfrankas_formula() {
-        let upper = |q: f64| (-0.30 + (12.0 * (2.75010 - q)).max(0.0).sqrt()).max(0.0).min(2.62) - 1e-3;
-        let lower = |q: f64| (0.30 - (12.0 * (2.750100 + q)).max(0.0).sqrt()).min(0.0).max(-2.62) + 1e-3;
+        let upper = |q: f64| (-0.30 + (12.0 * (2.75010 - q)).max(0.0).sqrt()).clamp(0.0, 2.62) - 1e-3;
+        let lower = |q: f64| (0.30 - (12.0 * (2.750100 + q)).max(0.0).sqrt()).clamp(-2.62, 0.0) + 1e-3;
         for q in [-2.9, -2.7, -1.0, 0.0, 1.5, 2.7, 2.74, 2.9] {
             assert_eq!(fr3(0).hard(q), (lower(q), upper(q)), "q {q}");
         }
         // Joint 6's lower side sits at +0.54092 rad, not at a negative limit.
-        let lower5 = |q: f64| (0.35 - (11.0 * (-0.54092 + q)).max(0.0).sqrt()).min(0.0).max(-4.18) + 1e-3;
+        let lower5 = |q: f64| (0.35 - (11.0 * (-0.54092 + q)).max(0.0).sqrt()).clamp(-4.18, 0.0) + 1e-3;
         for q in [0.5, 0.6, 1.0, 3.0] {
             assert_eq!(fr3(5).hard(q).0, lower5(q), "q {q}");
         }

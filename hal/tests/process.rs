@@ -1,6 +1,7 @@
 //! The real `mars-hal` binary in its own process, driven over iceoryx2 from the test. Each test uses its own
 //! robot namespace (pid + counter), so tests run in parallel.
 
+use std::f64::consts::{FRAC_PI_2, FRAC_PI_4};
 use std::path::Path;
 use std::process::{Child, Command, Stdio};
 use std::sync::atomic::{AtomicU32, Ordering};
@@ -664,7 +665,7 @@ fn the_hal_starts_from_the_measured_pose_and_gripper_not_from_home() {
 #[test]
 fn a_start_outside_the_limits_is_refused_and_nothing_is_commanded() {
     let _rt = rt_rig_lock().expect("taking the real-time rig lock");
-    let profile = TempProfile::fr3_starting_at(&[0.0, -0.7854, 0.0, -0.05, 0.0, 1.5708, 0.7854], 0.04);
+    let profile = TempProfile::fr3_starting_at(&[0.0, -FRAC_PI_4, 0.0, -0.05, 0.0, FRAC_PI_2, FRAC_PI_4], 0.04);
     let robot = unique_robot();
     let ns = RobotNamespace::new(&robot).unwrap();
     let (node, _) = create_node("hal-test").unwrap();

@@ -2,12 +2,12 @@
 //! config, normalisation statistics, training log). Loading checks everything before a model exists: a
 //! corrupt, truncated or wrong-shape checkpoint is an error that names the file or tensor, never a panic.
 
-use crate::config::{ModelConfig, PolicyKind, TrainConfig};
+use crate::config::{ModelConfig, PolicyConfig, PolicyKind, TrainConfig};
 use crate::model::MarsModel;
 use crate::normalize::Normalizer;
 use crate::train::{EpochLog, Trained};
 use candle_core::{DType, Device, Shape, Tensor};
-use candle_nn::{Init, VarBuilder};
+use candle_nn::{Init, VarBuilder, VarMap};
 use serde::{Deserialize, Serialize};
 use std::collections::{BTreeSet, HashMap};
 use std::path::{Path, PathBuf};
@@ -52,20 +52,30 @@ pub struct Loaded {
 /// Writes both files through temporary names and renames, so a crash never leaves a half-written checkpoint
 /// under the real names.
 pub fn save(dir: &Path, trained: &Trained) -> Result<(), CheckpointError> {
+    save_parts(dir, &trained.cfg, &trained.varmap, &trained.normalizer, &trained.log)
+}
+
+/// `save` from the pieces, for a model still in training (the snapshots of `train::Snapshots`).
+pub fn save_parts(
+    dir: &Path,
+    cfg: &PolicyConfig,
+    varmap: &VarMap,
+    normalizer: &Normalizer,
+    log: &[EpochLog],
+) -> Result<(), CheckpointError> {
     let io = |source| CheckpointError::Io { path: dir.to_path_buf(), source };
     std::fs::create_dir_all(dir).map_err(io)?;
     let meta = CheckpointMeta {
         format: FORMAT.into(),
         version: VERSION,
-        kind: trained.cfg.kind,
-        model: trained.cfg.model.clone(),
-        train: trained.cfg.train.clone(),
-        normalizer: trained.normalizer.clone(),
-        log: trained.log.clone(),
+        kind: cfg.kind,
+        model: cfg.model.clone(),
+        train: cfg.train.clone(),
+        normalizer: normalizer.clone(),
+        log: log.to_vec(),
     };
     let tmp_weights = dir.join(format!(".{WEIGHTS_FILE}.tmp"));
-    trained
-        .varmap
+    varmap
         .save(&tmp_weights)
         .map_err(|e| CheckpointError::Model { path: tmp_weights.clone(), problem: e.to_string() })?;
     let json = serde_json::to_string_pretty(&meta)

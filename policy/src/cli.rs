@@ -9,10 +9,10 @@ use crate::nav2d::eval::{EvalReport, evaluate};
 use crate::nav2d::expert::generate_demos;
 use crate::nav2d::layout::{Layout, Rect};
 use crate::plots;
-use crate::train::{Trained, train as train_policy};
+use crate::train::{Trained, progress_bar};
 use anyhow::Context;
 use candle_core::{Device, Tensor};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 /// The paper executes whole chunks; re-planning every chunk keeps one mode decision per chunk.
@@ -68,6 +68,7 @@ pub fn train(
     out: &Path,
     epochs: Option<usize>,
     seed: Option<u64>,
+    snapshot_every: Option<usize>,
 ) -> anyhow::Result<Trained> {
     let mut cfg = PolicyConfig::load(config)?;
     cfg.kind = kind;
@@ -76,7 +77,8 @@ pub fn train(
     cfg.validate()?;
     let set = load_demos(demos)?;
     let started = Instant::now();
-    let trained = train_policy(&cfg, &set.demos, true)?;
+    let snapshots = snapshot_every.map(|every| crate::train::Snapshots { every, dir: out.join("snapshots") });
+    let trained = crate::train::train_with_snapshots(&cfg, &set.demos, progress_bar(kind), snapshots.as_ref())?;
     checkpoint::save(out, &trained)?;
     let last = trained.log.last().context("training ran no epoch")?;
     println!(
@@ -178,7 +180,11 @@ pub fn diagnose(checkpoint_dir: &Path, demos: &Path, layout: &Path, seed: u64) -
     let set = load_demos(demos)?;
     let (policy, meta) = MarsPolicy::load(checkpoint_dir, seed)?;
     let model = policy.model();
-    let data = crate::dataset::Dataset::from_demos(&set.demos, &model.cfg, meta.train.knn_m)?;
+    let mut data = crate::dataset::Dataset::from_demos(&set.demos, &model.cfg, meta.train.knn_m)?;
+    if let Some(q) = meta.train.div_target_quantile {
+        // The target this checkpoint was trained toward, not the paper's.
+        data.rescale_target_spread(q);
+    }
     let stats = crate::diagnose::diagnose(&policy, &set.demos, &data, &layout, seed)?;
     let mut w_inf = crate::train::w_inf_values(model, &data.tensors(&model.cfg, &Device::Cpu)?)?;
     let q: Vec<String> = [0.5, 0.9, 0.95, 0.99, 1.0]
@@ -196,7 +202,20 @@ pub fn diagnose(checkpoint_dir: &Path, demos: &Path, layout: &Path, seed: u64) -
         model.cfg.k_full_w
     );
     println!("{}", crate::diagnose::table(&stats));
-    write_json(&checkpoint_dir.join("diagnose.json"), &stats)
+    let mut policy = policy;
+    let fork = crate::diagnose::fork_choices(&mut policy, &set.demos, &layout, 10, seed)?;
+    let pct = |v: &[f32]| v.iter().map(|x| format!("{:.0}", 100.0 * x)).collect::<Vec<_>>().join("/");
+    println!(
+        "Heading of the first chunk past the entry gate ({} demo states × {} draws, K(w) as deployed), passage shares %:\n\
+         policy {} (unclassified {:.0} %); the demos' own chunks, same classifier: {}; the demos' recorded passages: {}",
+        fork.states,
+        fork.draws,
+        pct(&fork.policy),
+        100.0 * fork.unclassified,
+        pct(&fork.demos_classified),
+        pct(&fork.demos_recorded)
+    );
+    write_json(&checkpoint_dir.join("diagnose.json"), &(&stats, &fork))
 }
 
 pub fn plot(run: &Path, layout: &Path) -> anyhow::Result<()> {
@@ -323,4 +342,30 @@ pub fn benchmark(
     plot(out, layout_path)?;
     println!("\n{md}");
     Ok(rows)
+}
+
+/// nav2d as a task of the training-efficiency curves (`mars curve`).
+pub struct Nav2dCurve {
+    pub layout: PathBuf,
+    pub demos: usize,
+    pub rollouts: usize,
+    pub exec_horizon: usize,
+}
+
+impl crate::curve::CurveTask for Nav2dCurve {
+    fn title(&self) -> String {
+        let name = Layout::load(&self.layout).map(|l| l.name).unwrap_or_else(|_| self.layout.display().to_string());
+        format!("nav2d {name}, {} demos, {} rollouts per snapshot", self.demos, self.rollouts)
+    }
+
+    fn demos(&self, seed: u64, path: &Path) -> anyhow::Result<()> {
+        demos(&self.layout, self.demos, seed, path)
+    }
+
+    fn evaluate(&self, dir: &Path, seed: u64) -> anyhow::Result<crate::curve::Score> {
+        let layout = Layout::load(&self.layout)?;
+        let (mut policy, _) = MarsPolicy::load(dir, seed)?;
+        let r = evaluate(&layout, &mut policy, self.rollouts, seed, self.exec_horizon)?;
+        Ok(crate::curve::Score { success_pct: 100.0 * r.success_rate(), gamma: r.modal_balance, mean_k: r.mean_k })
+    }
 }

@@ -104,6 +104,11 @@ pub struct ModelConfig {
     /// at a real fork, and few Euler steps there average the modes (see `mars diagnose`, README).
     #[serde(default = "one")]
     pub k_full_w: f32,
+    /// Standard deviation of the Gaussian ε in the flow source (1 everywhere in the paper's method). Only the
+    /// paper's Fig. S3 ablation (FM's loss and success against its initial variance, `mars ablate --knob
+    /// source-std`) changes it; the engine refuses a checkpoint where it is not 1.
+    #[serde(default = "one")]
+    pub source_std: f32,
 }
 
 fn one() -> f32 {
@@ -125,6 +130,18 @@ pub struct TrainConfig {
     /// most multimodal share 1 − q of the samples gets K_max steps (absent: the paper's K(w), k_full_w = 1).
     #[serde(default)]
     pub k_full_quantile: Option<f64>,
+    /// Rescale the diversity target (ours, not the paper's): S_next is multiplied by one factor so that this
+    /// quantile of the samples' ‖S_next‖∞ equals E|ε_i − ε_j| = 2/√π, the spread of pure noise. The paper's
+    /// loss settles w near S_next / (2/√π), about 0.5 at a nav2d fork, where the (1 − w)-gated reconstruction
+    /// loss still pulls the one-step map toward the demos' median route; rescaled, the forks ask for w ≈ 1
+    /// (the source is FM's there) and the unimodal phases keep their proportionally small w. Never shrinks the
+    /// target (factor ≥ 1). Absent: the paper's target.
+    #[serde(default)]
+    pub div_target_quantile: Option<f64>,
+    /// FM with an *ungated* reconstruction loss of this weight: the paper's Fig. S4 ablation (`mars ablate
+    /// --knob fm-lambda-rec`), which shows L_rec pulling FM toward the central passages. Absent: plain FM.
+    #[serde(default)]
+    pub fm_lambda_rec: Option<f64>,
     pub seed: u64,
 }
 
@@ -155,7 +172,22 @@ impl PolicyConfig {
 
     pub fn validate(&self) -> Result<(), ConfigError> {
         self.model.validate()?;
-        self.train.validate()
+        self.train.validate()?;
+        // The two FM ablations (Fig. S3, S4) are FM's knobs: on another kind they would silently change the
+        // method (its diversity loss measures spreads in units of ε).
+        if self.kind != PolicyKind::Fm && self.model.source_std != 1.0 {
+            return Err(invalid(
+                "model.source_std",
+                format!("is {}; only the fm ablation may change it", self.model.source_std),
+            ));
+        }
+        if self.kind != PolicyKind::Fm && self.train.fm_lambda_rec.is_some() {
+            return Err(invalid(
+                "train.fm_lambda_rec",
+                format!("is set for a {} policy; it is an fm ablation", self.kind),
+            ));
+        }
+        Ok(())
     }
 }
 
@@ -203,6 +235,9 @@ impl ModelConfig {
                 format!("({}) must divide model.dit_width ({})", self.dit_heads, self.dit_width),
             ));
         }
+        if !(self.source_std.is_finite() && self.source_std >= 0.0) {
+            return Err(invalid("model.source_std", format!("is {}, must be a finite number ≥ 0", self.source_std)));
+        }
         if !(self.k_full_w > 0.0 && self.k_full_w <= 1.0) {
             return Err(invalid("model.k_full_w", format!("is {}, must lie in (0, 1]", self.k_full_w)));
         }
@@ -234,10 +269,20 @@ impl TrainConfig {
                 return Err(invalid(field, format!("is {v}, must be a finite number ≥ 0")));
             }
         }
-        if let Some(q) = self.k_full_quantile {
-            if !(q > 0.0 && q <= 1.0) {
-                return Err(invalid("train.k_full_quantile", format!("is {q}, must lie in (0, 1]")));
-            }
+        if let Some(l) = self.fm_lambda_rec
+            && (!l.is_finite() || l < 0.0)
+        {
+            return Err(invalid("train.fm_lambda_rec", format!("is {l}, must be a finite number ≥ 0")));
+        }
+        if let Some(q) = self.div_target_quantile
+            && (!(q > 0.0 && q <= 1.0))
+        {
+            return Err(invalid("train.div_target_quantile", format!("is {q}, must lie in (0, 1]")));
+        }
+        if let Some(q) = self.k_full_quantile
+            && (!(q > 0.0 && q <= 1.0))
+        {
+            return Err(invalid("train.k_full_quantile", format!("is {q}, must lie in (0, 1]")));
         }
         if self.lr == 0.0 {
             return Err(invalid("train.lr", "must be > 0"));

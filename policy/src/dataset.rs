@@ -125,6 +125,19 @@ impl Dataset {
         Ok(Self { len, normalizer, obs, history, next, neighbours, m, s_next })
     }
 
+    /// Scales S_next by one factor ≥ 1 so that the q-quantile of the samples' ‖S_next‖∞ becomes 2/√π, the
+    /// mean |ε_i − ε_j| of two standard normals: the spread a source of pure noise (w = 1) gives. Returns the
+    /// factor. Why: see `TrainConfig::div_target_quantile`.
+    pub fn rescale_target_spread(&mut self, q: f64) -> f32 {
+        let d = self.s_next.len() / self.len.max(1);
+        let mut peaks: Vec<f32> = self.s_next.chunks(d.max(1)).map(|s| s.iter().copied().fold(0.0, f32::max)).collect();
+        let at_q = crate::train::quantile(&mut peaks, q);
+        let noise_spread = 2.0 / std::f32::consts::PI.sqrt();
+        let factor = if at_q > 0.0 { (noise_spread / at_q).max(1.0) } else { 1.0 };
+        self.s_next.iter_mut().for_each(|s| *s *= factor);
+        factor
+    }
+
     pub fn tensors(&self, cfg: &ModelConfig, device: &Device) -> Result<DatasetTensors, DatasetError> {
         let (n, c, d) = (self.len, cfg.chunk_len, cfg.action_dim);
         Ok(DatasetTensors {

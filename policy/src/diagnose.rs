@@ -121,6 +121,85 @@ fn column_means(v: &[f32], d: usize) -> Vec<f32> {
     (0..d).map(|k| v.iter().skip(k).step_by(d).sum::<f32>() / n).collect()
 }
 
+/// Where the policy heads at the fork, before any later chunk can change its mind: from each demo's first
+/// state past the entry gate (its own history), `draws` chunks are sampled and each is classified by the
+/// passage its heading points at (the line from the agent through the chunk's last target, extended to the
+/// passage column, nearest passage centre). The demos' own chunks at the same states go through the same
+/// classifier, which checks it. Comparing these shares with the rollouts' separates "the fork's sample picks
+/// the passage" from "a later chunk leaves it".
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct ForkChoices {
+    pub states: usize,
+    pub draws: usize,
+    /// Per passage, shares of the policy's chunks (unclassified chunks count in `unclassified` only).
+    pub policy: Vec<f32>,
+    pub unclassified: f32,
+    /// Per passage, shares of the demos' own chunks at the same states, through the same classifier.
+    pub demos_classified: Vec<f32>,
+    /// Per passage, the demos' recorded passages.
+    pub demos_recorded: Vec<f32>,
+}
+
+/// The passage a chunk heads for, or `None` if it does not move toward the passages.
+pub fn heading_passage(layout: &Layout, from: [f32; 2], to: [f32; 2]) -> Option<usize> {
+    let x_col = layout.passages.iter().map(|p| p.x[0]).fold(f32::INFINITY, f32::min);
+    let dx = to[0] - from[0];
+    if dx < 1e-3 || !x_col.is_finite() {
+        return None;
+    }
+    let y_hit = from[1] + (to[1] - from[1]) * (x_col - from[0]) / dx;
+    let centre = |i: usize| 0.5 * (layout.passages[i].y[0] + layout.passages[i].y[1]);
+    (0..layout.passages.len()).min_by(|&a, &b| (centre(a) - y_hit).abs().total_cmp(&(centre(b) - y_hit).abs()))
+}
+
+pub fn fork_choices(
+    policy: &mut MarsPolicy,
+    demos: &[Demo],
+    layout: &Layout,
+    draws: usize,
+    seed: u64,
+) -> anyhow::Result<ForkChoices> {
+    use crate::rollout::ChunkPolicy;
+    let gate = layout.named_rect("entry_gate").ok_or_else(|| anyhow::anyhow!("layout has no `entry_gate` region"))?;
+    let n = layout.n_passages();
+    let (h, c) = (policy.history_len(), policy.chunk_len());
+    let (mut mine, mut theirs, mut recorded) = (vec![0usize; n], vec![0usize; n], vec![0usize; n]);
+    let (mut unclassified, mut states) = (0usize, 0usize);
+    for (i, demo) in demos.iter().enumerate() {
+        let Some(t) = demo.observations.iter().position(|o| o[0] >= gate.x[1]) else { continue };
+        states += 1;
+        let from = [demo.observations[t][0], demo.observations[t][1]];
+        let mut hist = Vec::new();
+        crate::dataset::history_window(&demo.actions, &demo.rest_action, t, h, &mut hist);
+        let mut own = Vec::new();
+        crate::dataset::future_window(&demo.actions, t, c, &mut own);
+        let last = |chunk: &[f32]| [chunk[chunk.len() - 2], chunk[chunk.len() - 1]];
+        if let Some(k) = heading_passage(layout, from, last(&own)) {
+            theirs[k] += 1;
+        }
+        if let Some(m) = demo.mode.filter(|&m| m < n) {
+            recorded[m] += 1;
+        }
+        policy.reseed(seed.wrapping_add(i as u64));
+        for _ in 0..draws {
+            let p = policy.predict(&demo.observations[t], &hist)?;
+            match heading_passage(layout, from, last(&p.chunk)) {
+                Some(k) => mine[k] += 1,
+                None => unclassified += 1,
+            }
+        }
+    }
+    let shares = |v: &[usize]| crate::family::proportions(v);
+    Ok(ForkChoices {
+        states,
+        draws,
+        policy: shares(&mine),
+        unclassified: unclassified as f32 / (states * draws).max(1) as f32,
+        demos_classified: shares(&theirs),
+        demos_recorded: shares(&recorded),
+    })
+}
+
 /// A markdown table of the diagnosis (dimensions shown as x / y).
 pub fn table(stats: &[RegionStats]) -> String {
     let vec = |v: &[f32]| v.iter().map(|x| format!("{x:.2}")).collect::<Vec<_>>().join(" / ");

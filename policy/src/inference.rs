@@ -98,7 +98,7 @@ impl ChunkPolicy for MarsPolicy {
         let dev = self.model.device().clone();
         let obs = Tensor::from_vec(obs, (1, cfg.obs_dim), &dev)?;
         let hist = Tensor::from_vec(hist, (1, h, d), &dev)?;
-        let eps = randn(&mut self.rng, &[1, c, d], &dev)?;
+        let eps = randn(&mut self.rng, &[1, c, d], &dev)?.affine(f64::from(cfg.source_std), 0.0)?;
         let (chunk, w, k) = self.model.sample_with_steps(&obs, &hist, &eps, self.steps)?;
         let mut chunk = chunk.flatten_all()?.to_vec1::<f32>()?;
         self.normalizer.action.denormalize(&mut chunk);

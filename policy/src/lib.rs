@@ -4,9 +4,11 @@
 //! their nearest neighbours → [`train`] fits a [`model::MarsModel`] with the three [`losses`] → [`checkpoint`]
 //! writes safetensors + config → a task's evaluation calls the model through [`rollout::ChunkPolicy`].
 
+pub mod ablation;
 pub mod checkpoint;
 pub mod cli;
 pub mod config;
+pub mod curve;
 pub mod dataset;
 pub mod demo;
 pub mod diagnose;

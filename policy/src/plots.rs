@@ -377,6 +377,71 @@ where
     legend(&mut chart)
 }
 
+/// Success rate and γ against training epochs, one line per policy with its ± std band shaded (paper
+/// Fig. 1(e)): the training-efficiency curves of `curve::run`.
+pub fn plot_curves(curves: &[crate::curve::PolicyCurve], title: &str, path: &Path) -> anyhow::Result<()> {
+    to_png(path, (LINE_SIZE.0, 2 * LINE_SIZE.1), |root| {
+        root.fill(&WHITE).map_err(plot_err)?;
+        let (top, bottom) = root.split_vertically(LINE_SIZE.1);
+        draw_curve_panel(&top, curves, &format!("{title}: success rate"), "success %", 100.0, |p| p.success_pct)?;
+        draw_curve_panel(&bottom, curves, &format!("{title}: modal balance γ"), "γ", 1.0, |p| p.gamma)
+    })
+}
+
+fn draw_curve_panel(
+    root: &Area,
+    curves: &[crate::curve::PolicyCurve],
+    caption: &str,
+    y_desc: &str,
+    y_max: f32,
+    value: fn(&crate::curve::CurvePoint) -> crate::family::MeanStd,
+) -> anyhow::Result<()> {
+    let last = curves.iter().flat_map(|c| c.points.iter().map(|p| p.epoch)).max().unwrap_or(1).max(1) as f32;
+    let mut chart = ChartBuilder::on(root)
+        .caption(caption, (FONT, 22))
+        .margin(15)
+        .x_label_area_size(40)
+        .y_label_area_size(60)
+        .build_cartesian_2d(0f32..last, 0f32..y_max * 1.05)
+        .map_err(plot_err)?;
+    chart
+        .configure_mesh()
+        .x_desc("epoch")
+        .y_desc(y_desc)
+        .label_style((FONT, 15))
+        .axis_desc_style((FONT, 16))
+        .light_line_style(WHITE)
+        .x_label_formatter(&|e| format!("{e:.0}"))
+        .y_label_formatter(&|v| if y_max > 1.0 { format!("{v:.0}") } else { format!("{v:.1}") })
+        .draw()
+        .map_err(plot_err)?;
+    for (i, c) in curves.iter().enumerate() {
+        let color = palette(i);
+        let pts: Vec<(f32, crate::family::MeanStd)> = c.points.iter().map(|p| (p.epoch as f32, value(p))).collect();
+        // The band: mean + std forward, mean − std back, clipped to the axis.
+        let band: Vec<(f32, f32)> = pts
+            .iter()
+            .map(|(e, v)| (*e, (v.mean + v.std).min(y_max)))
+            .chain(pts.iter().rev().map(|(e, v)| (*e, (v.mean - v.std).max(0.0))))
+            .collect();
+        chart.draw_series(std::iter::once(Polygon::new(band, color.mix(0.2).filled()))).map_err(plot_err)?;
+        chart
+            .draw_series(LineSeries::new(pts.iter().map(|(e, v)| (*e, v.mean)), color.stroke_width(2)))
+            .map_err(plot_err)?
+            .label(c.kind.name())
+            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(3)));
+        chart.draw_series(pts.iter().map(|(e, v)| Circle::new((*e, v.mean), 3, color.filled()))).map_err(plot_err)?;
+    }
+    chart
+        .configure_series_labels()
+        .position(SeriesLabelPosition::LowerRight)
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .label_font((FONT, 14))
+        .draw()
+        .map_err(plot_err)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

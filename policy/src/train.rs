@@ -89,7 +89,7 @@ pub fn batch_losses(
     let (b, c, d) = batch.next.dims3()?;
     let emb = model.encode(&batch.obs)?;
     let w = model.weights(&emb, &batch.history)?;
-    let eps = randn(rng, &[b, c, d], dev)?;
+    let eps = randn(rng, &[b, c, d], dev)?.affine(f64::from(cfg.model.source_std), 0.0)?;
     let a0 = MarsModel::source(&batch.history, &w, &eps)?;
     let a1 = &batch.next;
 
@@ -100,7 +100,13 @@ pub fn batch_losses(
 
     // L_fm needs v(a_τ, τ); L_rec needs v(a0, 0) from a source rebuilt with the detached w (so L_rec trains the
     // velocity field, never the scheduler). Both go through the DiT as one batch of 2B: half the op count.
-    let (v_tau, v_zero) = if cfg.kind.uses_rec_loss() {
+    // FM has no w to gate L_rec with: the Fig. S4 ablation applies it to every dimension (gate weight 0).
+    let (rec_weight, rec_gate) = match (cfg.kind, cfg.train.fm_lambda_rec) {
+        (PolicyKind::Fm, Some(l)) => (Some(l), w.zeros_like()?),
+        (kind, _) if kind.uses_rec_loss() => (Some(cfg.train.lambda_rec), w.clone()),
+        _ => (None, w.clone()),
+    };
+    let (v_tau, v_zero) = if rec_weight.is_some() {
         let a0_d = MarsModel::source(&batch.history, &w.detach(), &eps)?;
         let zeros = Tensor::zeros(b, candle_core::DType::F32, dev)?;
         let v = model.velocity(
@@ -117,8 +123,8 @@ pub fn batch_losses(
 
     let rec = match v_zero {
         Some((a0_d, v0)) => {
-            let rec = losses::reconstruction(&(a0_d + v0)?, a1, &w)?;
-            total = (total + (&rec * cfg.train.lambda_rec)?)?;
+            let rec = losses::reconstruction(&(a0_d + v0)?, a1, &rec_gate)?;
+            total = (total + (&rec * rec_weight.unwrap_or(0.0))?)?;
             Some(rec)
         }
         None => None,
@@ -169,9 +175,41 @@ pub fn train(cfg: &PolicyConfig, demos: &[Demo], show_progress: bool) -> anyhow:
 
 /// `train`, reporting to the given bar (the benchmark shows one bar per policy trained in parallel).
 pub fn train_with_progress(cfg: &PolicyConfig, demos: &[Demo], bar: indicatif::ProgressBar) -> anyhow::Result<Trained> {
+    train_with_snapshots(cfg, demos, bar, None)
+}
+
+/// Checkpoints of the model in training, every `every` epochs, as `<dir>/epoch_NNNN/` (the final epoch
+/// included): the training-efficiency curves evaluate them. Each is a complete checkpoint (K(w) calibrated as
+/// the final one is), so any evaluator loads it like any other.
+#[derive(Debug, Clone)]
+pub struct Snapshots {
+    pub every: usize,
+    pub dir: std::path::PathBuf,
+}
+
+impl Snapshots {
+    pub fn path(&self, epochs_done: usize) -> std::path::PathBuf {
+        self.dir.join(format!("epoch_{epochs_done:04}"))
+    }
+}
+
+/// `train_with_progress`, saving `snapshots` along the way.
+pub fn train_with_snapshots(
+    cfg: &PolicyConfig,
+    demos: &[Demo],
+    bar: indicatif::ProgressBar,
+    snapshots: Option<&Snapshots>,
+) -> anyhow::Result<Trained> {
     cfg.validate()?;
+    if let Some(s) = snapshots {
+        anyhow::ensure!(s.every > 0, "snapshots every 0 epochs: give at least 1");
+    }
     let device = Device::Cpu;
-    let data = Dataset::from_demos(demos, &cfg.model, cfg.train.knn_m)?;
+    let mut data = Dataset::from_demos(demos, &cfg.model, cfg.train.knn_m)?;
+    if let (Some(q), PolicyKind::Mars) = (cfg.train.div_target_quantile, cfg.kind) {
+        let factor = data.rescale_target_spread(q);
+        tracing::info!(policy = %cfg.kind, quantile = q, factor, "diversity target S_next rescaled");
+    }
     let tensors = data.tensors(&cfg.model, &device)?;
     let (mut model, varmap) = init_model(cfg, &device)?;
     let mut opts = optimizers(&varmap, cfg)?;
@@ -220,21 +258,43 @@ pub fn train_with_progress(cfg: &PolicyConfig, demos: &[Demo], bar: indicatif::P
             tracing::info!(policy = %cfg.kind, epoch = epoch + 1, loss = e.total, fm = e.fm, rec = e.rec, div = e.div, w_inf = e.w_inf, "epoch");
         }
         log.push(e);
+        if let Some(s) = snapshots.filter(|s| (epoch + 1) % s.every == 0 || epoch + 1 == cfg.train.epochs) {
+            let mut snap_cfg = cfg.clone();
+            snap_cfg.train.epochs = epoch + 1;
+            calibrate_k(&mut snap_cfg, &mut model, &tensors, false)?;
+            crate::checkpoint::save_parts(&s.path(epoch + 1), &snap_cfg, &varmap, &data.normalizer, &log)?;
+        }
     }
     bar.finish_and_clear();
     let mut cfg = cfg.clone();
-    if let (Some(q), PolicyKind::Mars) = (cfg.train.k_full_quantile, cfg.kind) {
-        let top = quantile(&mut w_inf_values(&model, &tensors)?, q);
-        if top > 1e-3 {
-            cfg.model.k_full_w = top.min(1.0);
+    calibrate_k(&mut cfg, &mut model, &tensors, true)?;
+    Ok(Trained { cfg, model, varmap, normalizer: data.normalizer, log })
+}
+
+/// MARS with `train.k_full_quantile`: `model.k_full_w` ← that quantile of ‖w‖∞ over the training samples (in
+/// `cfg` and in the model). It only scales K(w) at inference; training never reads it.
+fn calibrate_k(
+    cfg: &mut PolicyConfig,
+    model: &mut MarsModel,
+    tensors: &DatasetTensors,
+    log: bool,
+) -> anyhow::Result<()> {
+    let (Some(q), PolicyKind::Mars) = (cfg.train.k_full_quantile, cfg.kind) else { return Ok(()) };
+    let top = quantile(&mut w_inf_values(model, tensors)?, q);
+    if top > 1e-3 {
+        cfg.model.k_full_w = top.min(1.0);
+        if log {
             tracing::info!(policy = %cfg.kind, k_full_w = cfg.model.k_full_w, "K(w) calibrated: this ‖w‖∞ gets K_max steps");
-        } else {
-            // A scheduler that never left 0 has no fork to give the budget to: keep the paper's scale.
+        }
+    } else {
+        // A scheduler that never left 0 has no fork to give the budget to: keep the paper's scale.
+        cfg.model.k_full_w = 1.0;
+        if log {
             tracing::warn!(policy = %cfg.kind, quantile = q, w_inf = top, "K(w) not calibrated: ‖w‖∞ ≈ 0 on the training samples; k_full_w stays 1");
         }
-        model.cfg.k_full_w = cfg.model.k_full_w;
     }
-    Ok(Trained { cfg, model, varmap, normalizer: data.normalizer, log })
+    model.cfg.k_full_w = cfg.model.k_full_w;
+    Ok(())
 }
 
 /// ‖w‖∞ of the trained scheduler on every training sample.

@@ -131,7 +131,8 @@ fn family_writes_a_table_per_layout_and_the_verdicts() {
         &layout,
     ]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    assert!(String::from_utf8_lossy(&out.stdout).contains("| entry_gate |"));
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(stdout.contains("| entry_gate |") && stdout.contains("Heading of the first chunk past the entry gate"));
     for ablation in [["--steps", "3"], ["--k-full-w", "0.5"]] {
         let args = ["eval", "--checkpoint", ckpt.to_str().unwrap(), "--layout", &layout, "--rollouts", "2"];
         let out = mars(&[&args[..], &ablation[..]].concat());
@@ -143,6 +144,140 @@ fn family_writes_a_table_per_layout_and_the_verdicts() {
     assert!(ckpt.join("eval_kfull0.5.json").exists());
     let out = mars(&["eval", "--checkpoint", ckpt.to_str().unwrap(), "--layout", &layout, "--k-full-w", "0"]);
     assert!(!out.status.success() && String::from_utf8_lossy(&out.stderr).contains("--k-full-w"));
+}
+
+/// The training-efficiency curves on a tiny setting: snapshots every epoch, each scored, the tables and plot.
+#[test]
+fn curve_scores_every_snapshot_and_writes_the_tables_and_plot() {
+    let dir = tmp("curve");
+    let cfg = tiny_config(&dir);
+    let out = mars(&[
+        "curve",
+        "--out",
+        dir.to_str().unwrap(),
+        "--config",
+        cfg.to_str().unwrap(),
+        "--seeds",
+        "2",
+        "--demos",
+        "6",
+        "--epochs",
+        "2",
+        "--every",
+        "1",
+        "--episodes",
+        "2",
+        "--policies",
+        "mars,fm",
+        "--thresholds",
+        "0,101",
+        "--jobs",
+        "2",
+    ]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let md = std::fs::read_to_string(dir.join("curves.md")).unwrap();
+    for want in ["| 1 |", "| 2 |", "epochs to 0 % success", "| mars | 1.0 ± 0.0 (2/2 seeds) | not reached (0/2 seeds)"]
+    {
+        assert!(md.contains(want), "curves.md lacks {want:?}:\n{md}");
+    }
+    for seed in ["seed0", "seed1"] {
+        for kind in ["mars", "fm"] {
+            for epoch in ["epoch_0001", "epoch_0002"] {
+                let score = dir.join(seed).join(kind).join("snapshots").join(epoch).join("score.json");
+                assert!(score.exists(), "missing {}", score.display());
+            }
+        }
+    }
+    assert!(dir.join("curves.png").metadata().map(|m| m.len() > 0).unwrap_or(false));
+    // Rescoring reuses the snapshots (no training, so no new weights) and refuses flags that do not match them.
+    let weights = dir.join("seed0/mars/snapshots/epoch_0002/model.safetensors");
+    let before = std::fs::metadata(&weights).unwrap().modified().unwrap();
+    let common = ["--out", dir.to_str().unwrap(), "--config", cfg.to_str().unwrap(), "--seeds", "2", "--demos", "6"];
+    let flags = ["--epochs", "2", "--every", "1", "--episodes", "3", "--policies", "mars,fm", "--rescore"];
+    let out = mars(&[&["curve"][..], &common[..], &flags[..]].concat());
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert_eq!(std::fs::metadata(&weights).unwrap().modified().unwrap(), before, "rescoring trained again");
+    assert!(std::fs::read_to_string(dir.join("curves.md")).unwrap().contains("--rescore"));
+    let flags = ["--epochs", "2", "--every", "2", "--policies", "mars,fm", "--rescore"];
+    let out = mars(&[&["curve"][..], &common[..], &flags[..]].concat());
+    assert!(!out.status.success() && String::from_utf8_lossy(&out.stderr).contains("snapshots at epochs"));
+    let out = mars(&["curve", "--out", dir.to_str().unwrap(), "--epochs", "2", "--every", "3"]);
+    assert!(!out.status.success() && String::from_utf8_lossy(&out.stderr).contains("--every"));
+}
+
+/// The curves with training in `mars train --snapshot-every` processes (how `mars-hil curve` trains): the same
+/// snapshots and scores as in-process training, and a failing training is reported with its log.
+#[test]
+fn curve_trains_through_the_mars_binary_and_reports_its_failures() {
+    use mars_policy::curve::{CurveOptions, Trainer, run};
+    let dir = tmp("curve-cmd");
+    let cfg = tiny_config(&dir);
+    let task = mars_policy::cli::Nav2dCurve {
+        layout: PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../configs/nav2d.toml")),
+        demos: 4,
+        rollouts: 2,
+        exec_horizon: mars_policy::cli::DEFAULT_EXEC_HORIZON,
+    };
+    let opts = CurveOptions {
+        policies: vec![mars_policy::config::PolicyKind::Mars],
+        seeds: 1,
+        epochs: 2,
+        every: 1,
+        jobs: 1,
+        thresholds: vec![0.0],
+        eval_seed: 7,
+        rescore: false,
+    };
+    let mars_bin = Trainer::Command(PathBuf::from(env!("CARGO_BIN_EXE_mars")));
+    let by_cmd = run(&dir.join("cmd"), &cfg, &opts, &task, &mars_bin, "test").unwrap();
+    let in_proc = run(&dir.join("in"), &cfg, &opts, &task, &Trainer::InProcess, "test").unwrap();
+    for epoch in ["epoch_0001", "epoch_0002"] {
+        let w = |root: &str| {
+            std::fs::read(dir.join(root).join("seed0/mars/snapshots").join(epoch).join("model.safetensors")).unwrap()
+        };
+        assert_eq!(w("cmd"), w("in"), "{epoch}: the same seeded training either way");
+    }
+    let scores = |c: &[mars_policy::curve::PolicyCurve]| {
+        c[0].points.iter().map(|p| (p.epoch, p.success_pct.mean, p.gamma.mean)).collect::<Vec<_>>()
+    };
+    assert_eq!(scores(&by_cmd), scores(&in_proc));
+    assert!(dir.join("cmd/seed0/mars/train.log").exists());
+
+    let broken = dir.join("broken.toml");
+    std::fs::write(&broken, std::fs::read_to_string(&cfg).unwrap().replace("lr = 3e-4", "lr = -1.0")).unwrap();
+    let err = run(&dir.join("bad"), &broken, &opts, &task, &mars_bin, "test").unwrap_err();
+    assert!(format!("{err:#}").contains("train.lr"), "the config is checked before any training: {err:#}");
+    let failing = Trainer::Command(PathBuf::from("/bin/false"));
+    let err = run(&dir.join("fail"), &cfg, &opts, &task, &failing, "test").unwrap_err();
+    assert!(format!("{err:#}").contains("train.log"), "a failed training points at its log: {err:#}");
+}
+
+/// Both FM ablations on a tiny setting: one FM per value, trained, rolled out, tabled and plotted; a knob's
+/// value actually reaches the trained checkpoint.
+#[test]
+fn ablate_trains_fm_per_value_and_writes_the_table() {
+    let dir = tmp("ablate");
+    let cfg = tiny_config(&dir);
+    for (knob, values, field) in [("source-std", "0,2", "source_std"), ("fm-lambda-rec", "0,1", "fm_lambda_rec")] {
+        let out_dir = dir.join(knob);
+        let args = ["--demos", "6", "--epochs", "1", "--rollouts", "2", "--jobs", "2"];
+        let base = ["ablate", "--knob", knob, "--values", values, "--config", cfg.to_str().unwrap()];
+        let out = mars(&[&base[..], &["--out", out_dir.to_str().unwrap()], &args[..]].concat());
+        assert!(out.status.success(), "{knob}: {}", String::from_utf8_lossy(&out.stderr));
+        let md = std::fs::read_to_string(out_dir.join("ablation.md")).unwrap();
+        assert_eq!(md.lines().filter(|l| l.starts_with("| std ") || l.starts_with("| λ_rec ")).count(), 2, "{md}");
+        assert!(out_dir.join("losses.png").exists());
+        let meta: serde_json::Value = serde_json::from_str(
+            &std::fs::read_to_string(
+                out_dir.join(format!("{knob}_{}", values.split(',').next_back().unwrap())).join("policy.json"),
+            )
+            .unwrap(),
+        )
+        .unwrap();
+        assert_eq!(meta["kind"], "fm");
+        let section = if field == "source_std" { "model" } else { "train" };
+        assert!(meta[section][field].as_f64().is_some_and(|v| v > 0.0), "{knob}: {}", meta[section]);
+    }
 }
 
 #[test]

@@ -24,6 +24,16 @@ fn bad_values_are_named() {
     assert!(err_of(|s| s.replace("noise_a2a_w = 0.1", "noise_a2a_w = 1.5")).contains("model.noise_a2a_w"));
     assert!(err_of(|s| s.replace("lr = 3e-4", "lr = -1.0")).contains("train.lr"));
     assert!(err_of(|s| s.replace("batch_size = 32", "batch_size = 1")).contains("train.batch_size"));
+    // The FM ablations' knobs are refused on MARS (the shipped kind), and bad values on FM.
+    assert!(err_of(|s| s.replace("k_max = 10", "k_max = 10\nsource_std = 2.0")).contains("model.source_std"));
+    assert!(err_of(|s| s.replace("seed = 0", "seed = 0\nfm_lambda_rec = 1.0")).contains("train.fm_lambda_rec"));
+    let fm = |s: &str| s.replace("kind = \"mars\"", "kind = \"fm\"");
+    assert!(err_of(|s| fm(s).replace("k_max = 10", "k_max = 10\nsource_std = -1.0")).contains("model.source_std"));
+    assert!(err_of(|s| fm(s).replace("seed = 0", "seed = 0\nfm_lambda_rec = -1.0")).contains("train.fm_lambda_rec"));
+    let ok = fm(SHIPPED)
+        .replace("k_max = 10", "k_max = 10\nsource_std = 0.0")
+        .replace("seed = 0", "seed = 0\nfm_lambda_rec = 1.0");
+    PolicyConfig::from_toml(&ok).expect("the FM ablations are valid on fm");
 }
 
 #[test]

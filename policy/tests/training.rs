@@ -125,6 +125,59 @@ fn s_next_is_high_after_the_fork_and_low_before() {
 }
 
 #[test]
+fn rescaled_target_puts_the_quantile_at_the_noise_spread_and_never_shrinks() {
+    let cfg = common::tiny_config(PolicyKind::Mars);
+    let demos = common::forked_demos(20, 16);
+    let mut data = Dataset::from_demos(&demos, &cfg.model, cfg.train.knn_m).unwrap();
+    // These demos fork wider than noise spreads; shrunk, they stand for a task whose target is below it.
+    data.s_next.iter_mut().for_each(|s| *s *= 0.1);
+    let before = data.s_next.clone();
+    let d = cfg.model.action_dim;
+    let factor = data.rescale_target_spread(0.9);
+    let mut peaks: Vec<f32> = data.s_next.chunks(d).map(|s| s.iter().copied().fold(0.0, f32::max)).collect();
+    let at_q = mars_policy::train::quantile(&mut peaks, 0.9);
+    let noise_spread = 2.0 / std::f32::consts::PI.sqrt();
+    assert!(factor > 1.0 && (at_q - noise_spread).abs() < 1e-4, "factor {factor}, q90 {at_q}");
+    // One factor for every sample and dimension: the target's shape over the task is kept.
+    for (a, b) in before.iter().zip(&data.s_next) {
+        assert!((a * factor - b).abs() <= 1e-5 * b.abs().max(1.0), "{a} × {factor} ≠ {b}");
+    }
+    // A target already above the noise spread is left alone (factor ≥ 1).
+    data.s_next.iter_mut().for_each(|s| *s *= 10.0);
+    let big = data.s_next.clone();
+    assert_eq!(data.rescale_target_spread(0.9), 1.0);
+    assert_eq!(data.s_next, big);
+}
+
+#[test]
+fn snapshots_are_complete_checkpoints_and_the_last_one_is_the_final_model() {
+    let mut cfg = common::tiny_config(PolicyKind::Mars);
+    cfg.train.epochs = 5;
+    cfg.train.k_full_quantile = Some(0.9);
+    let dir = std::env::temp_dir().join(format!("mars-snapshots-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let snaps = mars_policy::train::Snapshots { every: 2, dir: dir.join("snapshots") };
+    let demos = common::forked_demos(8, 12);
+    let t =
+        mars_policy::train::train_with_snapshots(&cfg, &demos, indicatif::ProgressBar::hidden(), Some(&snaps)).unwrap();
+    mars_policy::checkpoint::save(&dir.join("final"), &t).unwrap();
+    let found: Vec<usize> =
+        mars_policy::curve::snapshot_dirs(&snaps.dir).unwrap().into_iter().map(|(e, _)| e).collect();
+    assert_eq!(found, [2, 4, 5], "every 2 epochs and the last");
+    for (epoch, snap) in mars_policy::curve::snapshot_dirs(&snaps.dir).unwrap() {
+        let meta = mars_policy::checkpoint::load_meta(&snap).unwrap();
+        assert_eq!((meta.train.epochs, meta.log.len()), (epoch, epoch), "{}", snap.display());
+        assert!(meta.model.k_full_w > 0.0 && meta.model.k_full_w <= 1.0);
+    }
+    let bytes = |p: std::path::PathBuf| std::fs::read(p.join(mars_policy::checkpoint::WEIGHTS_FILE)).unwrap();
+    assert_eq!(bytes(snaps.path(5)), bytes(dir.join("final")), "the last snapshot is the trained model");
+    assert_ne!(bytes(snaps.path(2)), bytes(dir.join("final")), "an early snapshot is an earlier model");
+    let last = mars_policy::checkpoint::load_meta(&snaps.path(5)).unwrap();
+    assert_eq!(last.model.k_full_w, t.cfg.model.k_full_w, "calibrated like the final checkpoint");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
 fn bad_demos_are_refused_with_the_demo_named() {
     let cfg = common::tiny_config(PolicyKind::Mars);
     let mut demos = common::forked_demos(8, 12);

@@ -19,6 +19,9 @@ use mars_runtime::smoothing::{DEFAULT_SAFETY_FACTOR, Limits, Smoother};
 const TICKS: usize = 20_000;
 const ROUNDS: usize = 3;
 
+/// One smoother under test, fed (position, velocity) targets tick by tick.
+type Tracker = Box<dyn FnMut(&[f64; 7], &[f64; 7])>;
+
 /// A seeded moving reference: new linear segment every 200 ticks (xorshift, so no dev-dependency).
 fn targets(home: &[f64], dq_max: &[f64]) -> Vec<([f64; 7], [f64; 7])> {
     let mut state = 0x9e37_79b9_7f4a_7c15u64;
@@ -167,13 +170,13 @@ fn main() {
     let p = Profile::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/fr3.toml")).unwrap();
     let stream = targets(&p.home, &p.dq_max);
 
-    let fresh_ours = || -> Box<dyn FnMut(&[f64; 7], &[f64; 7])> {
+    let fresh_ours = || -> Tracker {
         let mut s = ours(&p);
         Box::new(move |q, v| {
             black_box(s.track(q, v).unwrap());
         })
     };
-    let fresh_official = || -> Box<dyn FnMut(&[f64; 7], &[f64; 7])> {
+    let fresh_official = || -> Tracker {
         let mut o = Official::new(&p);
         Box::new(move |q, v| o.step(q, v))
     };

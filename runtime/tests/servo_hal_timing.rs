@@ -145,6 +145,7 @@ fn run(seed: u64, resets: u64, p_fault: f64) -> Outcome {
             prev.remove(0);
         }
         if prev.len() == 4 {
+            #[allow(clippy::needless_range_loop)] // four frames and three limit arrays indexed by joint
             for j in 0..n {
                 let v = (prev[3][j] - prev[2][j]) * 1e3;
                 let a = (prev[3][j] - 2.0 * prev[2][j] + prev[1][j]) * 1e6;

@@ -3,6 +3,7 @@
 //! command sends failing `max_consecutive_send_errors` times in a row stop the loop with `Trip::SendErrors`.
 
 use std::cell::Cell;
+use std::f64::consts::{FRAC_PI_2, FRAC_PI_4};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::Ordering;
@@ -78,7 +79,7 @@ fn status_id(s: &Arc<Status>) -> usize {
 
 /// A frame as the HAL would publish it now: at home, following `session` once it is non-zero.
 fn hal_frame(seq: u64, session: u64) -> RobotState {
-    let home = [0.0, -0.7854, 0.0, -2.3562, 0.0, 1.5708, 0.7854];
+    let home: [f64; 7] = [0.0, -FRAC_PI_4, 0.0, -3.0 * FRAC_PI_4, 0.0, FRAC_PI_2, FRAC_PI_4];
     let mut s = RobotState {
         seq,
         timestamp_ns: mars_ipc::clock::monotonic_ns(),
@@ -109,7 +110,7 @@ fn receive_errors_are_counted_by_class() {
             if n == 100 {
                 stop.stop_requested.store(true, Ordering::Release);
             }
-            if n % 2 == 0 { Err(FrameReceiveError::Schema(mismatch)) } else { Err(port) }
+            if n.is_multiple_of(2) { Err(FrameReceiveError::Schema(mismatch)) } else { Err(port) }
         },
         send: |_: &JointCommand| panic!("nothing may be commanded without a usable frame"),
     };
@@ -127,7 +128,7 @@ fn repeated_send_errors_trip_the_watchdog() {
     // One fresh frame per tick (the loop reads until None: every other call is None), the HAL following us.
     let hal = FakeHal {
         calls: Cell::new(0),
-        frame: |n: u64| Ok((n % 2 == 0).then(|| hal_frame(n / 2 + 1, SESSION))),
+        frame: |n: u64| Ok(n.is_multiple_of(2).then(|| hal_frame(n / 2 + 1, SESSION))),
         send: |_: &JointCommand| Err(FrameSendError::Loan(iceoryx2::port::LoanError::OutOfMemory)),
     };
     let r = run(hal, status.clone());
@@ -149,12 +150,12 @@ fn sends_that_fail_fewer_times_in_a_row_than_the_limit_do_not_trip() {
             if n == 2000 {
                 stop.stop_requested.store(true, Ordering::Release);
             }
-            Ok((n % 2 == 0).then(|| hal_frame(n / 2 + 1, SESSION)))
+            Ok(n.is_multiple_of(2).then(|| hal_frame(n / 2 + 1, SESSION)))
         },
         // Every `limit`-th send succeeds: runs of limit − 1 failures.
         send: move |_: &JointCommand| {
             sent.set(sent.get() + 1);
-            if sent.get() % limit == 0 {
+            if sent.get().is_multiple_of(limit) {
                 Ok(1)
             } else {
                 Err(FrameSendError::Loan(iceoryx2::port::LoanError::OutOfMemory))

@@ -47,6 +47,9 @@ enum Command {
         /// Override `train.seed`.
         #[arg(long)]
         seed: Option<u64>,
+        /// Also save a checkpoint every N epochs (and at the last) under <out>/snapshots/epoch_NNNN.
+        #[arg(long)]
+        snapshot_every: Option<usize>,
     },
     /// Roll a checkpoint out N times (distinct seeds) and print success, passage counts, γ, K and latency.
     Eval {
@@ -112,6 +115,42 @@ enum Command {
         #[arg(long)]
         jobs: Option<usize>,
     },
+    /// Training efficiency (paper Fig. 1(e)): train each policy × seed with a snapshot every N epochs, roll
+    /// every snapshot out, and write success and γ per epoch (mean ± std), epochs-to-X % success and a plot.
+    Curve {
+        #[command(flatten)]
+        args: mars_policy::curve::CurveArgs,
+        #[arg(long, default_value = "configs/nav2d.toml")]
+        layout: PathBuf,
+        #[arg(long, default_value_t = cli::DEFAULT_EXEC_HORIZON)]
+        exec_horizon: usize,
+    },
+    /// FM ablations of the paper's appendix: Fig. S3 (`--knob source-std`: loss and success against the source
+    /// variance) and Fig. S4 (`--knob fm-lambda-rec`: an ungated L_rec pulls FM to the central passages).
+    Ablate {
+        #[arg(long, value_enum)]
+        knob: mars_policy::ablation::Knob,
+        #[arg(long, value_delimiter = ',', required = true)]
+        values: Vec<f64>,
+        #[arg(long, default_value = "runs/ablation")]
+        out: PathBuf,
+        #[arg(long, default_value = "configs/policy.toml")]
+        config: PathBuf,
+        #[arg(long, default_value = "configs/nav2d.toml")]
+        layout: PathBuf,
+        #[arg(long, default_value_t = 100)]
+        demos: usize,
+        #[arg(long)]
+        epochs: Option<usize>,
+        #[arg(long, default_value_t = 50)]
+        rollouts: usize,
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        #[arg(long, default_value_t = cli::DEFAULT_EXEC_HORIZON)]
+        exec_horizon: usize,
+        #[arg(long)]
+        jobs: Option<usize>,
+    },
     /// The benchmark on every layout of a folder over several training seeds; checks MARS's mode targets
     /// against FM on the means; writes family.md and family.json.
     Family {
@@ -145,14 +184,25 @@ fn main() -> std::process::ExitCode {
     let cores = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1);
     let jobs = match &args.command {
         Command::Benchmark { jobs, .. } | Command::Family { jobs, .. } => jobs.unwrap_or(cores).max(1),
+        Command::Curve { args, .. } => args.jobs.unwrap_or(cores).max(1),
+        Command::Ablate { jobs, .. } => jobs.unwrap_or(cores).max(1),
         _ => 1,
     };
     cli::init_runtime_env(jobs);
     let result = match args.command {
         Command::Demos { layout, n, seed, out } => cli::demos(&layout, n, seed, &out),
-        Command::Train { policy, config, demos, out, epochs, seed } => {
+        Command::Train { policy, config, demos, out, epochs, seed, snapshot_every } => {
             let out = out.unwrap_or_else(|| PathBuf::from("runs/nav2d").join(policy.name()));
-            cli::train(policy, &config, &demos, &out, epochs, seed).map(|_| ())
+            cli::train(policy, &config, &demos, &out, epochs, seed, snapshot_every).map(|_| ())
+        }
+        Command::Curve { args, layout, exec_horizon } => {
+            let task =
+                cli::Nav2dCurve { layout: layout.clone(), demos: args.demos, rollouts: args.episodes, exec_horizon };
+            let config = args.config.clone().unwrap_or_else(|| "configs/policy.toml".into());
+            let out = args.out.clone().unwrap_or_else(|| "runs/curve_nav2d".into());
+            let command = args.command_line("mars", &format!(" --layout {}", layout.display()));
+            let trainer = mars_policy::curve::Trainer::InProcess;
+            mars_policy::curve::run(&out, &config, &args.options(), &task, &trainer, &command).map(|_| ())
         }
         Command::Eval { checkpoint, layout, rollouts, seed, exec_horizon, steps, k_full_w } => {
             let ablation = cli::StepsAblation { steps, k_full_w };
@@ -164,6 +214,19 @@ fn main() -> std::process::ExitCode {
             let policies = if policies.is_empty() { PolicyKind::ALL.to_vec() } else { policies };
             let opts = cli::BenchmarkOptions { demos, epochs, rollouts, seed, exec_horizon, policies, jobs };
             cli::benchmark(&out, &config, &layout, &opts).map(|_| ())
+        }
+        Command::Ablate { knob, values, out, config, layout, demos, epochs, rollouts, seed, exec_horizon, .. } => {
+            let opts = mars_policy::ablation::AblateOptions {
+                knob,
+                values,
+                demos,
+                epochs,
+                rollouts,
+                seed,
+                exec_horizon,
+                jobs,
+            };
+            mars_policy::ablation::run(&out, &config, &layout, &opts).map(|_| ())
         }
         Command::Family { out, config, layouts, seeds, demos, epochs, rollouts, exec_horizon, policies, .. } => {
             let policies = if policies.is_empty() { vec![PolicyKind::Mars, PolicyKind::Fm] } else { policies };

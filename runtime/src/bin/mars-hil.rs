@@ -62,6 +62,19 @@ enum Command {
         #[arg(long, default_value = "runs/fr3/demos.json")]
         out: PathBuf,
     },
+    /// Training efficiency on Pick Cup (paper Fig. 1(e)): train each policy × seed with a snapshot every N
+    /// epochs (through the `mars` binary next to this one), roll every snapshot out in-process, and write
+    /// success and γ per epoch (mean ± std), epochs-to-X % success and a plot.
+    Curve {
+        #[command(flatten)]
+        args: mars_policy::curve::CurveArgs,
+        #[command(flatten)]
+        task: TaskArgs,
+        /// Train in this process instead of through `mars` (slower: this binary's allocator counts every
+        /// allocation; for a machine without the `mars` binary).
+        #[arg(long)]
+        in_process: bool,
+    },
     /// Roll a checkpoint out in-process against the sim plant (no IPC): success, grasp modes, γ, mean K.
     EvalSim {
         #[arg(long, default_value = "assets/checkpoints/fr3_pick_cup/mars")]
@@ -93,6 +106,7 @@ fn main() -> std::process::ExitCode {
             return std::process::ExitCode::from(code as u8);
         }
         Command::Demos { task, n, seed, out } => cli::demos(&task.task, &task.profile, n, seed, &out),
+        Command::Curve { args, task, in_process } => curve(&args, &task, in_process),
         Command::EvalSim { checkpoint, task, episodes, seed, out } => {
             cli::eval(&checkpoint, &task.task, &task.profile, episodes, seed, out.as_deref()).map(|_| ())
         }
@@ -104,4 +118,34 @@ fn main() -> std::process::ExitCode {
             std::process::ExitCode::FAILURE
         }
     }
+}
+
+fn curve(args: &mars_policy::curve::CurveArgs, task: &TaskArgs, in_process: bool) -> anyhow::Result<()> {
+    use anyhow::Context;
+    use mars_policy::curve::Trainer;
+    // Training runs in the `mars` binary by default: this one's global allocator counts every allocation (for
+    // the servo tick), which is no allocator to train candle on.
+    let trainer = if in_process {
+        Trainer::InProcess
+    } else {
+        let here = std::env::current_exe().context("cannot find this executable")?;
+        let mars = here.with_file_name("mars");
+        anyhow::ensure!(
+            mars.exists(),
+            "{} not found: build it with `cargo build --release --bin mars`, or pass --in-process",
+            mars.display()
+        );
+        Trainer::Command(mars)
+    };
+    let curve_task = cli::PickCupCurve {
+        task: task.task.clone(),
+        profile: task.profile.clone(),
+        demos: args.demos,
+        episodes: args.episodes,
+    };
+    let config = args.config.clone().unwrap_or_else(|| "configs/fr3_policy.toml".into());
+    let out = args.out.clone().unwrap_or_else(|| "runs/curve_pick_cup".into());
+    let extra = format!(" --task {} --profile {}", task.task.display(), task.profile.display());
+    let command = args.command_line("mars-hil", &extra);
+    mars_policy::curve::run(&out, &config, &args.options(), &curve_task, &trainer, &command).map(|_| ())
 }

@@ -59,3 +59,27 @@ pub fn eval(
     }
     Ok(report)
 }
+
+/// Pick Cup as a task of the training-efficiency curves (`mars-hil curve`).
+pub struct PickCupCurve {
+    pub task: std::path::PathBuf,
+    pub profile: std::path::PathBuf,
+    pub demos: usize,
+    pub episodes: usize,
+}
+
+impl mars_policy::curve::CurveTask for PickCupCurve {
+    fn title(&self) -> String {
+        format!("FR3 Pick Cup, {} demos, {} episodes per snapshot", self.demos, self.episodes)
+    }
+
+    fn demos(&self, seed: u64, path: &Path) -> anyhow::Result<()> {
+        demos(&self.task, &self.profile, self.demos, seed, path)
+    }
+
+    fn evaluate(&self, dir: &Path, seed: u64) -> anyhow::Result<mars_policy::curve::Score> {
+        let (task, profile) = load_task(&self.task, &self.profile)?;
+        let r = evaluate(dir, &task, &profile, self.episodes, seed)?;
+        Ok(mars_policy::curve::Score { success_pct: 100.0 * r.success_rate(), gamma: r.gamma, mean_k: r.mean_k })
+    }
+}

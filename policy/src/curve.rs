@@ -1,0 +1,513 @@
+//! Training-efficiency curves (the paper's Fig. 1(e) and Table S2): each policy is trained with a snapshot
+//! every N epochs, every snapshot is evaluated, and the success rate and γ are reported per epoch as mean ±
+//! std over training seeds, with the epochs each policy needs to reach X % success. The task is a parameter
+//! (demos and evaluation come as closures), so nav2d (`mars curve`) and Pick Cup (`mars-hil curve`) share it.
+
+use crate::config::{PolicyConfig, PolicyKind};
+use crate::family::MeanStd;
+use crate::train::{Snapshots, train_with_snapshots};
+use anyhow::Context;
+use serde::{Deserialize, Serialize};
+use std::fmt::Write;
+use std::path::{Path, PathBuf};
+use std::sync::Mutex;
+
+/// What one evaluation of one snapshot gives.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Score {
+    /// Success rate in percent.
+    pub success_pct: f32,
+    pub gamma: f32,
+    pub mean_k: f32,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct SnapshotScore {
+    pub kind: PolicyKind,
+    pub seed: u64,
+    pub epoch: usize,
+    pub score: Score,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct CurvePoint {
+    pub epoch: usize,
+    pub success_pct: MeanStd,
+    pub gamma: MeanStd,
+    pub mean_k: MeanStd,
+}
+
+/// The first snapshot epoch at which each seed reached `threshold_pct` success (`None`: it never did).
+#[derive(Debug, Clone, Serialize)]
+pub struct EpochsTo {
+    pub threshold_pct: f32,
+    pub per_seed: Vec<Option<usize>>,
+}
+
+impl EpochsTo {
+    /// "12.0 ± 2.0 (3/3 seeds)", or "not reached (0/3 seeds)".
+    pub fn summary(&self) -> String {
+        let reached: Vec<f32> = self.per_seed.iter().flatten().map(|&e| e as f32).collect();
+        let n = self.per_seed.len();
+        if reached.is_empty() {
+            return format!("not reached (0/{n} seeds)");
+        }
+        format!("{:.1} ({}/{n} seeds)", MeanStd::of(&reached), reached.len())
+    }
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct PolicyCurve {
+    pub kind: PolicyKind,
+    pub points: Vec<CurvePoint>,
+    pub epochs_to: Vec<EpochsTo>,
+    /// Over the last quarter of the snapshots (epoch > ¾ of the last): each seed's mean, then mean ± std over
+    /// seeds. One snapshot's γ swings with the seed; this is the stable summary of where training ends up.
+    pub late_success_pct: MeanStd,
+    pub late_gamma: MeanStd,
+}
+
+/// The command-line arguments every `curve` subcommand shares (`mars curve`, `mars-hil curve`).
+#[derive(Debug, Clone, clap::Args)]
+pub struct CurveArgs {
+    /// Policy config every training starts from.
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Training seeds 0..N (each also seeds its demos).
+    #[arg(long, default_value_t = 3)]
+    pub seeds: u64,
+    #[arg(long, default_value_t = 100)]
+    pub demos: usize,
+    #[arg(long, default_value_t = 40)]
+    pub epochs: usize,
+    /// A snapshot (and its evaluation) every N epochs, and at the last.
+    #[arg(long, default_value_t = 5)]
+    pub every: usize,
+    /// Evaluation episodes per snapshot.
+    #[arg(long, default_value_t = 50)]
+    pub episodes: usize,
+    /// Seed of the evaluation episodes (the same for every snapshot).
+    #[arg(long, default_value_t = 1000)]
+    pub eval_seed: u64,
+    /// Policies to compare.
+    #[arg(long, value_enum, value_delimiter = ',', default_value = "mars,fm,a2a")]
+    pub policies: Vec<PolicyKind>,
+    /// Success rates (percent) whose epochs-to are reported.
+    #[arg(long, value_delimiter = ',', default_value = "50,80,90")]
+    pub thresholds: Vec<f32>,
+    /// Trainings (then evaluations) at the same time (default: one per core).
+    #[arg(long)]
+    pub jobs: Option<usize>,
+    /// Score the snapshots an earlier run left in --out again, without training (e.g. with more episodes).
+    #[arg(long)]
+    pub rescore: bool,
+}
+
+impl CurveArgs {
+    pub fn options(&self) -> CurveOptions {
+        let cores = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1);
+        CurveOptions {
+            policies: self.policies.clone(),
+            seeds: self.seeds,
+            epochs: self.epochs,
+            every: self.every,
+            jobs: self.jobs.unwrap_or(cores).max(1),
+            thresholds: self.thresholds.clone(),
+            eval_seed: self.eval_seed,
+            rescore: self.rescore,
+        }
+    }
+
+    /// The flags as given, for the report's "Command:" line.
+    pub fn command_line(&self, program: &str, extra: &str) -> String {
+        let policies: Vec<&str> = self.policies.iter().map(|k| k.name()).collect();
+        let rescore = if self.rescore { " --rescore" } else { "" };
+        let thresholds: Vec<String> = self.thresholds.iter().map(|t| format!("{t}")).collect();
+        let paths: String = [("--config", &self.config), ("--out", &self.out)]
+            .iter()
+            .filter_map(|(flag, p)| p.as_ref().map(|p| format!(" {flag} {}", p.display())))
+            .collect();
+        format!(
+            "{program} curve{extra}{paths}{} --seeds {} --demos {} --epochs {} --every {} --episodes {} --eval-seed {} \
+             --policies {} --thresholds {}",
+            rescore,
+            self.seeds,
+            self.demos,
+            self.epochs,
+            self.every,
+            self.episodes,
+            self.eval_seed,
+            policies.join(","),
+            thresholds.join(",")
+        )
+    }
+}
+
+pub struct CurveOptions {
+    pub policies: Vec<PolicyKind>,
+    /// Training seeds 0..seeds (each seed also seeds its demos).
+    pub seeds: u64,
+    pub epochs: usize,
+    /// A snapshot every this many epochs (and at the last).
+    pub every: usize,
+    /// Trainings (then evaluations) run at the same time.
+    pub jobs: usize,
+    /// Success rates (percent) whose epochs-to are reported.
+    pub thresholds: Vec<f32>,
+    /// Seed of the evaluation episodes, the same for every snapshot: the curves differ by the model only.
+    pub eval_seed: u64,
+    /// Do not train: score the snapshots already under `out` (same seeds, policies and epochs).
+    pub rescore: bool,
+}
+
+/// Means and spreads per policy and epoch, and epochs-to-X per seed.
+pub fn aggregate(scores: &[SnapshotScore], policies: &[PolicyKind], thresholds: &[f32]) -> Vec<PolicyCurve> {
+    policies
+        .iter()
+        .map(|&kind| {
+            let mine: Vec<&SnapshotScore> = scores.iter().filter(|s| s.kind == kind).collect();
+            let mut epochs: Vec<usize> = mine.iter().map(|s| s.epoch).collect();
+            epochs.sort_unstable();
+            epochs.dedup();
+            let points = epochs
+                .iter()
+                .map(|&epoch| {
+                    let at: Vec<&Score> = mine.iter().filter(|s| s.epoch == epoch).map(|s| &s.score).collect();
+                    let of = |f: fn(&Score) -> f32| MeanStd::of(&at.iter().map(|s| f(s)).collect::<Vec<_>>());
+                    CurvePoint {
+                        epoch,
+                        success_pct: of(|s| s.success_pct),
+                        gamma: of(|s| s.gamma),
+                        mean_k: of(|s| s.mean_k),
+                    }
+                })
+                .collect();
+            let mut seeds: Vec<u64> = mine.iter().map(|s| s.seed).collect();
+            seeds.sort_unstable();
+            seeds.dedup();
+            let epochs_to = thresholds
+                .iter()
+                .map(|&threshold_pct| EpochsTo {
+                    threshold_pct,
+                    per_seed: seeds
+                        .iter()
+                        .map(|&seed| {
+                            mine.iter()
+                                .filter(|s| s.seed == seed && s.score.success_pct >= threshold_pct)
+                                .map(|s| s.epoch)
+                                .min()
+                        })
+                        .collect(),
+                })
+                .collect();
+            let last = mine.iter().map(|s| s.epoch).max().unwrap_or(0);
+            let late = |seed: u64, f: fn(&Score) -> f32| {
+                let v: Vec<f32> =
+                    mine.iter().filter(|s| s.seed == seed && 4 * s.epoch > 3 * last).map(|s| f(&s.score)).collect();
+                MeanStd::of(&v).mean
+            };
+            let over_seeds = |f: fn(&Score) -> f32| MeanStd::of(&seeds.iter().map(|&s| late(s, f)).collect::<Vec<_>>());
+            PolicyCurve {
+                kind,
+                points,
+                epochs_to,
+                late_success_pct: over_seeds(|s| s.success_pct),
+                late_gamma: over_seeds(|s| s.gamma),
+            }
+        })
+        .collect()
+}
+
+/// The snapshot directories under `dir` (`epoch_NNNN`), by epoch.
+pub fn snapshot_dirs(dir: &Path) -> anyhow::Result<Vec<(usize, PathBuf)>> {
+    let mut out: Vec<(usize, PathBuf)> = std::fs::read_dir(dir)
+        .with_context(|| format!("cannot read the snapshot folder {}", dir.display()))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter_map(|p| {
+            let epoch = p.file_name()?.to_str()?.strip_prefix("epoch_")?.parse().ok()?;
+            Some((epoch, p))
+        })
+        .collect();
+    out.sort();
+    Ok(out)
+}
+
+/// Runs `jobs` workers over `items`, collecting each result; the first error stops the run.
+pub(crate) fn parallel<T: Sync, R: Send>(
+    items: &[T],
+    jobs: usize,
+    f: &(dyn Fn(&T) -> anyhow::Result<R> + Sync),
+) -> anyhow::Result<Vec<R>> {
+    let next = Mutex::new(0usize);
+    let results = Mutex::new(Vec::new());
+    std::thread::scope(|scope| -> anyhow::Result<()> {
+        let workers: Vec<_> = (0..jobs.clamp(1, items.len().max(1)))
+            .map(|_| {
+                scope.spawn(|| -> anyhow::Result<()> {
+                    loop {
+                        let i = {
+                            let mut n = next.lock().unwrap_or_else(|e| e.into_inner());
+                            *n += 1;
+                            *n - 1
+                        };
+                        let Some(item) = items.get(i) else { break };
+                        let r = f(item)?;
+                        results.lock().unwrap_or_else(|e| e.into_inner()).push((i, r));
+                    }
+                    Ok(())
+                })
+            })
+            .collect();
+        for w in workers {
+            w.join().map_err(|_| anyhow::anyhow!("a curve worker panicked"))??;
+        }
+        Ok(())
+    })?;
+    let mut r = results.into_inner().unwrap_or_else(|e| e.into_inner());
+    r.sort_by_key(|(i, _)| *i);
+    Ok(r.into_iter().map(|(_, r)| r).collect())
+}
+
+/// A task the curves run on: where its demos come from and how a checkpoint is scored.
+pub trait CurveTask: Sync {
+    /// A title for the table and plot.
+    fn title(&self) -> String;
+    /// Writes the demos that training seed `seed` uses to `path`.
+    fn demos(&self, seed: u64, path: &Path) -> anyhow::Result<()>;
+    /// Scores the checkpoint in `dir` on episodes seeded from `seed`.
+    fn evaluate(&self, dir: &Path, seed: u64) -> anyhow::Result<Score>;
+}
+
+/// How a policy is trained with snapshots.
+pub enum Trainer {
+    /// In this process (the `mars` binary, whose allocator suits candle).
+    InProcess,
+    /// As `<mars> train … --snapshot-every N`, one process per training, its log in `<dir>/train.log`: for
+    /// binaries whose global allocator is not the one training should run on (`mars-hil` counts allocations).
+    Command(PathBuf),
+}
+
+impl Trainer {
+    fn train(&self, config: &Path, cfg: &PolicyConfig, demos: &Path, dir: &Path, every: usize) -> anyhow::Result<()> {
+        let snaps = Snapshots { every, dir: dir.join("snapshots") };
+        match self {
+            Trainer::InProcess => {
+                let set = crate::cli::load_demos(demos)?;
+                let t = train_with_snapshots(cfg, &set.demos, indicatif::ProgressBar::hidden(), Some(&snaps))?;
+                crate::checkpoint::save(dir, &t)?;
+            }
+            Trainer::Command(mars) => {
+                std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+                let log = std::fs::File::create(dir.join("train.log"))
+                    .with_context(|| format!("cannot write {}", dir.join("train.log").display()))?;
+                let status = std::process::Command::new(mars)
+                    .args(["train", "--policy", cfg.kind.name()])
+                    .arg("--config")
+                    .arg(config)
+                    .arg("--demos")
+                    .arg(demos)
+                    .arg("--out")
+                    .arg(dir)
+                    .args(["--epochs", &cfg.train.epochs.to_string(), "--seed", &cfg.train.seed.to_string()])
+                    .args(["--snapshot-every", &every.to_string()])
+                    .env("RAYON_NUM_THREADS", "1")
+                    .stdout(log.try_clone()?)
+                    .stderr(log)
+                    .status()
+                    .with_context(|| format!("cannot start {}", mars.display()))?;
+                anyhow::ensure!(
+                    status.success(),
+                    "{} failed ({status}); see {}",
+                    mars.display(),
+                    dir.join("train.log").display()
+                );
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Trains every policy × seed with snapshots under `out/seed<s>/<policy>/` (the seed's demos in
+/// `out/seed<s>/demos.json`), scores every snapshot, then writes `out/curves.md`, `out/curves.json` and
+/// `out/curves.png`. `config` is the policy config every training starts from.
+pub fn run(
+    out: &Path,
+    config: &Path,
+    o: &CurveOptions,
+    task: &dyn CurveTask,
+    trainer: &Trainer,
+    command: &str,
+) -> anyhow::Result<Vec<PolicyCurve>> {
+    anyhow::ensure!(o.seeds >= 1, "--seeds must be at least 1");
+    anyhow::ensure!(o.every >= 1 && o.every <= o.epochs, "--every must lie in 1..=--epochs ({})", o.epochs);
+    anyhow::ensure!(!o.policies.is_empty(), "--policies names no policy");
+    let base = PolicyConfig::load(config)?;
+    let mut jobs = Vec::new();
+    for seed in 0..o.seeds {
+        let demos = out.join(format!("seed{seed}")).join("demos.json");
+        if !o.rescore {
+            task.demos(seed, &demos)?;
+        }
+        for &kind in &o.policies {
+            let mut cfg = base.clone();
+            cfg.kind = kind;
+            cfg.train.seed = seed;
+            cfg.train.epochs = o.epochs;
+            cfg.validate()?;
+            jobs.push((cfg, demos.clone(), out.join(format!("seed{seed}")).join(kind.name())));
+        }
+    }
+    if !o.rescore {
+        let bar = progress(jobs.len(), "trainings");
+        parallel(&jobs, o.jobs, &|(cfg, demos, dir)| {
+            trainer.train(config, cfg, demos, dir, o.every)?;
+            bar.inc(1);
+            Ok(())
+        })?;
+        bar.finish_and_clear();
+    }
+    let mut evals = Vec::new();
+    for (cfg, _, dir) in &jobs {
+        let snaps = snapshot_dirs(&dir.join("snapshots"))?;
+        // A rescore must find the run the flags describe, not a shorter or sparser one.
+        let expected: Vec<usize> = (1..=o.epochs).filter(|e| e % o.every == 0 || *e == o.epochs).collect();
+        let found: Vec<usize> = snaps.iter().map(|(e, _)| *e).collect();
+        anyhow::ensure!(
+            found == expected,
+            "{}: snapshots at epochs {found:?}, but --epochs {} --every {} means {expected:?}",
+            dir.display(),
+            o.epochs,
+            o.every
+        );
+        for (epoch, snap) in snaps {
+            evals.push((cfg.kind, cfg.train.seed, epoch, snap));
+        }
+    }
+    let bar = progress(evals.len(), "snapshots scored");
+    let scores = parallel(&evals, o.jobs, &|(kind, seed, epoch, snap)| {
+        let score = task.evaluate(snap, o.eval_seed)?;
+        std::fs::write(snap.join("score.json"), serde_json::to_string_pretty(&score)?)
+            .with_context(|| format!("cannot write {}", snap.display()))?;
+        bar.inc(1);
+        Ok(SnapshotScore { kind: *kind, seed: *seed, epoch: *epoch, score })
+    })?;
+    bar.finish_and_clear();
+    let curves = aggregate(&scores, &o.policies, &o.thresholds);
+    let title = task.title();
+    let md = render(&curves, &title, command, o);
+    std::fs::write(out.join("curves.md"), &md).with_context(|| format!("cannot write {}", out.display()))?;
+    std::fs::write(out.join("curves.json"), serde_json::to_string_pretty(&(&curves, &scores))?)
+        .with_context(|| format!("cannot write {}", out.display()))?;
+    crate::plots::plot_curves(&curves, &title, &out.join("curves.png"))?;
+    println!("\n{md}");
+    Ok(curves)
+}
+
+fn progress(n: usize, what: &str) -> indicatif::ProgressBar {
+    let bar = indicatif::ProgressBar::new(n as u64);
+    let style = indicatif::ProgressStyle::with_template(&format!("[{{bar:30}}] {{pos}}/{{len}} {what} ({{elapsed}})"))
+        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar())
+        .progress_chars("=> ");
+    bar.set_style(style);
+    bar
+}
+
+/// The table per epoch and the epochs-to-X table, as markdown.
+pub fn render(curves: &[PolicyCurve], title: &str, command: &str, o: &CurveOptions) -> String {
+    let mut s = format!("# Training efficiency: {title}\n\n");
+    let _ = writeln!(
+        s,
+        "Command: `{command}`; mean ± std over training seeds 0..{} (each seed also seeds its demos); every \
+         snapshot evaluated on the same episode seeds from {}.\n",
+        o.seeds, o.eval_seed
+    );
+    let names: Vec<&str> = curves.iter().map(|c| c.kind.name()).collect();
+    let _ = writeln!(
+        s,
+        "| epoch | {} |",
+        names.iter().map(|n| format!("{n} success % | {n} γ")).collect::<Vec<_>>().join(" | ")
+    );
+    let _ = writeln!(s, "|---:|{}", "---:|".repeat(2 * names.len()));
+    let epochs: Vec<usize> = {
+        let mut e: Vec<usize> = curves.iter().flat_map(|c| c.points.iter().map(|p| p.epoch)).collect();
+        e.sort_unstable();
+        e.dedup();
+        e
+    };
+    for epoch in epochs {
+        let cells: Vec<String> = curves
+            .iter()
+            .map(|c| match c.points.iter().find(|p| p.epoch == epoch) {
+                Some(p) => format!("{:.1} | {:.2}", p.success_pct, p.gamma),
+                None => "– | –".into(),
+            })
+            .collect();
+        let _ = writeln!(s, "| {epoch} | {} |", cells.join(" | "));
+    }
+    let _ = writeln!(s);
+    let thresholds: Vec<f32> =
+        curves.first().map(|c| c.epochs_to.iter().map(|e| e.threshold_pct).collect()).unwrap_or_default();
+    let _ = writeln!(
+        s,
+        "| policy | {} | success % over the last quarter | γ over the last quarter | mean K at the last epoch |",
+        thresholds.iter().map(|t| format!("epochs to {t:.0} % success")).collect::<Vec<_>>().join(" | ")
+    );
+    let _ = writeln!(s, "|---|{}---:|---:|---:|", "---:|".repeat(thresholds.len()));
+    for c in curves {
+        let to: Vec<String> = c.epochs_to.iter().map(EpochsTo::summary).collect();
+        let k = c.points.last().map(|p| format!("{:.2}", p.mean_k)).unwrap_or_else(|| "–".into());
+        let _ =
+            writeln!(s, "| {} | {} | {:.1} | {:.2} | {k} |", c.kind, to.join(" | "), c.late_success_pct, c.late_gamma);
+    }
+    s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn score(kind: PolicyKind, seed: u64, epoch: usize, success_pct: f32, gamma: f32) -> SnapshotScore {
+        SnapshotScore { kind, seed, epoch, score: Score { success_pct, gamma, mean_k: 2.0 } }
+    }
+
+    #[test]
+    fn points_average_over_seeds_and_epochs_to_takes_each_seeds_first_crossing() {
+        let scores = vec![
+            score(PolicyKind::Mars, 0, 5, 40.0, 0.5),
+            score(PolicyKind::Mars, 1, 5, 60.0, 0.7),
+            score(PolicyKind::Mars, 0, 10, 90.0, 0.8),
+            score(PolicyKind::Mars, 1, 10, 70.0, 0.6),
+            // A later dip does not undo the crossing.
+            score(PolicyKind::Mars, 0, 15, 85.0, 0.8),
+            score(PolicyKind::Mars, 1, 15, 95.0, 0.8),
+            score(PolicyKind::Fm, 0, 5, 10.0, 0.2),
+        ];
+        let c = aggregate(&scores, &[PolicyKind::Mars, PolicyKind::Fm], &[50.0, 80.0]);
+        let mars = &c[0];
+        assert_eq!(mars.points.iter().map(|p| p.epoch).collect::<Vec<_>>(), [5, 10, 15]);
+        assert_eq!(mars.points[0].success_pct.mean, 50.0);
+        assert!((mars.points[0].success_pct.std - 200f32.sqrt()).abs() < 1e-4);
+        assert_eq!(mars.epochs_to[0].per_seed, [Some(10), Some(5)]);
+        assert_eq!(mars.epochs_to[1].per_seed, [Some(10), Some(15)]);
+        assert_eq!(mars.epochs_to[1].summary(), "12.5 ± 3.5 (2/2 seeds)");
+        assert_eq!(c[1].epochs_to[0].per_seed, [None]);
+        assert_eq!(c[1].epochs_to[0].summary(), "not reached (0/1 seeds)");
+        // Last quarter = epoch > 11.25, i.e. epoch 15 only: seeds 85 and 95.
+        assert_eq!(mars.late_success_pct.mean, 90.0);
+        assert!((mars.late_gamma.mean - 0.8).abs() < 1e-6 && mars.late_gamma.std.abs() < 1e-6);
+    }
+
+    #[test]
+    fn snapshot_dirs_are_found_by_name_and_sorted_by_epoch() {
+        let dir = std::env::temp_dir().join(format!("mars_curve_snaps_{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        for name in ["epoch_0010", "epoch_0002", "notes", "epoch_x"] {
+            std::fs::create_dir_all(dir.join(name)).unwrap();
+        }
+        let found: Vec<usize> = snapshot_dirs(&dir).unwrap().into_iter().map(|(e, _)| e).collect();
+        assert_eq!(found, [2, 10]);
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}
