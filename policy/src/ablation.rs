@@ -3,8 +3,9 @@
 //! ungated reconstruction loss pulling FM toward the central passages (`fm-lambda-rec`). They explain the
 //! method: a wide source keeps modes but learns slowly, and L_rec collapses modes unless gated by (1 − w).
 
-use crate::cli::{demos, eval, load_demos};
+use crate::cli::{demos_kept_or_made, eval, load_demos, trained_with};
 use crate::config::{PolicyConfig, PolicyKind};
+use crate::family::MeanStd;
 use crate::train::train_with_progress;
 use anyhow::Context;
 use serde::Serialize;
@@ -48,16 +49,19 @@ pub struct AblateOptions {
     pub demos: usize,
     pub epochs: Option<usize>,
     pub rollouts: usize,
-    pub seed: u64,
+    /// Training seeds 0..seeds (each also seeds its demos and its rollouts).
+    pub seeds: u64,
     pub exec_horizon: usize,
     pub jobs: usize,
+    /// Keep each value × seed already trained under `out` with this configuration (it is still evaluated).
+    pub resume: bool,
 }
 
+/// One training: a value of the knob on one seed's demos.
 #[derive(Debug, Clone, Serialize)]
-pub struct AblationRow {
+pub struct AblationRun {
     pub value: f64,
-    pub label: String,
-    pub epochs: usize,
+    pub seed: u64,
     pub final_loss: f32,
     pub losses: Vec<f32>,
     pub success_pct: f32,
@@ -65,37 +69,58 @@ pub struct AblationRow {
     pub gamma: f32,
 }
 
-/// Trains FM once per value of the knob on the same demos (`jobs` at a time), rolls each out, and writes
-/// `out/ablation.md`, `out/ablation.json` and the loss curves `out/losses.png`.
+/// A value of the knob over the seeds.
+#[derive(Debug, Clone, Serialize)]
+pub struct AblationRow {
+    pub value: f64,
+    pub label: String,
+    pub epochs: usize,
+    pub final_loss: MeanStd,
+    /// Mean over seeds, epoch by epoch.
+    pub losses: Vec<f32>,
+    pub success_pct: MeanStd,
+    pub gamma: MeanStd,
+    /// Summed over seeds.
+    pub passage_counts: Vec<usize>,
+    pub runs: Vec<AblationRun>,
+}
+
+/// Trains FM once per value of the knob and seed (`jobs` at a time; all values of a seed on the same demos), rolls
+/// each out, and writes `out/ablation.md`, `out/ablation.json` and the mean loss curves `out/losses.png`.
 pub fn run(out: &Path, config: &Path, layout: &Path, o: &AblateOptions) -> anyhow::Result<Vec<AblationRow>> {
     anyhow::ensure!(!o.values.is_empty(), "--values names no value");
-    let demos_path = out.join("demos.json");
-    demos(layout, o.demos, o.seed, &demos_path)?;
-    let set = load_demos(&demos_path)?;
+    anyhow::ensure!(o.seeds >= 1, "--seeds must be at least 1");
     let mut base = PolicyConfig::load(config)?;
     base.kind = PolicyKind::Fm;
-    base.train.seed = o.seed;
     base.train.epochs = o.epochs.unwrap_or(base.train.epochs);
-    let cfgs: Vec<(f64, PolicyConfig)> = o
-        .values
-        .iter()
-        .map(|&v| {
+    let mut jobs = Vec::new();
+    let mut demo_sets = Vec::new();
+    for seed in 0..o.seeds {
+        let demos_path = out.join(format!("seed{seed}")).join("demos.json");
+        demos_kept_or_made(layout, o.demos, seed, &demos_path, o.resume)?;
+        demo_sets.push(load_demos(&demos_path)?);
+        for &v in &o.values {
             let mut cfg = base.clone();
+            cfg.train.seed = seed;
             o.knob.apply(&mut cfg, v);
             cfg.validate().with_context(|| format!("--values {v}"))?;
-            Ok((v, cfg))
-        })
-        .collect::<anyhow::Result<_>>()?;
-    let rows = crate::curve::parallel(&cfgs, o.jobs, &|(value, cfg)| {
-        let dir = out.join(format!("{}_{value}", o.knob.flag()));
-        let t = train_with_progress(cfg, &set.demos, indicatif::ProgressBar::hidden())?;
-        crate::checkpoint::save(&dir, &t)?;
-        let losses: Vec<f32> = t.log.iter().map(|e| e.total).collect();
-        let r = eval(&dir, layout, o.rollouts, o.seed + 1000, o.exec_horizon)?;
-        Ok(AblationRow {
+            jobs.push((seed, v, cfg));
+        }
+    }
+    let runs = crate::curve::parallel(&jobs, o.jobs, &|(seed, value, cfg)| {
+        let dir = out.join(format!("seed{seed}")).join(format!("{}_{value}", o.knob.flag()));
+        let losses: Vec<f32> = if o.resume && trained_with(&dir, cfg) {
+            println!("{} {value}, seed {seed}: trained already under {}, kept", o.knob.flag(), dir.display());
+            crate::checkpoint::load_meta(&dir)?.log.iter().map(|e| e.total).collect()
+        } else {
+            let t = train_with_progress(cfg, &demo_sets[*seed as usize].demos, indicatif::ProgressBar::hidden())?;
+            crate::checkpoint::save(&dir, &t)?;
+            t.log.iter().map(|e| e.total).collect()
+        };
+        let r = eval(&dir, layout, o.rollouts, seed + 1000, o.exec_horizon)?;
+        Ok(AblationRun {
             value: *value,
-            label: o.knob.label(*value),
-            epochs: cfg.train.epochs,
+            seed: *seed,
             final_loss: losses.last().copied().unwrap_or(f32::NAN),
             losses,
             success_pct: 100.0 * r.success_rate(),
@@ -103,6 +128,7 @@ pub fn run(out: &Path, config: &Path, layout: &Path, o: &AblateOptions) -> anyho
             gamma: r.modal_balance,
         })
     })?;
+    let rows: Vec<AblationRow> = o.values.iter().map(|&v| aggregate(o, base.train.epochs, v, &runs)).collect();
     let md = render(&rows, o, config, layout);
     std::fs::write(out.join("ablation.md"), &md).with_context(|| format!("cannot write {}", out.display()))?;
     std::fs::write(out.join("ablation.json"), serde_json::to_string_pretty(&rows)?)
@@ -113,13 +139,35 @@ pub fn run(out: &Path, config: &Path, layout: &Path, o: &AblateOptions) -> anyho
     Ok(rows)
 }
 
+fn aggregate(o: &AblateOptions, epochs: usize, value: f64, runs: &[AblationRun]) -> AblationRow {
+    let runs: Vec<AblationRun> = runs.iter().filter(|r| r.value == value).cloned().collect();
+    let of = |f: &dyn Fn(&AblationRun) -> f32| MeanStd::of(&runs.iter().map(f).collect::<Vec<_>>());
+    let n = runs.len().max(1) as f32;
+    let losses = (0..runs.iter().map(|r| r.losses.len()).min().unwrap_or(0))
+        .map(|e| runs.iter().map(|r| r.losses[e]).sum::<f32>() / n)
+        .collect();
+    let passages = runs.first().map_or(0, |r| r.passage_counts.len());
+    AblationRow {
+        value,
+        label: o.knob.label(value),
+        epochs,
+        final_loss: of(&|r| r.final_loss),
+        losses,
+        success_pct: of(&|r| r.success_pct),
+        gamma: of(&|r| r.gamma),
+        passage_counts: (0..passages).map(|k| runs.iter().map(|r| r.passage_counts[k]).sum()).collect(),
+        runs,
+    }
+}
+
 pub fn render(rows: &[AblationRow], o: &AblateOptions, config: &Path, layout: &Path) -> String {
     let values: Vec<String> = o.values.iter().map(|v| v.to_string()).collect();
     let mut s = format!("# FM ablation: {}\n\n", o.knob.flag());
     let _ = writeln!(
         s,
-        "Command: `mars ablate --knob {} --values {} --config {} --layout {} --demos {}{} --rollouts {} --seed {}`; \
-         one training seed, FM on the same demos for every value.\n",
+        "Command: `mars ablate --knob {} --values {} --config {} --layout {} --demos {}{} --rollouts {} --seeds {}`; \
+         FM, mean ± std over training seeds 0..{} (each seeds its demos, shared by every value, and its rollouts); \
+         passages summed over the seeds.\n",
         o.knob.flag(),
         values.join(","),
         config.display(),
@@ -127,21 +175,24 @@ pub fn render(rows: &[AblationRow], o: &AblateOptions, config: &Path, layout: &P
         o.demos,
         o.epochs.map_or(String::new(), |e| format!(" --epochs {e}")),
         o.rollouts,
-        o.seed
+        o.seeds,
+        o.seeds
     );
-    let _ = writeln!(s, "| setting | epochs | final loss | success % | passages | γ |");
-    let _ = writeln!(s, "|---|---:|---:|---:|---|---:|");
+    let _ = writeln!(s, "| setting | epochs | final loss | success % | passages | γ | success % per seed |");
+    let _ = writeln!(s, "|---|---:|---:|---:|---|---:|---|");
     for r in rows {
         let counts: Vec<String> = r.passage_counts.iter().map(|c| c.to_string()).collect();
+        let per_seed: Vec<String> = r.runs.iter().map(|x| format!("{:.0}", x.success_pct)).collect();
         let _ = writeln!(
             s,
-            "| {} | {} | {:.4} | {:.0} | {} | {:.2} |",
+            "| {} | {} | {:.4} | {:.1} | {} | {:.2} | {} |",
             r.label,
             r.epochs,
             r.final_loss,
             r.success_pct,
             counts.join("/"),
-            r.gamma
+            r.gamma,
+            per_seed.join(", ")
         );
     }
     s

@@ -267,6 +267,47 @@ pub struct BenchmarkOptions {
     pub policies: Vec<PolicyKind>,
     /// Policies trained at the same time.
     pub jobs: usize,
+    /// Keep each policy already trained under `out` with this very configuration (and the same demos) instead of
+    /// training it again; it is still evaluated. Long runs (`mars family`) then continue where they stopped.
+    pub resume: bool,
+}
+
+/// Where `benchmark` records a policy's training wall time next to its checkpoint.
+const TRAIN_SECONDS_FILE: &str = "train_seconds";
+
+/// Writes the demos to `path`; under `resume`, demos already there are kept if they are exactly what `n` and `seed`
+/// make (regenerated beside them and compared), and refused otherwise: checkpoints kept beside them were trained
+/// on those, and a mismatch must neither be mixed in silently nor overwrite them.
+pub(crate) fn demos_kept_or_made(layout: &Path, n: usize, seed: u64, path: &Path, resume: bool) -> anyhow::Result<()> {
+    match std::fs::read(path) {
+        Ok(before) if resume => {
+            let fresh = path.with_extension("json.resume");
+            demos(layout, n, seed, &fresh)?;
+            let same = std::fs::read(&fresh).ok().as_deref() == Some(&before[..]);
+            let _ = std::fs::remove_file(&fresh);
+            anyhow::ensure!(
+                same,
+                "--resume: {} holds other demos than {n} demos of seed {seed} (or the expert changed): the \
+                 checkpoints beside it were trained on those; run without --resume or into another --out",
+                path.display(),
+            );
+            Ok(())
+        }
+        _ => demos(layout, n, seed, path),
+    }
+}
+
+/// `dir` holds a checkpoint of `cfg` (the calibrated `model.k_full_w` aside: training sets it). Compared through
+/// their JSON form: the configs have f32 fields and no `PartialEq`, and a field added since with a serde default
+/// compares equal to a checkpoint written before it.
+pub(crate) fn trained_with(dir: &Path, cfg: &PolicyConfig) -> bool {
+    let Ok(meta) = checkpoint::load_meta(dir) else { return false };
+    let mut model = meta.model.clone();
+    model.k_full_w = cfg.model.k_full_w;
+    let same = |a: serde_json::Result<serde_json::Value>, b: serde_json::Result<serde_json::Value>| matches!((a, b), (Ok(a), Ok(b)) if a == b);
+    meta.kind == cfg.kind
+        && same(serde_json::to_value(&model), serde_json::to_value(&cfg.model))
+        && same(serde_json::to_value(&meta.train), serde_json::to_value(&cfg.train))
 }
 
 /// Demos → train the policies (`jobs` at a time) → evaluate each, one after the other so that latencies are
@@ -279,36 +320,53 @@ pub fn benchmark(
     o: &BenchmarkOptions,
 ) -> anyhow::Result<Vec<crate::report::Row>> {
     let demos_path = out.join("demos.json");
-    demos(layout_path, o.demos, o.seed, &demos_path)?;
+    demos_kept_or_made(layout_path, o.demos, o.seed, &demos_path, o.resume)?;
     let set = load_demos(&demos_path)?;
     let layout = Layout::load(layout_path)?;
     let mut base = PolicyConfig::load(config)?;
     base.train.epochs = o.epochs.unwrap_or(base.train.epochs);
     base.train.seed = o.seed;
 
+    let config_of = |kind| {
+        let mut cfg = base.clone();
+        cfg.kind = kind;
+        cfg
+    };
+    let to_train: Vec<PolicyKind> = o
+        .policies
+        .iter()
+        .copied()
+        .filter(|&kind| {
+            let keep = o.resume && trained_with(&out.join(kind.name()), &config_of(kind));
+            if keep {
+                println!("{kind}: trained already under {} with this configuration, kept", out.display());
+            }
+            !keep
+        })
+        .collect();
     // Workers pop from the back: reversed, the policies start in the order given.
-    let queue = std::sync::Mutex::new(o.policies.iter().rev().copied().collect::<Vec<_>>());
+    let queue = std::sync::Mutex::new(to_train.iter().rev().copied().collect::<Vec<_>>());
     let bars = indicatif::MultiProgress::new();
-    let trained = std::sync::Mutex::new(Vec::new());
     std::thread::scope(|scope| -> anyhow::Result<()> {
-        let workers: Vec<_> = (0..o.jobs.clamp(1, o.policies.len().max(1)))
+        let workers: Vec<_> = (0..o.jobs.clamp(1, to_train.len().max(1)))
             .map(|_| {
                 scope.spawn(|| -> anyhow::Result<()> {
                     loop {
                         // Bound first: in `while let` the guard would live through the body and serialise the workers.
                         let next = queue.lock().unwrap_or_else(|e| e.into_inner()).pop();
                         let Some(kind) = next else { break };
-                        let mut cfg = base.clone();
-                        cfg.kind = kind;
+                        let cfg = config_of(kind);
                         let started = Instant::now();
                         let t = crate::train::train_with_progress(
                             &cfg,
                             &set.demos,
                             bars.add(crate::train::progress_bar(kind)),
                         )?;
-                        checkpoint::save(&out.join(kind.name()), &t)?;
+                        let dir = out.join(kind.name());
+                        checkpoint::save(&dir, &t)?;
                         let secs = started.elapsed().as_secs_f32();
-                        trained.lock().unwrap_or_else(|e| e.into_inner()).push((kind, t, secs));
+                        std::fs::write(dir.join(TRAIN_SECONDS_FILE), format!("{secs}\n"))
+                            .with_context(|| format!("cannot write {}", dir.display()))?;
                     }
                     Ok(())
                 })
@@ -319,13 +377,12 @@ pub fn benchmark(
         }
         Ok(())
     })?;
-    let mut trained = trained.into_inner().unwrap_or_else(|e| e.into_inner());
-    trained.sort_by_key(|(kind, ..)| o.policies.iter().position(|k| k == kind));
-
+    // Every policy is evaluated from its checkpoint on disk, trained now or kept: one path for both.
     let mut rows = Vec::new();
-    for (kind, t, train_s) in trained {
-        let epochs = t.cfg.train.epochs;
-        let policy = MarsPolicy::from_trained(t, o.seed);
+    for &kind in &o.policies {
+        let dir = out.join(kind.name());
+        let (policy, meta) = MarsPolicy::load(&dir, o.seed)?;
+        let train_s = std::fs::read_to_string(dir.join(TRAIN_SECONDS_FILE)).ok().and_then(|t| t.trim().parse().ok());
         let w_regions = ["entry_gate", "junction", "exit_gate"]
             .iter()
             .map(|name| {
@@ -334,8 +391,8 @@ pub fn benchmark(
             })
             .collect::<anyhow::Result<Vec<_>>>()?;
         drop(policy);
-        let report = eval(&out.join(kind.name()), layout_path, o.rollouts, o.seed + 1000, o.exec_horizon)?;
-        rows.push(crate::report::Row { kind, epochs, train_s, report, w_regions });
+        let report = eval(&dir, layout_path, o.rollouts, o.seed + 1000, o.exec_horizon)?;
+        rows.push(crate::report::Row { kind, epochs: meta.train.epochs, train_s, report, w_regions });
     }
     let md = crate::report::render(&rows, o, &layout);
     std::fs::write(out.join("results.md"), &md).with_context(|| format!("cannot write {}", out.display()))?;

@@ -80,7 +80,8 @@ pub struct PolicyStats {
     /// Mean over seeds of each passage's share.
     pub proportions: Vec<f32>,
     pub proportion_gap: MeanStd,
-    pub train_s: MeanStd,
+    /// Over the seeds whose training time was recorded (`--resume` keeps checkpoints of runs that did not).
+    pub train_s: Option<MeanStd>,
     /// Per seed: passage counts, for the record.
     pub passage_counts: Vec<Vec<usize>>,
 }
@@ -115,7 +116,10 @@ pub fn aggregate(layout: &str, demo_counts: &[usize], runs: &[Vec<Row>], targets
             mean_k: per_seed(&|r| r.report.mean_k),
             proportions: mean_props,
             proportion_gap: MeanStd::of(&props.iter().map(|p| max_gap(p, &demo_proportions)).collect::<Vec<_>>()),
-            train_s: per_seed(&|r| r.train_s),
+            train_s: {
+                let t: Vec<f32> = rows.iter().filter_map(|r| r.train_s).collect();
+                (!t.is_empty()).then(|| MeanStd::of(&t))
+            },
             passage_counts: rows.iter().map(|r| r.report.passage_counts.clone()).collect(),
         });
     }
@@ -239,14 +243,14 @@ pub fn render(results: &[LayoutResult], o: &FamilyOptions, layouts_dir: &Path) -
         for p in &r.policies {
             let _ = writeln!(
                 s,
-                "| {} | {:.1} | {} | {:.3} | {:.2} | {:.2} | {:.0} |",
+                "| {} | {:.1} | {} | {:.3} | {:.2} | {:.2} | {} |",
                 p.kind,
                 p.success_pct,
                 shares(&p.proportions),
                 p.proportion_gap,
                 p.gamma,
                 p.mean_k,
-                p.train_s
+                p.train_s.map_or("–".into(), |t| format!("{t:.0}"))
             );
         }
         let _ = writeln!(s);
@@ -270,7 +274,7 @@ mod tests {
         report.modal_balance = crate::nav2d::eval::modal_balance(&counts);
         report.passage_counts = counts;
         report.mean_k = k;
-        Row { kind, epochs: 1, train_s: 1.0, report, w_regions: Vec::new() }
+        Row { kind, epochs: 1, train_s: Some(1.0), report, w_regions: Vec::new() }
     }
 
     #[test]

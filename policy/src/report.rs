@@ -9,7 +9,8 @@ use std::fmt::Write;
 pub struct Row {
     pub kind: PolicyKind,
     pub epochs: usize,
-    pub train_s: f32,
+    /// Training wall time; `None` for a checkpoint kept by `--resume` from a run that did not record it.
+    pub train_s: Option<f32>,
     pub report: EvalReport,
     /// Mean ‖w‖∞ over demo samples in each named region.
     pub w_regions: Vec<(String, Option<f32>)>,
@@ -50,7 +51,8 @@ pub fn render(rows: &[Row], o: &BenchmarkOptions, layout: &Layout) -> String {
     let _ = writeln!(s, "|---|---|---|---|---|---|");
     for r in rows {
         let w: Vec<String> = r.w_regions.iter().map(|(_, v)| fmt_opt(*v)).collect();
-        let _ = writeln!(s, "| {} | {} | {:.0} | {} |", r.kind, r.epochs, r.train_s, w.join(" | "));
+        let train_s = r.train_s.map_or("–".into(), |t| format!("{t:.0}"));
+        let _ = writeln!(s, "| {} | {} | {train_s} | {} |", r.kind, r.epochs, w.join(" | "));
     }
     let get = |k: PolicyKind| rows.iter().find(|r| r.kind == k);
     let _ = writeln!(s, "\n## The paper's claims, measured\n");

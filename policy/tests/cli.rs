@@ -119,6 +119,31 @@ fn family_writes_a_table_per_layout_and_the_verdicts() {
     let k_full_w = meta["model"]["k_full_w"].as_f64().unwrap();
     assert!(k_full_w > 0.0 && k_full_w < 1.0, "the calibrated K(w) scale is saved with the checkpoint: {k_full_w}");
 
+    // --resume: a third seed adds to the two, whose checkpoints are kept (still evaluated) and not retrained;
+    // other demos under the same folder are refused, not silently mixed with the kept checkpoints.
+    let weights = |seed: u32| std::fs::read(dir.join(format!("three_passages/seed{seed}/mars/model.safetensors")));
+    let seed0 = weights(0).unwrap();
+    let family = |seeds: &str, demos: &str| {
+        let (d, c, l) = (dir.to_str().unwrap(), cfg.to_str().unwrap(), layouts.to_str().unwrap());
+        let args = ["family", "--out", d, "--config", c, "--layouts", l, "--seeds", seeds, "--demos", demos];
+        mars(&[&args[..], &["--epochs", "1", "--rollouts", "2", "--jobs", "2", "--resume"][..]].concat())
+    };
+    let out = family("3", "6");
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let kept = String::from_utf8_lossy(&out.stdout).matches("with this configuration, kept").count();
+    assert_eq!(kept, 2 * 2 * 2, "layouts × old seeds × policies kept");
+    assert_eq!(weights(0).unwrap(), seed0, "a kept checkpoint is not rewritten");
+    assert!(weights(2).is_ok(), "the new seed is trained");
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("family.json")).unwrap()).unwrap();
+    assert_eq!(json[0]["policies"][0]["passage_counts"].as_array().map(Vec::len), Some(3), "three seeds aggregated");
+    let demos0 = std::fs::read(dir.join("three_passages/seed0/demos.json")).unwrap();
+    let out = family("3", "7");
+    assert!(!out.status.success(), "other demos under --resume must be refused");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("--resume") && err.contains("demos.json"), "{err}");
+    assert_eq!(std::fs::read(dir.join("three_passages/seed0/demos.json")).unwrap(), demos0, "refused: nothing lost");
+
     let layout = layouts.join("three_passages.toml");
     let (ckpt, layout) = (run.join("mars"), layout.to_str().unwrap().to_string());
     let out = mars(&[
@@ -252,31 +277,49 @@ fn curve_trains_through_the_mars_binary_and_reports_its_failures() {
     assert!(format!("{err:#}").contains("train.log"), "a failed training points at its log: {err:#}");
 }
 
-/// Both FM ablations on a tiny setting: one FM per value, trained, rolled out, tabled and plotted; a knob's
-/// value actually reaches the trained checkpoint.
+/// Both FM ablations on a tiny setting over two seeds: one FM per value and seed, trained, rolled out, tabled
+/// (mean ± std) and plotted; a knob's value actually reaches the trained checkpoint; `--resume` keeps every
+/// training and gives the same table.
 #[test]
-fn ablate_trains_fm_per_value_and_writes_the_table() {
+fn ablate_trains_fm_per_value_and_seed_and_writes_the_table() {
     let dir = tmp("ablate");
     let cfg = tiny_config(&dir);
     for (knob, values, field) in [("source-std", "0,2", "source_std"), ("fm-lambda-rec", "0,1", "fm_lambda_rec")] {
         let out_dir = dir.join(knob);
-        let args = ["--demos", "6", "--epochs", "1", "--rollouts", "2", "--jobs", "2"];
+        let args = ["--demos", "6", "--epochs", "1", "--rollouts", "2", "--jobs", "2", "--seeds", "2"];
         let base = ["ablate", "--knob", knob, "--values", values, "--config", cfg.to_str().unwrap()];
-        let out = mars(&[&base[..], &["--out", out_dir.to_str().unwrap()], &args[..]].concat());
+        let ablate =
+            |extra: &[&str]| mars(&[&base[..], &["--out", out_dir.to_str().unwrap()], &args[..], extra].concat());
+        let out = ablate(&[]);
         assert!(out.status.success(), "{knob}: {}", String::from_utf8_lossy(&out.stderr));
         let md = std::fs::read_to_string(out_dir.join("ablation.md")).unwrap();
-        assert_eq!(md.lines().filter(|l| l.starts_with("| std ") || l.starts_with("| λ_rec ")).count(), 2, "{md}");
+        let rows: Vec<&str> = md.lines().filter(|l| l.starts_with("| std ") || l.starts_with("| λ_rec ")).collect();
+        assert_eq!(rows.len(), 2, "{md}");
+        assert!(
+            rows.iter()
+                .all(|r| r.contains(" ± ") && r.trim_end_matches(" |").rsplit(" | ").next().unwrap().contains(", ")),
+            "mean ± std and one success per seed:\n{md}"
+        );
         assert!(out_dir.join("losses.png").exists());
+        let last = values.split(',').next_back().unwrap();
         let meta: serde_json::Value = serde_json::from_str(
-            &std::fs::read_to_string(
-                out_dir.join(format!("{knob}_{}", values.split(',').next_back().unwrap())).join("policy.json"),
-            )
-            .unwrap(),
+            &std::fs::read_to_string(out_dir.join("seed1").join(format!("{knob}_{last}")).join("policy.json")).unwrap(),
         )
         .unwrap();
         assert_eq!(meta["kind"], "fm");
+        assert_eq!(meta["train"]["seed"], 1);
         let section = if field == "source_std" { "model" } else { "train" };
         assert!(meta[section][field].as_f64().is_some_and(|v| v > 0.0), "{knob}: {}", meta[section]);
+        if knob == "source-std" {
+            let out = ablate(&["--resume"]);
+            assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+            assert_eq!(String::from_utf8_lossy(&out.stdout).matches(", kept").count(), 4, "2 values × 2 seeds kept");
+            assert_eq!(
+                std::fs::read_to_string(out_dir.join("ablation.md")).unwrap(),
+                md,
+                "kept, re-evaluated: same table"
+            );
+        }
     }
 }
 

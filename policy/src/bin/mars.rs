@@ -114,6 +114,10 @@ enum Command {
         /// Policies trained at the same time (default: one per core). Evaluation is always one at a time.
         #[arg(long)]
         jobs: Option<usize>,
+        /// Keep policies already trained under --out with this configuration and these demos (they are still
+        /// evaluated): a stopped run continues where it stopped.
+        #[arg(long)]
+        resume: bool,
     },
     /// Training efficiency (paper Fig. 1(e)): train each policy × seed with a snapshot every N epochs, roll
     /// every snapshot out, and write success and γ per epoch (mean ± std), epochs-to-X % success and a plot.
@@ -144,12 +148,16 @@ enum Command {
         epochs: Option<usize>,
         #[arg(long, default_value_t = 50)]
         rollouts: usize,
-        #[arg(long, default_value_t = 0)]
-        seed: u64,
+        /// Training seeds 0..N (each also seeds its demos and rollouts); the table gives mean ± std.
+        #[arg(long, default_value_t = 3)]
+        seeds: u64,
         #[arg(long, default_value_t = cli::DEFAULT_EXEC_HORIZON)]
         exec_horizon: usize,
         #[arg(long)]
         jobs: Option<usize>,
+        /// Keep each value × seed already trained under --out with this configuration (it is still evaluated).
+        #[arg(long)]
+        resume: bool,
     },
     /// The benchmark on every layout of a folder over several training seeds; checks MARS's mode targets
     /// against FM on the means; writes family.md and family.json.
@@ -176,6 +184,10 @@ enum Command {
         policies: Vec<PolicyKind>,
         #[arg(long)]
         jobs: Option<usize>,
+        /// Keep each layout × seed × policy already trained under --out with this configuration (it is still
+        /// evaluated): a stopped family run continues where it stopped, and more seeds add to fewer.
+        #[arg(long)]
+        resume: bool,
     },
 }
 
@@ -210,27 +222,66 @@ fn main() -> std::process::ExitCode {
         }
         Command::Diagnose { checkpoint, demos, layout, seed } => cli::diagnose(&checkpoint, &demos, &layout, seed),
         Command::Plot { run, layout } => cli::plot(&run, &layout),
-        Command::Benchmark { out, config, layout, demos, epochs, rollouts, seed, exec_horizon, policies, .. } => {
+        Command::Benchmark {
+            out,
+            config,
+            layout,
+            demos,
+            epochs,
+            rollouts,
+            seed,
+            exec_horizon,
+            policies,
+            resume,
+            ..
+        } => {
             let policies = if policies.is_empty() { PolicyKind::ALL.to_vec() } else { policies };
-            let opts = cli::BenchmarkOptions { demos, epochs, rollouts, seed, exec_horizon, policies, jobs };
+            let opts = cli::BenchmarkOptions { demos, epochs, rollouts, seed, exec_horizon, policies, jobs, resume };
             cli::benchmark(&out, &config, &layout, &opts).map(|_| ())
         }
-        Command::Ablate { knob, values, out, config, layout, demos, epochs, rollouts, seed, exec_horizon, .. } => {
+        Command::Ablate {
+            knob,
+            values,
+            out,
+            config,
+            layout,
+            demos,
+            epochs,
+            rollouts,
+            seeds,
+            exec_horizon,
+            resume,
+            ..
+        } => {
             let opts = mars_policy::ablation::AblateOptions {
                 knob,
                 values,
                 demos,
                 epochs,
                 rollouts,
-                seed,
+                seeds,
                 exec_horizon,
                 jobs,
+                resume,
             };
             mars_policy::ablation::run(&out, &config, &layout, &opts).map(|_| ())
         }
-        Command::Family { out, config, layouts, seeds, demos, epochs, rollouts, exec_horizon, policies, .. } => {
+        Command::Family {
+            out,
+            config,
+            layouts,
+            seeds,
+            demos,
+            epochs,
+            rollouts,
+            exec_horizon,
+            policies,
+            resume,
+            ..
+        } => {
             let policies = if policies.is_empty() { vec![PolicyKind::Mars, PolicyKind::Fm] } else { policies };
-            let bench = cli::BenchmarkOptions { demos, epochs, rollouts, seed: 0, exec_horizon, policies, jobs };
+            let bench =
+                cli::BenchmarkOptions { demos, epochs, rollouts, seed: 0, exec_horizon, policies, jobs, resume };
             let opts = family::FamilyOptions { bench, seeds, targets: family::Targets::default() };
             family::run(&out, &config, &layouts, &opts).map(|_| ())
         }
