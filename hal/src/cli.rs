@@ -107,6 +107,41 @@ impl FaultArgs {
     }
 }
 
+/// `mars-hal fci-status`: reach an FCI robot and print one state; commands nothing.
+#[derive(clap::Args)]
+pub struct FciStatusArgs {
+    /// The robot's address: its Control's IP (e.g. 172.16.0.2), or host:port (FCI's port is 1337).
+    #[arg(long)]
+    pub robot_ip: String,
+    /// Give up after this many seconds (connecting and reading together).
+    #[arg(long, default_value_t = 5.0)]
+    pub timeout_s: f64,
+}
+
+/// Runs `mars-hal fci-status`, prints the robot's state (stdout) or why it could not be read (stderr), and returns
+/// the exit status: 0 the state was read (whatever mode the robot is in: the output says), 1 the robot could not
+/// be reached or read, 2 a bad argument (nothing was sent).
+pub fn fci_status(args: FciStatusArgs) -> i32 {
+    if !(args.timeout_s.is_finite() && args.timeout_s > 0.0 && args.timeout_s <= 3600.0) {
+        eprintln!("mars-hal fci-status: --timeout-s must be a number of seconds in (0, 3600], got {}", args.timeout_s);
+        return 2;
+    }
+    match crate::fci::status::probe(&args.robot_ip, Duration::from_secs_f64(args.timeout_s)) {
+        Ok(status) => {
+            print!("{status}");
+            0
+        }
+        Err(e @ crate::fci::FciError::BadAddress { .. }) => {
+            eprintln!("mars-hal fci-status: {e}");
+            2
+        }
+        Err(e) => {
+            eprintln!("mars-hal fci-status: {e}");
+            1
+        }
+    }
+}
+
 /// Runs the HAL process loop with the sim backend until the duration ends, SIGINT/SIGTERM or a fatal backend
 /// error; returns its report.
 pub fn run_hal(args: HalArgs) -> anyhow::Result<Report> {

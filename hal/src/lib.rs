@@ -3,13 +3,15 @@
 //!
 //! Data flow of one tick: the backend is read ([`backend`], [`sim`]) → commands arrive over iceoryx2 →
 //! [`control`] judges them ([`safety`], [`session`], [`gripper`]) → the setpoint goes to the backend → the state
-//! frame leaves ([`runner`] does the I/O). [`profile`] and [`velocity_limits`] hold the robot's limits.
+//! frame leaves ([`runner`] does the I/O). [`profile`] and [`velocity_limits`] hold the robot's limits. [`fci`] talks
+//! to a Franka robot over its Control Interface (so far: connect and read its state, `mars-hal fci-status`).
 
 pub mod backend;
 pub mod cli;
 pub mod control;
 pub mod events;
 pub mod fault;
+pub mod fci;
 pub mod gripper;
 pub mod profile;
 pub mod runner;

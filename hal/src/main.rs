@@ -1,8 +1,8 @@
 //! `mars-hal`: the robot-side process. Runs a profile's robot (the sim backend in this build) at the profile
 //! rate and meets the controller only through iceoryx2.
 
-use clap::Parser;
-use mars_hal::cli::{HalArgs, report_and_exit_code, run_hal};
+use clap::{CommandFactory, FromArgMatches, Parser};
+use mars_hal::cli::{FciStatusArgs, HalArgs, fci_status, report_and_exit_code, run_hal};
 
 // Counts heap allocations per thread, so every run reports that the loop made none (but iceoryx2's pooled block
 // per published frame).
@@ -11,9 +11,21 @@ static ALLOC: mars_rt::alloc_count::CountingAlloc = mars_rt::alloc_count::Counti
 
 #[derive(Parser)]
 #[command(version, about = "MARS robot-side HAL process (sim backend)")]
+#[command(args_conflicts_with_subcommands = true, subcommand_negates_reqs = true)]
 struct Args {
+    /// The HAL process's arguments: only used to build the command line; `main` reads them from the matches itself,
+    /// because a derived `Args` would demand `--profile` even when a subcommand was given.
     #[command(flatten)]
     hal: HalArgs,
+    #[command(subcommand)]
+    command: Option<Command>,
+}
+
+#[derive(clap::Subcommand)]
+enum Command {
+    /// Reach a Franka robot over FCI, read one state and print its joint positions, mode, control success rate
+    /// and errors; commands nothing (run it first with a real arm). Exit 0 read, 1 unreachable, 2 bad argument.
+    FciStatus(FciStatusArgs),
 }
 
 fn main() {
@@ -21,5 +33,12 @@ fn main() {
         .with_env_filter(tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()))
         .with_writer(std::io::stderr)
         .init();
-    std::process::exit(report_and_exit_code(run_hal(Args::parse().hal)));
+    let matches = Args::command().get_matches();
+    std::process::exit(if matches.subcommand().is_some() {
+        match Command::from_arg_matches(&matches).unwrap_or_else(|e| e.exit()) {
+            Command::FciStatus(a) => fci_status(a),
+        }
+    } else {
+        report_and_exit_code(run_hal(HalArgs::from_arg_matches(&matches).unwrap_or_else(|e| e.exit())))
+    });
 }
