@@ -604,19 +604,34 @@ fn core_flag_pins_the_loop_thread() {
     }
 }
 
+/// "Late" means answering any frame older than the newest one the HAL built, so an on-time answer must reach the
+/// HAL within the same 1 ms tick: a test process stalled by the machine misses that now and then. The on-time case
+/// is therefore tried until one lands (each miss is counted and shown), and the late case is checked against the
+/// count before it.
 #[test]
 fn a_command_answering_an_old_frame_is_counted_late_not_out_of_limits() {
     let rig = Rig::start("fr3.toml");
-    // On time: answers the newest frame, holding the HAL's own setpoint (the measured start).
-    let s = rig.latest();
-    let here = s.applied_position[..7].to_vec();
-    rig.commands.send(&JointCommand::position(9, 1, s.seq, &here)).unwrap();
-    let s = rig.wait_for("the session", Duration::from_secs(5), |f| f.session == 9 && f.last_command_seq == 1);
-    assert_eq!(s.late_commands, 0);
+    let here = rig.latest().applied_position[..7].to_vec();
+    let (mut seq, mut misses) = (0, Vec::new());
+    let s = loop {
+        // On time: answers the newest frame, holding the HAL's own setpoint (the measured start).
+        let newest = rig.latest();
+        seq += 1;
+        rig.commands.send(&JointCommand::position(9, seq, newest.seq, &here)).unwrap();
+        let s = rig.wait_for("the command", Duration::from_secs(5), |f| f.session == 9 && f.last_command_seq == seq);
+        if s.late_commands == misses.len() as u64 {
+            break s;
+        }
+        misses.push(s.seq - newest.seq);
+        assert!(
+            misses.len() < 20,
+            "no answer to the newest frame arrived within its tick; ticks late each: {misses:?}"
+        );
+    };
     // Late: answers a frame 50 ticks old (the same target, so nothing about it is out of limits).
-    rig.commands.send(&JointCommand::position(9, 2, s.seq.saturating_sub(50), &here)).unwrap();
-    let s = rig.wait_for("the late command", Duration::from_secs(5), |f| f.last_command_seq == 2);
-    assert_eq!(s.late_commands, 1);
+    rig.commands.send(&JointCommand::position(9, seq + 1, s.seq.saturating_sub(50), &here)).unwrap();
+    let s = rig.wait_for("the late command", Duration::from_secs(5), |f| f.last_command_seq == seq + 1);
+    assert_eq!(s.late_commands, misses.len() as u64 + 1);
     assert_eq!((s.rejected_commands, s.clamped_commands), (0, 0));
     assert_eq!(s.gripper_target, JointCommand::default().gripper);
 }
