@@ -107,7 +107,7 @@ pub fn run(out: &Path, config: &Path, layout: &Path, o: &AblateOptions) -> anyho
             jobs.push((seed, v, cfg));
         }
     }
-    let runs = crate::curve::parallel(&jobs, o.jobs, &|(seed, value, cfg)| {
+    let runs = crate::jobs::parallel(&jobs, o.jobs, &|(seed, value, cfg)| {
         let dir = out.join(format!("seed{seed}")).join(format!("{}_{value}", o.knob.flag()));
         let losses: Vec<f32> = if o.resume && trained_with(&dir, cfg) {
             println!("{} {value}, seed {seed}: trained already under {}, kept", o.knob.flag(), dir.display());

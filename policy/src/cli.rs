@@ -344,38 +344,19 @@ pub fn benchmark(
             !keep
         })
         .collect();
-    // Workers pop from the back: reversed, the policies start in the order given.
-    let queue = std::sync::Mutex::new(to_train.iter().rev().copied().collect::<Vec<_>>());
     let bars = indicatif::MultiProgress::new();
-    std::thread::scope(|scope| -> anyhow::Result<()> {
-        let workers: Vec<_> = (0..o.jobs.clamp(1, to_train.len().max(1)))
-            .map(|_| {
-                scope.spawn(|| -> anyhow::Result<()> {
-                    loop {
-                        // Bound first: in `while let` the guard would live through the body and serialise the workers.
-                        let next = queue.lock().unwrap_or_else(|e| e.into_inner()).pop();
-                        let Some(kind) = next else { break };
-                        let cfg = config_of(kind);
-                        let started = Instant::now();
-                        let t = crate::train::train_with_progress(
-                            &cfg,
-                            &set.demos,
-                            bars.add(crate::train::progress_bar(kind)),
-                        )?;
-                        let dir = out.join(kind.name());
-                        checkpoint::save(&dir, &t)?;
-                        let secs = started.elapsed().as_secs_f32();
-                        std::fs::write(dir.join(TRAIN_SECONDS_FILE), format!("{secs}\n"))
-                            .with_context(|| format!("cannot write {}", dir.display()))?;
-                    }
-                    Ok(())
-                })
-            })
-            .collect();
-        for w in workers {
-            w.join().map_err(|_| anyhow::anyhow!("a training worker panicked"))??;
-        }
-        Ok(())
+    crate::jobs::parallel(&to_train, o.jobs, &|&kind| {
+        let started = Instant::now();
+        let t = crate::train::train_with_progress(
+            &config_of(kind),
+            &set.demos,
+            bars.add(crate::train::progress_bar(kind)),
+        )?;
+        let dir = out.join(kind.name());
+        checkpoint::save(&dir, &t)?;
+        let secs = started.elapsed().as_secs_f32();
+        std::fs::write(dir.join(TRAIN_SECONDS_FILE), format!("{secs}\n"))
+            .with_context(|| format!("cannot write {}", dir.display()))
     })?;
     // Every policy is evaluated from its checkpoint on disk, trained now or kept: one path for both.
     let mut rows = Vec::new();

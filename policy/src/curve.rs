@@ -10,7 +10,6 @@ use anyhow::Context;
 use serde::{Deserialize, Serialize};
 use std::fmt::Write;
 use std::path::{Path, PathBuf};
-use std::sync::Mutex;
 
 /// What one evaluation of one snapshot gives.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -234,42 +233,6 @@ pub fn snapshot_dirs(dir: &Path) -> anyhow::Result<Vec<(usize, PathBuf)>> {
     Ok(out)
 }
 
-/// Runs `jobs` workers over `items`, collecting each result; the first error stops the run.
-pub(crate) fn parallel<T: Sync, R: Send>(
-    items: &[T],
-    jobs: usize,
-    f: &(dyn Fn(&T) -> anyhow::Result<R> + Sync),
-) -> anyhow::Result<Vec<R>> {
-    let next = Mutex::new(0usize);
-    let results = Mutex::new(Vec::new());
-    std::thread::scope(|scope| -> anyhow::Result<()> {
-        let workers: Vec<_> = (0..jobs.clamp(1, items.len().max(1)))
-            .map(|_| {
-                scope.spawn(|| -> anyhow::Result<()> {
-                    loop {
-                        let i = {
-                            let mut n = next.lock().unwrap_or_else(|e| e.into_inner());
-                            *n += 1;
-                            *n - 1
-                        };
-                        let Some(item) = items.get(i) else { break };
-                        let r = f(item)?;
-                        results.lock().unwrap_or_else(|e| e.into_inner()).push((i, r));
-                    }
-                    Ok(())
-                })
-            })
-            .collect();
-        for w in workers {
-            w.join().map_err(|_| anyhow::anyhow!("a curve worker panicked"))??;
-        }
-        Ok(())
-    })?;
-    let mut r = results.into_inner().unwrap_or_else(|e| e.into_inner());
-    r.sort_by_key(|(i, _)| *i);
-    Ok(r.into_iter().map(|(_, r)| r).collect())
-}
-
 /// A task the curves run on: where its demos come from and how a checkpoint is scored.
 pub trait CurveTask: Sync {
     /// A title for the table and plot.
@@ -361,7 +324,7 @@ pub fn run(
     }
     if !o.rescore {
         let bar = progress(jobs.len(), "trainings");
-        parallel(&jobs, o.jobs, &|(cfg, demos, dir)| {
+        crate::jobs::parallel(&jobs, o.jobs, &|(cfg, demos, dir)| {
             trainer.train(config, cfg, demos, dir, o.every)?;
             bar.inc(1);
             Ok(())
@@ -386,7 +349,7 @@ pub fn run(
         }
     }
     let bar = progress(evals.len(), "snapshots scored");
-    let scores = parallel(&evals, o.jobs, &|(kind, seed, epoch, snap)| {
+    let scores = crate::jobs::parallel(&evals, o.jobs, &|(kind, seed, epoch, snap)| {
         let score = task.evaluate(snap, o.eval_seed)?;
         std::fs::write(snap.join("score.json"), serde_json::to_string_pretty(&score)?)
             .with_context(|| format!("cannot write {}", snap.display()))?;

@@ -15,6 +15,7 @@ pub mod diagnose;
 pub mod encoder;
 pub mod family;
 pub mod inference;
+pub mod jobs;
 pub mod knn;
 pub mod losses;
 pub mod model;

@@ -121,13 +121,13 @@ pub fn batch_losses(
     let fm = losses::flow_matching(&v_tau, &a0, a1)?;
     let mut total = fm.clone();
 
-    let rec = match v_zero {
-        Some((a0_d, v0)) => {
+    let rec = match (v_zero, rec_weight) {
+        (Some((a0_d, v0)), Some(weight)) => {
             let rec = losses::reconstruction(&(a0_d + v0)?, a1, &rec_gate)?;
-            total = (total + (&rec * rec_weight.unwrap_or(0.0))?)?;
+            total = (total + (&rec * weight)?)?;
             Some(rec)
         }
-        None => None,
+        _ => None,
     };
 
     let div = if cfg.kind.uses_div_loss() {
