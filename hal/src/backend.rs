@@ -30,6 +30,20 @@ pub struct Measurement {
     pub gripper: f64,
     /// Backend fault bits (0: none).
     pub fault: u32,
+    /// What the robot says about itself (all zero for a backend that reports nothing, like the sim).
+    pub robot: RobotReport,
+}
+
+/// A robot's own report, passed into the state frame as it is (see `mars_ipc::RobotState::robot_errors`).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct RobotReport {
+    /// A `mars_ipc::robot_mode` value.
+    pub mode: u32,
+    /// Error flags now and those that aborted the last motion, bit i = libfranka's flag i.
+    pub errors: u64,
+    pub reflex_errors: u64,
+    /// The robot's control command success rate over its last 100 cycles.
+    pub success_rate: f64,
 }
 
 /// What went wrong in the backend (the text names it; `&'static` so reporting never allocates).

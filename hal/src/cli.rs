@@ -4,7 +4,8 @@ use std::path::PathBuf;
 use std::time::Duration;
 
 use crate::fault::FaultConfig;
-use crate::profile::Profile;
+use crate::fci::Realtime;
+use crate::profile::{BackendKind, Profile};
 use crate::runner::{Report, RunOptions, run};
 use crate::sim::SimBackend;
 
@@ -29,6 +30,18 @@ pub struct HalArgs {
     /// Do not lock the process's memory (mlockall); by default it is locked when the process may.
     #[arg(long)]
     pub no_lock_memory: bool,
+    /// The robot behind the HAL; overrides the profile's `backend`.
+    #[arg(long, value_enum)]
+    pub backend: Option<BackendKind>,
+    /// fci: the robot's address (its Control's IP, e.g. 172.16.0.2, or host:port); overrides `[fci] robot_ip`.
+    #[arg(long)]
+    pub robot_ip: Option<String>,
+    /// fci: require a PREEMPT_RT kernel (enforce) or not (ignore, e.g. for franka-sim); overrides `[fci] realtime`.
+    #[arg(long, value_enum)]
+    pub realtime: Option<Realtime>,
+    /// fci: drive no Franka Hand (the gripper width reads 0); overrides `[fci] gripper`.
+    #[arg(long)]
+    pub no_gripper: bool,
     #[command(flatten)]
     pub faults: FaultArgs,
 }
@@ -142,11 +155,60 @@ pub fn fci_status(args: FciStatusArgs) -> i32 {
     }
 }
 
-/// Runs the HAL process loop with the sim backend until the duration ends, SIGINT/SIGTERM or a fatal backend
-/// error; returns its report.
+/// `mars-hal recover`: clear a reflex on a robot no HAL is driving.
+#[derive(clap::Args)]
+pub struct RecoverArgs {
+    /// The robot's address: its Control's IP (e.g. 172.16.0.2), or host:port.
+    #[arg(long)]
+    pub robot_ip: String,
+    /// Give up on each step (connect, read, recover) after this many seconds.
+    #[arg(long, default_value_t = 10.0)]
+    pub timeout_s: f64,
+}
+
+/// Runs `mars-hal recover`: exit 0 when the robot is ready afterwards (printed), 1 when it could not be reached
+/// or is still not ready, 2 for a bad argument.
+pub fn recover(args: RecoverArgs) -> i32 {
+    if !(args.timeout_s.is_finite() && args.timeout_s > 0.0 && args.timeout_s <= 3600.0) {
+        eprintln!("mars-hal recover: --timeout-s must be a number of seconds in (0, 3600], got {}", args.timeout_s);
+        return 2;
+    }
+    match crate::fci::recover::recover(&args.robot_ip, Duration::from_secs_f64(args.timeout_s)) {
+        Ok((needed, status)) => {
+            println!("{}", if needed { "error recovery ran" } else { "no error to recover from" });
+            print!("{status}");
+            let ready = status.status.current_errors.is_empty()
+                && !matches!(status.status.mode, franka::RobotMode::Reflex | franka::RobotMode::UserStopped);
+            if ready { 0 } else { 1 }
+        }
+        Err(e @ crate::fci::FciError::BadAddress { .. }) => {
+            eprintln!("mars-hal recover: {e}");
+            2
+        }
+        Err(e) => {
+            eprintln!("mars-hal recover: {e}");
+            1
+        }
+    }
+}
+
+/// Runs the HAL process loop with the profile's backend (or `--backend`) until the duration ends, SIGINT/SIGTERM,
+/// a fatal backend error or a lost robot; returns its report.
 pub fn run_hal(args: HalArgs) -> anyhow::Result<Report> {
     let mut profile = Profile::load(&args.profile)?;
     args.faults.apply(&mut profile.sim.faults);
+    if let Some(b) = args.backend {
+        profile.backend = b;
+    }
+    if let Some(ip) = &args.robot_ip {
+        profile.fci.robot_ip = Some(ip.clone());
+    }
+    if let Some(rt) = args.realtime {
+        profile.fci.realtime = rt;
+    }
+    if args.no_gripper {
+        profile.fci.gripper = false;
+    }
     profile.validate()?;
     if profile.sim.faults.any() {
         tracing::warn!(faults = ?profile.sim.faults, "fault injection is on");
@@ -161,9 +223,19 @@ pub fn run_hal(args: HalArgs) -> anyhow::Result<Report> {
         rt_priority: args.rt_priority,
         lock_memory: !args.no_lock_memory,
         stop: None,
+        // A real robot is released only at rest; the sim ends at once (its tests count on it).
+        brake_before_exit: profile.backend == BackendKind::Fci,
     };
-    let mut backend = SimBackend::new(&profile);
-    run(&profile, &mut backend, &opts)
+    match profile.backend {
+        BackendKind::Sim => run(&profile, &mut SimBackend::new(&profile), &opts),
+        BackendKind::Fci => {
+            anyhow::ensure!(!profile.sim.faults.any(), "fault injection is a sim backend feature; not with fci");
+            let Some(addr) = profile.fci.robot_ip.clone() else {
+                anyhow::bail!("backend fci needs the robot's address: --robot-ip or [fci] robot_ip in the profile");
+            };
+            crate::fci::drive::run(&profile, &addr, &opts)
+        }
+    }
 }
 
 /// Prints the outcome of [`run_hal`] and returns the process's exit status: 0 after a duration or a termination
@@ -173,11 +245,14 @@ pub fn report_and_exit_code(outcome: anyhow::Result<Report>) -> i32 {
     match outcome {
         Ok(report) => {
             println!("{report}");
-            if matches!(report.ended, crate::runner::Ended::BackendFailed(_)) { 1 } else { 0 }
+            use crate::runner::Ended;
+            if matches!(report.ended, Ended::BackendFailed(_) | Ended::ConnectionLost) { 1 } else { 0 }
         }
         Err(e) => {
             eprintln!("mars-hal: {e:#}");
-            if e.downcast_ref::<crate::control::StartError>().is_some() { 2 } else { 1 }
+            let refused = e.downcast_ref::<crate::control::StartError>().is_some()
+                || e.downcast_ref::<crate::fci::drive::FciStartRefusal>().is_some();
+            if refused { 2 } else { 1 }
         }
     }
 }

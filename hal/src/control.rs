@@ -55,6 +55,40 @@ pub enum StartError {
     Gripper { width: f64, min: f64, max: f64 },
 }
 
+/// Whether the HAL may take over an arm measured as `m` (the filter holds the limits): within the position range,
+/// at rest, the gripper within its range.
+fn check_takeover(filter: &SafetyFilter, profile: &Profile, m: &Measurement) -> Result<(), StartError> {
+    let n = profile.joints;
+    if m.fault != 0 {
+        return Err(StartError::Faulty(m.fault));
+    }
+    for (joint, &value) in m.position[..n].iter().chain(&m.velocity[..n]).enumerate() {
+        if !value.is_finite() {
+            return Err(StartError::NotFinite { joint: joint % n, value });
+        }
+    }
+    if !m.gripper.is_finite() {
+        return Err(StartError::NotFinite { joint: n, value: m.gripper });
+    }
+    for joint in 0..n {
+        let (min, max) = filter.position_range(joint);
+        let q = m.position[joint];
+        if !(min..=max).contains(&q) {
+            return Err(StartError::OutsideLimits { joint, q, min, max });
+        }
+        let speed = m.velocity[joint].abs();
+        if speed > START_MAX_SPEED {
+            return Err(StartError::Moving { joint, speed });
+        }
+    }
+    // A gripper a hair beyond its range (a measurement, not a command) is held where it is, clamped.
+    let (g_min, g_max, tol) = (profile.gripper_min, profile.gripper_max, profile.gripper_deadband);
+    if !(g_min - tol..=g_max + tol).contains(&m.gripper) {
+        return Err(StartError::Gripper { width: m.gripper, min: g_min, max: g_max });
+    }
+    Ok(())
+}
+
 /// What the HAL counted since start (besides the safety filter's own counters).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct ErrorCounts {
@@ -79,6 +113,8 @@ pub struct Step<'a> {
 
 pub struct HalControl {
     n: usize,
+    /// For a restart from a new measurement ([`Self::resume_from`]).
+    profile: Profile,
     filter: SafetyFilter,
     supervisor: Supervisor,
     clock: LoopClock,
@@ -100,6 +136,10 @@ pub struct HalControl {
     backend_failures_in_a_row: u64,
     apply_failures_in_a_row: u64,
     fatal: Option<BackendError>,
+    /// The robot stopped itself (a reflex): nothing is followed until [`Self::resume_from`].
+    robot_fault: bool,
+    /// The HAL was asked to exit: nothing is followed, the setpoint brakes to rest.
+    stopping: bool,
     last_resorts_before: (u64, u64),
     pub errors: ErrorCounts,
     pub schema_refusals: u64,
@@ -113,37 +153,13 @@ impl HalControl {
     /// Takes over the arm as `first` measured it, or refuses (see the module doc).
     pub fn start(profile: &Profile, first: &Measurement) -> Result<Self, StartError> {
         let n = profile.joints;
-        if first.fault != 0 {
-            return Err(StartError::Faulty(first.fault));
-        }
-        for (joint, &value) in first.position[..n].iter().chain(&first.velocity[..n]).enumerate() {
-            if !value.is_finite() {
-                return Err(StartError::NotFinite { joint: joint % n, value });
-            }
-        }
-        if !first.gripper.is_finite() {
-            return Err(StartError::NotFinite { joint: n, value: first.gripper });
-        }
         let filter = SafetyFilter::new(profile, &first.position[..n]);
-        for joint in 0..n {
-            let (min, max) = filter.position_range(joint);
-            let q = first.position[joint];
-            if !(min..=max).contains(&q) {
-                return Err(StartError::OutsideLimits { joint, q, min, max });
-            }
-            let speed = first.velocity[joint].abs();
-            if speed > START_MAX_SPEED {
-                return Err(StartError::Moving { joint, speed });
-            }
-        }
-        // A gripper a hair beyond its range (a measurement, not a command) is held where it is, clamped.
-        let (g_min, g_max, tol) = (profile.gripper_min, profile.gripper_max, profile.gripper_deadband);
-        if !(g_min - tol..=g_max + tol).contains(&first.gripper) {
-            return Err(StartError::Gripper { width: first.gripper, min: g_min, max: g_max });
-        }
+        check_takeover(&filter, profile, first)?;
+        let (g_min, g_max) = (profile.gripper_min, profile.gripper_max);
         let period_ns = (profile.period_s() * 1e9) as u64;
         Ok(Self {
             n,
+            profile: profile.clone(),
             filter,
             supervisor: Supervisor::new(profile.timeout_ns()),
             // Silence of the controller is judged in the loop's own time (see `LoopClock`): two periods at most
@@ -162,6 +178,8 @@ impl HalControl {
             backend_failures_in_a_row: 0,
             apply_failures_in_a_row: 0,
             fatal: None,
+            robot_fault: false,
+            stopping: false,
             last_resorts_before: (0, 0),
             errors: ErrorCounts::default(),
             schema_refusals: 0,
@@ -274,6 +292,8 @@ impl HalControl {
         } else if duplicate && matches!(self.supervisor.mode(), Mode::Active { .. }) {
             self.duplicate_commands += 1;
         } else if self.fatal.is_none()
+            && !self.robot_fault
+            && !self.stopping
             && self.supervisor.on_command(cmd.session, hold, self.loop_ns) == Decision::Follow
         {
             self.followed_answer = (cmd.session, cmd.state_seq);
@@ -322,7 +342,10 @@ impl HalControl {
             ev.send(LoopEvent::CommandTimeout { ms: timeout_ms });
             self.target = None;
         }
-        let follow = matches!(self.supervisor.mode(), Mode::Active { .. }) && self.fatal.is_none();
+        let follow = matches!(self.supervisor.mode(), Mode::Active { .. })
+            && self.fatal.is_none()
+            && !self.robot_fault
+            && !self.stopping;
         self.last_resorts_before = (self.filter.position_guard_hits, self.filter.infeasible_steps);
         let gripper = self.gripper.tick();
         self.filter.step(if follow { self.target.as_ref() } else { None });
@@ -343,11 +366,18 @@ impl HalControl {
         if m.position[..n].iter().chain(&m.velocity[..n]).any(|x| !x.is_finite()) {
             fault_bits |= fault::NON_FINITE_MEASUREMENT;
         }
-        let (session, hold_reason) = match self.supervisor.mode() {
+        let (session, mut hold_reason) = match self.supervisor.mode() {
             Mode::Idle => (0, HoldReason::NoSession),
             Mode::Active { session } => (session, HoldReason::None),
             Mode::Holding { session, reason } => (session, reason),
         };
+        // What the HAL itself does overrides the session's state: a robot fault or an exit in progress.
+        if self.robot_fault {
+            hold_reason = HoldReason::RobotFault;
+            fault_bits |= fault::ROBOT_REFLEX;
+        } else if self.stopping {
+            hold_reason = HoldReason::HalStopping;
+        }
         let f = &self.filter;
         let mut st = RobotState {
             seq: self.frames,
@@ -370,6 +400,10 @@ impl HalControl {
             fault: fault_bits,
             hold_reason: hold_reason as u32,
             num_joints: n as u32,
+            robot_errors: m.robot.errors,
+            robot_reflex_errors: m.robot.reflex_errors,
+            robot_success_rate: m.robot.success_rate,
+            robot_mode: m.robot.mode,
             ..Default::default()
         };
         st.applied_position[..n].copy_from_slice(f.position());
@@ -396,6 +430,43 @@ impl HalControl {
             }
             self.hal_error(ev);
         }
+    }
+
+    /// The robot stopped itself (a reflex, or its connection broke): the session ends, nothing is followed and
+    /// the setpoint stops where the robot measured it, until [`Self::resume_from`] after a recovery.
+    pub fn on_robot_fault(&mut self, ev: &mut EventSender) {
+        self.robot_fault = true;
+        self.hal_error(ev);
+        let m = self.measured;
+        self.filter.restart(&m.position[..self.n]);
+    }
+
+    pub fn robot_fault(&self) -> bool {
+        self.robot_fault
+    }
+
+    /// After the robot was recovered: take the arm over again from `m` exactly as at start (at rest, within the
+    /// limits, the setpoint its measured position); the old session stays ended, a new one is followed.
+    pub fn resume_from(&mut self, m: &Measurement) -> Result<(), StartError> {
+        check_takeover(&self.filter, &self.profile, m)?;
+        self.filter.restart(&m.position[..self.n]);
+        let (g_min, g_max) = (self.profile.gripper_min, self.profile.gripper_max);
+        self.gripper = GripperTarget::new(&self.profile, m.gripper.clamp(g_min, g_max));
+        self.target = None;
+        self.measured = *m;
+        self.robot_fault = false;
+        Ok(())
+    }
+
+    /// The HAL was asked to exit: stop following, brake the setpoint to rest (see [`Self::stopped`]).
+    pub fn begin_stop(&mut self) {
+        self.stopping = true;
+        self.target = None;
+    }
+
+    /// Asked to exit and the setpoint is at rest: control may be released.
+    pub fn stopped(&self) -> bool {
+        self.stopping && self.filter.at_rest()
     }
 
     /// After a fatal backend error: the error, once the setpoint is at rest (or nothing can be commanded any

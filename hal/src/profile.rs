@@ -90,8 +90,24 @@ pub struct Profile {
     pub gripper_deadband: f64,
     /// …and at most once per this long (ms); a target that changes meanwhile is sent when it ends.
     pub gripper_command_interval_ms: f64,
+    /// Which backend drives the robot: the sim plant (default) or a Franka robot over FCI (`[fci]`).
+    #[serde(default)]
+    pub backend: BackendKind,
     #[serde(default)]
     pub sim: SimParams,
+    #[serde(default)]
+    pub fci: crate::fci::FciParams,
+}
+
+/// The robot behind the HAL.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "snake_case")]
+pub enum BackendKind {
+    /// The simulated plant with fault injection (`[sim]`), paced by the HAL's own timer.
+    #[default]
+    Sim,
+    /// A Franka robot (FR3) or franka-sim over the Franka Control Interface (`[fci]`), paced by the robot.
+    Fci,
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -245,6 +261,17 @@ impl Profile {
         }
         if let Err(msg) = s.faults.validate(self.joints) {
             return bad(format!("sim.{msg}"));
+        }
+        if self.backend == BackendKind::Fci {
+            if self.joints != crate::fci::JOINTS || self.rate_hz != 1000.0 {
+                return bad(format!(
+                    "backend = \"fci\" drives a Franka arm: 7 joints at 1000 Hz, not {} at {} Hz",
+                    self.joints, self.rate_hz
+                ));
+            }
+            if let Err(msg) = self.fci.validate() {
+                return bad(format!("fci.{msg}"));
+            }
         }
         Ok(())
     }

@@ -21,9 +21,9 @@ use mars_rt::alloc_count::{self, Counts, RtPoolScope};
 use mars_rt::{RtStatus, Ticker, monotonic_ns, setup_realtime};
 use tracing::{info, warn};
 
-use crate::backend::{Backend, BackendError};
+use crate::backend::{Backend, BackendError, Measurement};
 use crate::control::{ErrorCounts, HalControl};
-use crate::events::EventLogger;
+use crate::events::{EventLogger, EventSender};
 use crate::profile::Profile;
 
 /// Ticks before the allocation count starts (iceoryx2 and the histograms settle in the first ones).
@@ -43,6 +43,9 @@ pub struct RunOptions {
     pub lock_memory: bool,
     /// Ends the loop like a termination request when set (for a HAL run inside another program, e.g. a test).
     pub stop: Option<Arc<AtomicBool>>,
+    /// At the end of the duration or on a termination request, first stop following and brake the setpoint to
+    /// rest (a real robot is released only at rest); otherwise end at once (the sim).
+    pub brake_before_exit: bool,
 }
 
 /// How the loop ended.
@@ -52,6 +55,8 @@ pub enum Ended {
     Signal,
     /// The backend failed for good; the arm had been braked to rest.
     BackendFailed(BackendError),
+    /// The connection to a real robot broke (nothing can be commanded; the robot's own reflex stops it).
+    ConnectionLost,
 }
 
 /// Loop timing and safety counters, printed at exit.
@@ -59,7 +64,10 @@ pub struct Report {
     pub ticks: u64,
     pub ended: Ended,
     pub realtime: RtStatus,
-    /// Wake-up lateness past each tick's deadline (µs).
+    /// Whether the robot paced the loop (the fci backend) rather than the HAL's timer.
+    pub paced_by_robot: bool,
+    /// Wake-up lateness past each tick's deadline (µs); when the robot paces the loop, how much longer than one
+    /// period after the last state the next one came.
     pub wake_late_us: Histogram<u64>,
     /// Work per tick: read, commands, filter, backend, publish (µs).
     pub work_us: Histogram<u64>,
@@ -82,6 +90,8 @@ pub struct Report {
     /// The loop thread's heap allocations after warm-up, and the state frames it published meanwhile (each
     /// costs iceoryx2 one pooled block); `None` when the binary does not count allocations.
     pub allocations_after_warmup: Option<(Counts, u64)>,
+    /// The robot's own side (the fci backend).
+    pub robot: Option<crate::fci::RobotLoopReport>,
 }
 
 impl std::fmt::Display for Report {
@@ -91,6 +101,7 @@ impl std::fmt::Display for Report {
             Ended::Duration => "its duration ended".to_string(),
             Ended::Signal => "a termination request".to_string(),
             Ended::BackendFailed(e) => format!("{e} (braked to rest first)"),
+            Ended::ConnectionLost => "the connection to the robot breaking (see below)".to_string(),
         };
         writeln!(f, "mars-hal: {} ticks, ended by {ended}", self.ticks)?;
         writeln!(
@@ -100,7 +111,8 @@ impl std::fmt::Display for Report {
         )?;
         writeln!(
             f,
-            "  wake-up lateness µs: p50 {} p99 {} p99.9 {} max {}; {} overruns",
+            "  {} p50 {} p99 {} p99.9 {} max {}; {} overruns",
+            if self.paced_by_robot { "robot state later than its period µs:" } else { "wake-up lateness µs:" },
             q(&self.wake_late_us, 0.5),
             q(&self.wake_late_us, 0.99),
             q(&self.wake_late_us, 0.999),
@@ -109,7 +121,8 @@ impl std::fmt::Display for Report {
         )?;
         writeln!(
             f,
-            "  work per tick µs:    p50 {} p99 {} p99.9 {} max {}",
+            "  {} p50 {} p99 {} p99.9 {} max {}",
+            if self.paced_by_robot { "robot state in → command out µs:" } else { "work per tick µs:   " },
             q(&self.work_us, 0.5),
             q(&self.work_us, 0.99),
             q(&self.work_us, 0.999),
@@ -143,97 +156,172 @@ impl std::fmt::Display for Report {
             f,
             "  {} state frames dropped by fault injection, {} log events dropped",
             self.dropped_frames, self.events_dropped
-        )
+        )?;
+        if let Some(r) = &self.robot {
+            write!(f, "\n{r}")?;
+        }
+        Ok(())
     }
 }
 
-/// Runs the HAL until the duration ends, a termination request, or a fatal backend error (after braking to
-/// rest). Refuses to start (a [`crate::control::StartError`] in the error chain, nothing commanded) when the
-/// first measurement is unusable.
-pub fn run(profile: &Profile, backend: &mut dyn Backend, opts: &RunOptions) -> anyhow::Result<Report> {
-    // 1. Read before anything else: the first setpoint is the measured position, or nothing is commanded.
-    let first = backend.read().map_err(crate::control::StartError::Read)?;
-    let mut control = HalControl::start(profile, &first)?;
+/// The HAL's side of one run, between the robot's reads: its ports, control logic, counters and histograms. A
+/// driver calls [`HalLoop::tick`] once per period — [`run`] after its own absolute-deadline timer (the sim), the
+/// fci backend inside the robot's 1 kHz callback (the robot paces the loop) — and [`HalLoop::finish`] at the end.
+pub struct HalLoop {
+    pub control: HalControl,
+    // Ports and their node (kept alive for as long as the ports are used).
+    state_out: StateWriter,
+    commands: CommandReader,
+    controller: PeerWatch,
+    _node: iceoryx2::node::Node<iceoryx2::service::ipc::Service>,
+    heartbeat: HeartbeatThread,
+    ev: EventSender,
+    logger: EventLogger,
+    term: Arc<AtomicBool>,
+    stop: Option<Arc<AtomicBool>>,
+    brake_before_exit: bool,
+    duration: Option<Duration>,
+    started: Instant,
+    timeout_ms: u64,
+    ticks: Arc<AtomicU64>,
+    tick: u64,
+    sent: u64,
+    dropped_frames: u64,
+    losses_seen: u64,
+    at_warmup: Option<(Counts, u64)>,
+    at_last_tick: Option<(Counts, u64)>,
+    /// The measurement the start was judged on: tick 0 reports it instead of reading anew.
+    first: Option<Measurement>,
+    pub realtime: RtStatus,
+    /// Lateness of each tick's start: past the timer's deadline, or past the robot's period.
+    pub late_us: Histogram<u64>,
+    pub work_us: Histogram<u64>,
+}
 
-    let ns = RobotNamespace::new(&opts.robot)?;
-    let (node, cleaned) = create_node(&format!("mars-hal-{}", opts.robot))?;
-    if cleaned > 0 {
-        info!("cleaned up {cleaned} dead iceoryx2 node(s)");
-    }
-    let state_out = StateWriter::new(&node, &ns)?;
-    let commands = CommandReader::new(&node, &ns)?;
-    // Liveness: a WaitSet watch on the controller's heartbeat tells within milliseconds when its process died (in
-    // addition to the command timeout); ours is beaten by a thread of its own while this loop's tick count grows.
-    let controller = PeerWatch::controller(&ns)?;
-    let ticks = Arc::new(AtomicU64::new(0));
-    let progress = ticks.clone();
-    let heartbeat = HeartbeatThread::start(&opts.robot, Side::Hal, &format!("mars-hal-{}", opts.robot), move || {
-        progress.load(Ordering::Acquire)
-    })
-    .context("starting the liveness heartbeat")?;
-    // Termination requests set a flag the loop reads. Registered after the ports: iceoryx2 installs its own
-    // SIGINT/SIGTERM handlers when a node is made (replacing what was there), and signal-hook chains to them.
-    let term = Arc::new(AtomicBool::new(false));
-    for sig in [signal_hook::consts::SIGTERM, signal_hook::consts::SIGINT] {
-        signal_hook::flag::register(sig, term.clone()).context("registering the termination handler")?;
-    }
-    let (mut ev, logger) = EventLogger::start(1024, Duration::from_millis(20), |e| warn!("{e}"))?;
-    let realtime = setup_realtime("hal", opts.core, opts.rt_priority, opts.lock_memory);
-    if opts.core.is_some() && realtime.core.is_none() {
-        anyhow::bail!("could not pin the HAL loop to core {:?}", opts.core);
-    }
-    alloc_count::init_rt_pool();
-    let mut wake_late_us = Histogram::new_with_bounds(1, 10_000_000, 3)?;
-    let mut work_us = Histogram::new_with_bounds(1, 10_000_000, 3)?;
-    let (n, timeout_ms) = (profile.joints, profile.command_timeout_ms as u64);
-    info!(robot = %opts.robot, rate_hz = profile.rate_hz, joints = n, start = ?&first.position[..n], "mars-hal running");
+/// What the loop should do after a tick.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Next {
+    Continue,
+    End(Ended),
+}
 
-    let mut ticker = Ticker::new(Duration::from_secs_f64(profile.period_s()));
-    let start = Instant::now();
-    let (mut tick, mut sent, mut dropped_frames, mut losses_seen) = (0u64, 0u64, 0u64, 0u64);
-    let mut at_warmup: Option<(Counts, u64)> = None;
-    // Tick 0 reports the measurement the start was judged on; every later tick reads anew.
-    let mut first = Some(first);
-    let ended = loop {
-        let wake = ticker.wait();
-        let woke = Instant::now();
-        wake_late_us.saturating_record(wake.late_ns / 1000);
+impl HalLoop {
+    /// Takes over the arm as `first` measured it (or refuses: a [`crate::control::StartError`], nothing
+    /// commanded), opens the ports, the heartbeat and the logger, and sets the calling thread up for real time.
+    pub fn start(profile: &Profile, first: Measurement, opts: &RunOptions) -> anyhow::Result<Self> {
+        let control = HalControl::start(profile, &first)?;
+        let ns = RobotNamespace::new(&opts.robot)?;
+        let (node, cleaned) = create_node(&format!("mars-hal-{}", opts.robot))?;
+        if cleaned > 0 {
+            info!("cleaned up {cleaned} dead iceoryx2 node(s)");
+        }
+        let state_out = StateWriter::new(&node, &ns)?;
+        let commands = CommandReader::new(&node, &ns)?;
+        // Liveness: a WaitSet watch on the controller's heartbeat tells within milliseconds when its process died
+        // (in addition to the command timeout); ours is beaten by a thread of its own while the tick count grows.
+        let controller = PeerWatch::controller(&ns)?;
+        let ticks = Arc::new(AtomicU64::new(0));
+        let progress = ticks.clone();
+        let heartbeat =
+            HeartbeatThread::start(&opts.robot, Side::Hal, &format!("mars-hal-{}", opts.robot), move || {
+                progress.load(Ordering::Acquire)
+            })
+            .context("starting the liveness heartbeat")?;
+        // Termination requests set a flag the loop reads. Registered after the ports: iceoryx2 installs its own
+        // SIGINT/SIGTERM handlers when a node is made (replacing what was there), and signal-hook chains to them.
+        let term = Arc::new(AtomicBool::new(false));
+        for sig in [signal_hook::consts::SIGTERM, signal_hook::consts::SIGINT] {
+            signal_hook::flag::register(sig, term.clone()).context("registering the termination handler")?;
+        }
+        let (ev, logger) = EventLogger::start(1024, Duration::from_millis(20), |e| warn!("{e}"))?;
+        let realtime = setup_realtime("hal", opts.core, opts.rt_priority, opts.lock_memory);
+        if opts.core.is_some() && realtime.core.is_none() {
+            anyhow::bail!("could not pin the HAL loop to core {:?}", opts.core);
+        }
+        alloc_count::init_rt_pool();
+        info!(
+            robot = %opts.robot, rate_hz = profile.rate_hz, joints = profile.joints,
+            start = ?&first.position[..profile.joints], "mars-hal running"
+        );
+        Ok(Self {
+            control,
+            state_out,
+            commands,
+            controller,
+            _node: node,
+            heartbeat,
+            ev,
+            logger,
+            term,
+            stop: opts.stop.clone(),
+            brake_before_exit: opts.brake_before_exit,
+            duration: opts.duration,
+            started: Instant::now(),
+            timeout_ms: profile.command_timeout_ms as u64,
+            ticks,
+            tick: 0,
+            sent: 0,
+            dropped_frames: 0,
+            losses_seen: 0,
+            at_warmup: None,
+            at_last_tick: None,
+            first: Some(first),
+            realtime,
+            late_us: Histogram::new_with_bounds(1, 10_000_000, 3)?,
+            work_us: Histogram::new_with_bounds(1, 10_000_000, 3)?,
+        })
+    }
+
+    /// Ticks so far.
+    pub fn ticks(&self) -> u64 {
+        self.tick
+    }
+
+    /// The robot stopped itself: hold (see [`HalControl::on_robot_fault`]).
+    pub fn on_robot_fault(&mut self) {
+        self.control.on_robot_fault(&mut self.ev);
+    }
+
+    /// One tick that began at `woke`: read the backend, take the commands, filter, apply, publish the frame.
+    /// Allocates nothing but iceoryx2's pooled block for the frame.
+    pub fn tick(&mut self, backend: &mut dyn Backend, woke: Instant) -> Next {
+        let (control, ev) = (&mut self.control, &mut self.ev);
         // Frames carry CLOCK_MONOTONIC time, which the controller shares: it computes state ages from it.
         let now_ns = monotonic_ns();
         control.begin_tick(now_ns);
 
         // 1. Measure.
-        control.on_read(first.take().map_or_else(|| backend.read(), Ok), &mut ev);
+        control.on_read(self.first.take().map_or_else(|| backend.read(), Ok), ev);
         // 2. Commands: every frame is judged (so every bad one is counted); the newest valid one wins.
         loop {
-            match commands.receive() {
+            match self.commands.receive() {
                 Ok(None) => break,
-                Ok(Some(cmd)) => control.on_command(&cmd, &mut ev),
+                Ok(Some(cmd)) => control.on_command(&cmd, ev),
                 Err(e) => {
-                    control.on_receive_error(e, &mut ev);
+                    control.on_receive_error(e, ev);
                     if matches!(e, FrameReceiveError::Port(_)) {
                         break;
                     }
                 }
             }
         }
-        let losses = controller.losses();
-        if losses != losses_seen {
-            losses_seen = losses;
-            control.on_controller_lost(controller.peer(), &mut ev);
+        let losses = self.controller.losses();
+        if losses != self.losses_seen {
+            self.losses_seen = losses;
+            control.on_controller_lost(self.controller.peer(), ev);
         }
         // 3. Setpoint (filtered) → backend.
-        let step = control.step(timeout_ms, &mut ev);
+        let step = control.step(self.timeout_ms, ev);
         let (applied, gripper) = (backend.apply(step.setpoint), step.gripper);
-        control.on_apply(applied, &mut ev);
+        control.on_apply(applied, ev);
         if let Some(g) = gripper {
             let moved = backend.move_gripper(g);
-            control.on_gripper(moved, &mut ev);
+            control.on_gripper(moved, ev);
         }
         let injected = backend.loop_faults();
         if injected.crash {
             // Injected crash: die like a segfault would, without unwinding, reporting or releasing anything.
-            eprintln!("mars-hal: injected crash at tick {tick}");
+            eprintln!("mars-hal: injected crash at tick {}", self.tick);
             std::process::abort();
         }
 
@@ -243,68 +331,116 @@ pub fn run(profile: &Profile, backend: &mut dyn Backend, opts: &RunOptions) -> a
             std::thread::sleep(injected.late);
         }
         if injected.drop_frame {
-            dropped_frames += 1;
+            self.dropped_frames += 1;
         } else {
             // iceoryx2 allocates one small block per sample: from the real-time pool, and only here.
             let result = {
                 let _pool = RtPoolScope::enter();
-                state_out.send(&st)
+                self.state_out.send(&st)
             };
-            sent += u64::from(result.is_ok());
-            control.on_sent(result, &mut ev);
+            self.sent += u64::from(result.is_ok());
+            control.on_sent(result, ev);
         }
         if !injected.stall.is_zero() {
-            ev.send(crate::events::LoopEvent::InjectedStall { ms: injected.stall.as_millis() as u64, tick });
+            ev.send(crate::events::LoopEvent::InjectedStall { ms: injected.stall.as_millis() as u64, tick: self.tick });
             std::thread::sleep(injected.stall);
         }
-        tick += 1;
-        ticks.store(tick, Ordering::Release);
-        work_us.saturating_record(woke.elapsed().as_micros() as u64);
-        if tick == WARMUP_TICKS {
-            at_warmup = alloc_count::thread_counts().map(|c| (c, sent));
+        self.tick += 1;
+        self.ticks.store(self.tick, Ordering::Release);
+        self.work_us.saturating_record(woke.elapsed().as_micros() as u64);
+        if self.tick == WARMUP_TICKS {
+            self.at_warmup = alloc_count::thread_counts().map(|c| (c, self.sent));
         }
+        // The counts at the end of every tick: what a driver does after the last one (franka-rs finishing a
+        // motion allocates) is not the loop's.
+        self.at_last_tick = alloc_count::thread_counts().map(|c| (c, self.sent));
+        self.next()
+    }
 
-        if let Some(e) = control.exit_reason() {
-            break Ended::BackendFailed(e);
+    /// Whether the run ends now: a fatal error at rest, the duration, a termination request (at rest first when
+    /// the driver releases a real robot).
+    fn next(&mut self) -> Next {
+        if let Some(e) = self.control.exit_reason() {
+            return Next::End(Ended::BackendFailed(e));
         }
-        if opts.duration.is_some_and(|d| start.elapsed() >= d) {
-            break Ended::Duration;
+        let ending = if self.duration.is_some_and(|d| self.started.elapsed() >= d) {
+            Some(Ended::Duration)
+        } else if self.term.load(Ordering::Acquire) || self.stop.as_ref().is_some_and(|s| s.load(Ordering::Acquire)) {
+            Some(Ended::Signal)
+        } else {
+            None
+        };
+        match ending {
+            None => Next::Continue,
+            Some(e) if !self.brake_before_exit || self.control.robot_fault() => Next::End(e),
+            Some(e) => {
+                self.control.begin_stop();
+                if self.control.stopped() { Next::End(e) } else { Next::Continue }
+            }
         }
-        if term.load(Ordering::Acquire) || opts.stop.as_ref().is_some_and(|s| s.load(Ordering::Acquire)) {
-            break Ended::Signal;
+    }
+
+    /// Whether a termination was requested (SIGTERM/SIGINT or the options' flag), for drivers that wait between
+    /// ticks.
+    pub fn stop_requested(&self) -> bool {
+        self.term.load(Ordering::Acquire) || self.stop.as_ref().is_some_and(|s| s.load(Ordering::Acquire))
+    }
+
+    /// Ends the run: stops the logger and the heartbeat (the controller sees this HAL leave) and reports.
+    pub fn finish(self, ended: Ended, overruns: u64, robot: Option<crate::fci::RobotLoopReport>) -> Report {
+        let allocations_after_warmup = self.at_warmup.zip(self.at_last_tick).map(|((c0, sent0), (c1, sent1))| {
+            (Counts { system: c1.system - c0.system, pooled: c1.pooled - c0.pooled }, sent1 - sent0)
+        });
+        if ended == Ended::Signal {
+            info!("termination requested");
+        }
+        drop(self.ev);
+        let events_dropped = self.logger.finish();
+        if events_dropped > 0 {
+            warn!("{events_dropped} log events were dropped: the logger fell behind the loop");
+        }
+        self.heartbeat.finish();
+        let control = &self.control;
+        let f = control.filter();
+        Report {
+            ticks: self.tick,
+            ended,
+            realtime: self.realtime,
+            paced_by_robot: robot.is_some(),
+            wake_late_us: self.late_us,
+            work_us: self.work_us,
+            overruns,
+            rejected: f.rejected,
+            clamped: f.clamped,
+            schema_refusals: control.schema_refusals,
+            late_commands: control.late_commands,
+            position_guard_hits: f.position_guard_hits,
+            infeasible_steps: f.infeasible_steps,
+            errors: control.errors,
+            gripper_moves: control.gripper().moves_sent,
+            dropped_frames: self.dropped_frames,
+            events_dropped,
+            allocations_after_warmup,
+            robot,
+        }
+    }
+}
+
+/// Runs the HAL on its own absolute-deadline timer (the sim backend) until the duration ends, a termination
+/// request, or a fatal backend error (after braking to rest). Refuses to start (a
+/// [`crate::control::StartError`] in the error chain, nothing commanded) when the first measurement is unusable.
+pub fn run(profile: &Profile, backend: &mut dyn Backend, opts: &RunOptions) -> anyhow::Result<Report> {
+    // Read before anything else: the first setpoint is the measured position, or nothing is commanded.
+    let first = backend.read().map_err(crate::control::StartError::Read)?;
+    let mut hal = HalLoop::start(profile, first, opts)?;
+    let mut ticker = Ticker::new(Duration::from_secs_f64(profile.period_s()));
+    let ended = loop {
+        let wake = ticker.wait();
+        let woke = Instant::now();
+        hal.late_us.saturating_record(wake.late_ns / 1000);
+        if let Next::End(e) = hal.tick(backend, woke) {
+            break e;
         }
     };
-    let allocations_after_warmup = at_warmup.zip(alloc_count::thread_counts()).map(|((c0, sent0), c1)| {
-        (Counts { system: c1.system - c0.system, pooled: c1.pooled - c0.pooled }, sent - sent0)
-    });
-    if ended == Ended::Signal {
-        info!("termination requested");
-    }
-    drop(ev);
-    let events_dropped = logger.finish();
-    if events_dropped > 0 {
-        warn!("{events_dropped} log events were dropped: the logger fell behind the loop");
-    }
-    // Stopped after the loop: the controller sees this HAL leave.
-    heartbeat.finish();
-    let f = control.filter();
-    Ok(Report {
-        ticks: tick,
-        ended,
-        realtime,
-        wake_late_us,
-        work_us,
-        overruns: ticker.missed_total(),
-        rejected: f.rejected,
-        clamped: f.clamped,
-        schema_refusals: control.schema_refusals,
-        late_commands: control.late_commands,
-        position_guard_hits: f.position_guard_hits,
-        infeasible_steps: f.infeasible_steps,
-        errors: control.errors,
-        gripper_moves: control.gripper().moves_sent,
-        dropped_frames,
-        events_dropped,
-        allocations_after_warmup,
-    })
+    Ok(hal.finish(ended, ticker.missed_total(), None))
 }

@@ -61,6 +61,10 @@ pub struct Target {
     pub late_step: bool,
 }
 
+/// The fraction of the acceleration and jerk limits the filter's own trajectories use (marsd's smoother plans at
+/// 0.9 for the same reason).
+const OWN_PLAN_FACTOR: f64 = 0.95;
+
 /// Limits and the applied setpoint (position, velocity, acceleration) of every joint.
 pub struct SafetyFilter {
     n: usize,
@@ -133,6 +137,14 @@ impl SafetyFilter {
             position_guard_hits: 0,
             infeasible_steps: 0,
         }
+    }
+
+    /// Starts over at rest at `start` (the measured position after the robot stopped itself), keeping the
+    /// counters.
+    pub fn restart(&mut self, start: &[f64]) {
+        self.q = arr(start);
+        self.v = [0.0; MAX_JOINTS];
+        self.a = [0.0; MAX_JOINTS];
     }
 
     /// The positions joint `i` may be commanded to and rest in.
@@ -309,7 +321,11 @@ impl SafetyFilter {
         }
         for i in 0..self.n {
             let (q, v, a) = (self.q[i], self.v[i], self.a[i]);
-            let (am, jm) = (self.a_max[i], self.j_max[i]);
+            // The filter's own trajectories (braking, bringing a clamped command inside) plan a margin inside the
+            // limits: the robot checks the stream by finite differences of what it received (franka-sim of
+            // float32-rounded states: a brake at exactly 10 rad/s² arrived as 10.008 and tripped the FR3's
+            // velocity-discontinuity reflex). Compliant commands still pass exactly (above).
+            let (am, jm) = (self.a_max[i] * OWN_PLAN_FACTOR, self.j_max[i] * OWN_PLAN_FACTOR);
             // This tick's velocity bounds: the envelope where the joint can get to this tick (it only narrows
             // toward a limit, so a velocity within it is within the envelope wherever the step ends).
             let (lo0, hi0) = self.plan[i].envelope(q, 0.5 * am);

@@ -30,7 +30,7 @@ pub use image::{ImageEncoding, ImageHeader};
 pub use liveness::{ControllerLiveness, HalLiveness, Heartbeat, Peer, PeerWatch, Side};
 pub use names::{NameError, RobotNamespace};
 pub use schema::{FrameHeader, SCHEMA_VERSION, SchemaMismatch};
-pub use state::{HoldReason, MAX_JOINTS, RobotState, fault, status};
+pub use state::{HoldReason, MAX_JOINTS, RobotState, fault, robot_mode, status};
 pub use wire::{
     CommandReader, CommandWriter, FrameReceiveError, FrameSendError, ImageReader, ImageWriter, StateReader,
     StateWriter, WireError,

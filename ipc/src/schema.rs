@@ -13,7 +13,9 @@ use iceoryx2::prelude::ZeroCopySend;
 /// v4: late / last-resort / backend-error counters, `status::LAST_RESORT` and `BACKEND_ERROR`,
 /// `HoldReason::HalError`, `RobotState::gripper_target`, `JointCommand::gripper_speed`.
 /// v5: `fault::NO_MEASUREMENT`, `RobotState::duplicate_commands`; the gripper fields are a target, sent on change.
-pub const SCHEMA_VERSION: u32 = 5;
+/// v6: the robot's own report (`RobotState::robot_errors`, `robot_reflex_errors`, `robot_success_rate`,
+/// `robot_mode`), `fault::ROBOT_REFLEX` / `ROBOT_CONNECTION_LOST`, `HoldReason::RobotFault` / `HalStopping`.
+pub const SCHEMA_VERSION: u32 = 6;
 
 /// The iceoryx2 user header of state and command frames.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ZeroCopySend)]

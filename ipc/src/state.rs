@@ -33,6 +33,40 @@ pub mod fault {
     pub const NON_FINITE_MEASUREMENT: u32 = 1 << 2;
     /// The backend could not read the robot this tick: the measurements are the last ones read.
     pub const NO_MEASUREMENT: u32 = 1 << 3;
+    /// The robot stopped itself (a Franka reflex: any `ControlException`); its own reasons are in
+    /// [`super::RobotState::robot_reflex_errors`]. The HAL holds until a person recovers the robot.
+    pub const ROBOT_REFLEX: u32 = 1 << 4;
+    /// The connection to the robot is gone (no state within the robot protocol's timeout): the measurements are
+    /// the last ones read, and the HAL is about to exit.
+    pub const ROBOT_CONNECTION_LOST: u32 = 1 << 5;
+}
+
+/// What a robot says about itself, in [`RobotState::robot_mode`]: libfranka's `RobotMode` plus one, so that 0
+/// means the backend reports no mode (the sim backend).
+pub mod robot_mode {
+    pub const NOT_REPORTED: u32 = 0;
+    pub const OTHER: u32 = 1;
+    pub const IDLE: u32 = 2;
+    pub const MOVE: u32 = 3;
+    pub const GUIDING: u32 = 4;
+    pub const REFLEX: u32 = 5;
+    pub const USER_STOPPED: u32 = 6;
+    pub const AUTOMATIC_ERROR_RECOVERY: u32 = 7;
+
+    /// The mode's name, as libfranka spells it without the `k`.
+    pub fn name(mode: u32) -> &'static str {
+        match mode {
+            NOT_REPORTED => "not reported",
+            OTHER => "Other",
+            IDLE => "Idle",
+            MOVE => "Move",
+            GUIDING => "Guiding",
+            REFLEX => "Reflex",
+            USER_STOPPED => "UserStopped",
+            AUTOMATIC_ERROR_RECOVERY => "AutomaticErrorRecovery",
+            _ => "unknown",
+        }
+    }
 }
 
 /// Why the HAL is holding, in [`RobotState::hold_reason`].
@@ -52,6 +86,12 @@ pub enum HoldReason {
     /// The HAL's backend (the robot's driver) or its own ports failed repeatedly: it braked to rest and holds
     /// until it recovers and a controller starts a new session.
     HalError = 5,
+    /// The robot stopped itself (a reflex; see `fault::ROBOT_REFLEX` and `RobotState::robot_reflex_errors`): the
+    /// HAL holds, and resumes only after a person recovered the robot (`mars-hal` on SIGUSR1, or
+    /// `mars-hal recover`) and a controller starts a new session.
+    RobotFault = 6,
+    /// The HAL was asked to exit (SIGTERM): it brakes to rest before it releases the robot.
+    HalStopping = 7,
 }
 
 impl HoldReason {
@@ -64,6 +104,8 @@ impl HoldReason {
             3 => Some(Self::ControllerRequested),
             4 => Some(Self::ControllerLost),
             5 => Some(Self::HalError),
+            6 => Some(Self::RobotFault),
+            7 => Some(Self::HalStopping),
             _ => None,
         }
     }
@@ -125,6 +167,18 @@ pub struct RobotState {
     /// A [`HoldReason`] as `u32`.
     pub hold_reason: u32,
     pub num_joints: u32,
+    /// The robot's own error flags now, bit i = flag i in libfranka's order (`franka::Errors`, 41 flags); 0 for
+    /// a backend that reports none.
+    pub robot_errors: u64,
+    /// The flags that aborted the robot's last motion (a reflex's reasons), same bits.
+    pub robot_reflex_errors: u64,
+    /// The fraction of the robot's last 100 cycles whose command reached it in time (libfranka's
+    /// `control_command_success_rate`; 0 while no motion runs or for a backend that reports none).
+    pub robot_success_rate: f64,
+    /// A [`robot_mode`] value.
+    pub robot_mode: u32,
+    /// Padding to a multiple of 8 bytes, always 0.
+    pub reserved: u32,
 }
 
 impl Default for RobotState {
@@ -153,6 +207,11 @@ impl Default for RobotState {
             fault: 0,
             hold_reason: HoldReason::NoSession as u32,
             num_joints: 0,
+            robot_errors: 0,
+            robot_reflex_errors: 0,
+            robot_success_rate: 0.0,
+            robot_mode: robot_mode::NOT_REPORTED,
+            reserved: 0,
         }
     }
 }
@@ -181,6 +240,8 @@ mod tests {
             HoldReason::ControllerRequested,
             HoldReason::ControllerLost,
             HoldReason::HalError,
+            HoldReason::RobotFault,
+            HoldReason::HalStopping,
         ] {
             assert_eq!(HoldReason::from_u32(r as u32), Some(r));
         }

@@ -97,6 +97,7 @@ fn servo_tick_and_hal_loop_make_no_heap_allocation_over_two_episodes() {
                     rt_priority: Some(85),
                     lock_memory: true,
                     stop: Some(stop),
+                    brake_before_exit: false,
                 };
                 mars_hal::runner::run(&profile, &mut SimBackend::new(&profile), &opts)
             })

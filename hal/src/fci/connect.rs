@@ -66,6 +66,19 @@ impl Fci {
     }
 }
 
+impl Fci {
+    /// Clears a reflex (libfranka's `automaticErrorRecovery`), waited for at most `timeout`. Only while no
+    /// control loop runs.
+    pub fn recover(&self, timeout: Duration) -> Result<(), FciError> {
+        let robot = Arc::clone(&self.robot);
+        match run_bounded("fci-recover", timeout, move || robot.automatic_error_recovery()) {
+            Ok(Ok(())) => Ok(()),
+            Ok(Err(e)) => Err(FciError::from_franka(&self.addr, e)),
+            Err(e) => Err(e.into_error(&self.addr, "recovering from an error", timeout)),
+        }
+    }
+}
+
 /// Connects to the FCI robot at `addr` (`"172.16.0.2"`, or `"host:port"`; port 1337 by default), giving up after
 /// `timeout`. Never needs a real-time kernel (`RealtimeConfig::Ignore`): reading a state does not, and the loop
 /// that will need one makes its own real-time setup.
@@ -89,7 +102,7 @@ pub fn connect(addr: &str, timeout: Duration) -> Result<Fci, FciError> {
 
 /// Why a bounded call returned no result.
 #[derive(Debug)]
-enum Unfinished {
+pub(crate) enum Unfinished {
     TimedOut,
     /// The worker ended without a result: franka-rs panicked.
     Panicked,
@@ -97,7 +110,7 @@ enum Unfinished {
 }
 
 impl Unfinished {
-    fn into_error(self, addr: &str, during: &'static str, timeout: Duration) -> FciError {
+    pub(crate) fn into_error(self, addr: &str, during: &'static str, timeout: Duration) -> FciError {
         match self {
             Unfinished::TimedOut => FciError::timeout(addr, during, timeout),
             Unfinished::Panicked => FciError::Panicked { addr: addr.to_string(), during },
@@ -108,7 +121,7 @@ impl Unfinished {
 
 /// Runs `f` on a new thread named `name` and waits at most `timeout` for its result. A worker that takes longer
 /// is left to finish on its own; what it returns then is dropped there (a late `Robot` disconnects).
-fn run_bounded<T: Send + 'static>(
+pub(crate) fn run_bounded<T: Send + 'static>(
     name: &str,
     timeout: Duration,
     f: impl FnOnce() -> T + Send + 'static,

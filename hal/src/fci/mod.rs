@@ -1,15 +1,24 @@
-//! The Franka Control Interface (FCI) side of the HAL, through franka-rs (lib `franka`, a pure-Rust libfranka).
+//! The Franka Control Interface (FCI) backend, through franka-rs (lib `franka`, a pure-Rust libfranka).
 //!
-//! This is the first slice of issue 12 (an `fci` backend): connect to a robot without ever hanging or putting one
-//! of our threads on SCHED_FIFO 99 behind our back ([`connect`]), turn a `franka::RobotState` into our
-//! [`crate::backend::Measurement`] plus the robot's own view of itself ([`state`]), and the report of
-//! `mars-hal fci-status` ([`status`]), which reads one state and commands nothing. The backend that drives the
-//! arm at 1 kHz is still to come.
+//! Data flow: [`connect`] reaches the robot in bounded time (never hanging, never leaving one of our threads on
+//! SCHED_FIFO 99 behind our back); [`drive`] runs the HAL's tick inside the robot's 1 kHz callback (a state in,
+//! the filtered setpoint out, in the same cycle), holds on a reflex and recovers only when asked; [`state`] turns
+//! a `franka::RobotState` into our measurement; [`hand`] drives the Franka Hand on threads of its own.
+//! `mars-hal fci-status` ([`status`]) reads one state and commands nothing; `mars-hal recover` ([`recover`]) clears
+//! a reflex when no HAL is running.
 
 pub mod connect;
+pub mod drive;
 pub mod error;
+pub mod hand;
+pub mod params;
+pub mod recover;
+pub mod report;
 pub mod state;
 pub mod status;
 
 pub use connect::{Fci, connect};
 pub use error::FciError;
+pub use params::{FciParams, Realtime};
+pub use report::RobotLoopReport;
+pub use state::JOINTS;

@@ -6,7 +6,7 @@ use std::time::{Duration, Instant};
 
 use franka::{FciVersion, RobotMode};
 
-use super::connect::connect;
+use super::connect::{Fci, connect};
 use super::error::FciError;
 use super::state::{JOINTS, RobotStatus, measurement};
 
@@ -26,16 +26,23 @@ pub fn probe(addr: &str, timeout: Duration) -> Result<FciStatus, FciError> {
     let deadline = Instant::now() + timeout;
     let fci = connect(addr, timeout)?;
     let state = fci.read_once(deadline.saturating_duration_since(Instant::now()))?;
-    let m = measurement(&state);
-    let mut q = [0.0; JOINTS];
-    q.copy_from_slice(&m.position[..JOINTS]);
-    Ok(FciStatus {
-        addr: addr.to_string(),
-        fci_version: fci.fci_version(),
-        server_version: fci.server_version(),
-        q,
-        status: RobotStatus::of(&state),
-    })
+    Ok(FciStatus::of(&fci, &state))
+}
+
+impl FciStatus {
+    /// What `state`, read over `fci`, says.
+    pub fn of(fci: &Fci, state: &franka::RobotState) -> Self {
+        let m = measurement(state);
+        let mut q = [0.0; JOINTS];
+        q.copy_from_slice(&m.position[..JOINTS]);
+        FciStatus {
+            addr: fci.addr().to_string(),
+            fci_version: fci.fci_version(),
+            server_version: fci.server_version(),
+            q,
+            status: RobotStatus::of(state),
+        }
+    }
 }
 
 /// A list of error names, or "none".
@@ -65,7 +72,8 @@ impl fmt::Display for FciStatus {
             RobotMode::Reflex => writeln!(
                 f,
                 "note: the robot is in reflex (the last motion errors say why); clear it with an error recovery \
-                 (Desk, or libfranka's automatic_error_recovery) before a run"
+                 (`mars-hal recover --robot-ip {}`, or Desk) before a run",
+                self.addr
             )?,
             RobotMode::UserStopped => writeln!(f, "note: the user stop is pressed; release it before a run")?,
             RobotMode::Guiding => writeln!(f, "note: the robot is in hand-guiding mode")?,

@@ -109,6 +109,16 @@ pub struct FrankaSim {
 impl FrankaSim {
     /// Installs it if needed, waits for the simulator lock, starts the server and waits until port 1337 accepts.
     pub fn start() -> Self {
+        Self::start_with(&[])
+    }
+
+    /// As the robot would be: the 20-lost-cycles communication reflex and the motion-limit reflexes on.
+    pub fn start_strict() -> Self {
+        Self::start_with(&["--enforce-comm-constraints", "--enforce-motion-limits"])
+    }
+
+    /// [`Self::start`] with extra server arguments.
+    pub fn start_with(args: &[&str]) -> Self {
         let venv = venv();
         let lock = lock("mars-franka-sim.lock");
         // Under our lock nothing of ours listens there: anything that does is a simulator or robot some other
@@ -125,6 +135,7 @@ impl FrankaSim {
         ));
         let out = File::create(&log).unwrap_or_else(|e| panic!("{}: {e}", log.display()));
         let child = Command::new(venv.join("bin/run-franka-sim-server"))
+            .args(args)
             .env("FR3_MJCF", venv.join("fr3.xml"))
             .stdin(Stdio::null())
             .stdout(out.try_clone().unwrap())
@@ -166,6 +177,15 @@ impl FrankaSim {
     }
 }
 
+impl FrankaSim {
+    /// Kills the server at once (SIGKILL to its group), like a robot losing power or its network.
+    pub fn kill_now(&mut self) {
+        // SAFETY: kill(2) with a negative pid signals that process group; no memory is involved.
+        unsafe { libc::kill(-(self.child.id() as i32), libc::SIGKILL) };
+        let _ = self.child.wait();
+    }
+}
+
 impl Drop for FrankaSim {
     fn drop(&mut self) {
         let group = -(self.child.id() as i32);
@@ -180,6 +200,11 @@ impl Drop for FrankaSim {
         // SAFETY: as above; ESRCH (nothing left) is fine.
         unsafe { libc::kill(group, libc::SIGKILL) };
         let _ = self.child.wait();
-        let _ = std::fs::remove_file(&self.log);
+        // A failing test keeps the simulator's log for the reader (it says why a reflex fired).
+        if std::thread::panicking() {
+            eprintln!("franka-sim's log kept: {}", self.log.display());
+        } else {
+            let _ = std::fs::remove_file(&self.log);
+        }
     }
 }

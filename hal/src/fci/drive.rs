@@ -1,0 +1,321 @@
+//! The HAL driven by a Franka robot: the robot's 1 kHz loop is the HAL's loop.
+//!
+//! Each state the robot sends runs one HAL tick inside franka-rs's `control_joint_positions` callback: the state
+//! is the measurement, the controller's newest command goes through the same safety filter as with the sim, and
+//! the filtered setpoint is what the callback returns, within the same cycle. libfranka's rate limiter (on by
+//! default, `fci.limit_rate`) stands behind our filter as a second guard with the same FR3 limits.
+//!
+//! Around it, what a robot engineer expects:
+//! - **Start**: the robot is read before anything else; a robot in reflex, user-stopped or with errors set is
+//!   refused with its reasons (nothing commanded), and the first setpoint is the measured pose.
+//! - **Reflex** (any `ControlException`): the HAL reports the robot's reasons (log, state frame bits, exit
+//!   report), holds, keeps publishing the robot's state, and does **not** recover on its own. SIGUSR1 (or
+//!   `mars-hal recover` with no HAL running) runs the robot's error recovery; the HAL resumes from the pose it
+//!   measures then, and a controller starts a new session.
+//! - **Lost connection** (no state within franka-rs's 1 s UDP timeout, or the socket closed): reported and the
+//!   process ends (exit 1) without a panic.
+//! - **SIGTERM / the duration**: stop following, brake the setpoint to rest within the limits, then finish the
+//!   motion and release the robot.
+
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use franka::{ControllerMode, FrankaError, JointPositions, RobotMode, RobotState};
+use tracing::{info, warn};
+
+use super::hand::Hand;
+use super::report::RobotLoopReport;
+use super::state::{JOINTS, measurement};
+use super::{Fci, Realtime, connect};
+use crate::backend::{Backend, BackendError, Measurement, RobotReport};
+use crate::gripper::GripperMove;
+use crate::profile::Profile;
+use crate::runner::{Ended, HalLoop, Next, Report, RunOptions};
+
+/// Why the HAL would not take the robot over: nothing was commanded.
+#[derive(Debug, thiserror::Error)]
+pub enum FciStartRefusal {
+    #[error(
+        "the robot at {addr} is in {mode:?} mode with errors [{errors}]: nothing was commanded; clear it first \
+         (`mars-hal recover --robot-ip {addr}`, or in Desk)"
+    )]
+    NotReady { addr: String, mode: RobotMode, errors: String },
+    #[error(
+        "this kernel is not PREEMPT_RT (/sys/kernel/realtime does not read 1): a real FR3 needs one (see README, \
+         \"On a real FR3\"); set `[fci] realtime = \"ignore\"` (or --realtime ignore) to run anyway, e.g. against \
+         franka-sim"
+    )]
+    NoRealtimeKernel,
+}
+
+/// A robot mode as the wire carries it (`mars_ipc::robot_mode`).
+pub fn wire_mode(m: RobotMode) -> u32 {
+    use mars_ipc::robot_mode as w;
+    match m {
+        RobotMode::Other => w::OTHER,
+        RobotMode::Idle => w::IDLE,
+        RobotMode::Move => w::MOVE,
+        RobotMode::Guiding => w::GUIDING,
+        RobotMode::Reflex => w::REFLEX,
+        RobotMode::UserStopped => w::USER_STOPPED,
+        RobotMode::AutomaticErrorRecovery => w::AUTOMATIC_ERROR_RECOVERY,
+    }
+}
+
+/// libfranka's error flags as bits (flag i → bit i; there are 41).
+pub fn error_bits(e: &franka::Errors) -> u64 {
+    e.0.iter().enumerate().fold(0, |bits, (i, &set)| bits | (u64::from(set) << i))
+}
+
+/// The measurement of one robot state, with the hand's width and the robot's own report. Allocates nothing.
+fn measured(s: &RobotState, hand: Option<&Hand>) -> Measurement {
+    let mut m = measurement(s);
+    m.gripper = hand.map_or(0.0, Hand::width);
+    m.robot = RobotReport {
+        mode: wire_mode(s.robot_mode),
+        errors: error_bits(&s.current_errors),
+        reflex_errors: error_bits(&s.last_motion_errors),
+        success_rate: s.control_command_success_rate,
+    };
+    m
+}
+
+/// The backend the HAL tick sees inside one robot cycle: `read` is the state just received, `apply` fills the
+/// command the callback returns, the gripper target goes to the hand's thread.
+struct Cycle<'a> {
+    state: &'a RobotState,
+    hand: Option<&'a mut Hand>,
+    command: [f64; JOINTS],
+    /// Whether the robot takes commands now (false while holding after a reflex: the setpoint is only reported).
+    commanding: bool,
+}
+
+impl Backend for Cycle<'_> {
+    fn read(&mut self) -> Result<Measurement, BackendError> {
+        Ok(measured(self.state, self.hand.as_deref()))
+    }
+
+    fn apply(&mut self, position: &[f64]) -> Result<(), BackendError> {
+        self.command.copy_from_slice(&position[..JOINTS]);
+        Ok(())
+    }
+
+    fn move_gripper(&mut self, to: GripperMove) -> Result<(), BackendError> {
+        if !self.commanding {
+            return Err(BackendError::Transient("the robot is holding after a reflex"));
+        }
+        match self.hand.as_deref_mut().map(|hand| hand.request(to)) {
+            Some(true) => Ok(()),
+            Some(false) => Err(BackendError::Transient("the Franka Hand is still busy with earlier targets")),
+            None => Err(BackendError::Transient("no gripper: [fci] gripper = false")),
+        }
+    }
+}
+
+/// How a control phase ended.
+enum Phase {
+    /// The HAL's run ended (duration or termination at rest): the motion was finished.
+    Done(Ended),
+    /// The robot stopped itself; its reasons.
+    Reflex(String),
+    /// The connection is gone.
+    Lost(String),
+}
+
+/// Runs the HAL on the FCI robot at `addr` until the duration ends, a termination request (at rest), or the
+/// connection breaks. Refuses to start (nothing commanded) when the robot cannot be read or is not ready.
+pub fn run(profile: &Profile, addr: &str, opts: &RunOptions) -> anyhow::Result<Report> {
+    let p = &profile.fci;
+    if p.realtime == Realtime::Enforce && !realtime_kernel() {
+        return Err(FciStartRefusal::NoRealtimeKernel.into());
+    }
+    let timeout = Duration::from_secs_f64(p.connect_timeout_s);
+    let fci = connect(addr, timeout)?;
+    let state = fci.read_once(timeout)?;
+    refuse_unless_ready(&state, addr)?;
+    let mut hand = if p.gripper { Some(Hand::start(addr, timeout, p.grasp_force_n)?) } else { None };
+    let mut hal = HalLoop::start(profile, measured(&state, hand.as_ref()), opts)?;
+    let recover = Arc::new(AtomicBool::new(false));
+    signal_hook::flag::register(signal_hook::consts::SIGUSR1, recover.clone())?;
+    let mut report = RobotLoopReport { addr: addr.to_string(), ..Default::default() };
+    info!(addr, fci = ?fci.fci_version(), gripper = p.gripper, "driving the robot over FCI");
+
+    let ended = loop {
+        match control(&fci, &mut hal, hand.as_mut(), profile, &mut report) {
+            Phase::Done(e) => break e,
+            Phase::Lost(why) => {
+                warn!(addr, "lost the connection to the robot: {why}");
+                report.connection_lost = Some(why);
+                break Ended::ConnectionLost;
+            }
+            Phase::Reflex(reasons) => {
+                warn!(addr, "the robot stopped itself (reflex: {reasons}); holding until SIGUSR1 asks to recover");
+                report.reflexes.push(reasons);
+                hal.on_robot_fault();
+            }
+        }
+        match hold(&fci, &mut hal, hand.as_mut(), &recover, timeout, &mut report) {
+            Ok(None) => continue,
+            Ok(Some(e)) => break e,
+            Err(why) => {
+                warn!(addr, "lost the connection to the robot while holding: {why}");
+                report.connection_lost = Some(why);
+                break Ended::ConnectionLost;
+            }
+        }
+    };
+    report.gripper = hand.as_ref().map(Hand::counts);
+    drop(hand);
+    Ok(hal.finish(ended, 0, Some(report)))
+}
+
+/// One motion: the robot's callback runs the HAL tick until the HAL ends (at rest) or the robot stops.
+fn control(
+    fci: &Fci,
+    hal: &mut HalLoop,
+    mut hand: Option<&mut Hand>,
+    profile: &Profile,
+    report: &mut RobotLoopReport,
+) -> Phase {
+    let mut done = None;
+    let mut last: Option<Instant> = None;
+    let mut cycles_in_motion = 0u64;
+    let result = fci.robot().control_joint_positions(
+        |state, period| {
+            let woke = Instant::now();
+            if let Some(prev) = last {
+                hal.late_us.saturating_record((woke - prev).as_micros().saturating_sub(1000) as u64);
+            }
+            last = Some(woke);
+            report.cycles += 1;
+            report.lost_states += period.as_millis().saturating_sub(1);
+            cycles_in_motion += 1;
+            report.last_success_rate = state.control_command_success_rate;
+            if cycles_in_motion > 100 {
+                let r = state.control_command_success_rate;
+                report.min_success_rate = Some(report.min_success_rate.map_or(r, |m| m.min(r)));
+            }
+            let mut cycle = Cycle { state, hand: hand.as_deref_mut(), command: state.q, commanding: true };
+            let next = hal.tick(&mut cycle, woke);
+            let mut cmd = JointPositions::new(cycle.command);
+            if let Next::End(e) = next {
+                done = Some(e);
+                cmd.motion_finished = true;
+            }
+            cmd
+        },
+        ControllerMode::JointImpedance,
+        profile.fci.limit_rate,
+        profile.fci.cutoff_hz,
+    );
+    match (result, done) {
+        (Ok(()), Some(e)) => Phase::Done(e),
+        (Ok(()), None) => Phase::Lost("the robot ended the motion without being asked".into()),
+        (Err(FrankaError::Control(ce)), _) => {
+            let reasons = ce.last_motion_errors.names();
+            Phase::Reflex(if reasons.is_empty() { ce.message.clone() } else { reasons.join(", ") })
+        }
+        (Err(e), _) => Phase::Lost(e.to_string()),
+    }
+}
+
+/// After a reflex: publish the robot's state (nothing commanded) until SIGUSR1 asks for a recovery that
+/// succeeds (`Ok(None)`: resume), the HAL's run ends (`Ok(Some)`), or the connection breaks (`Err`).
+fn hold(
+    fci: &Fci,
+    hal: &mut HalLoop,
+    mut hand: Option<&mut Hand>,
+    recover: &AtomicBool,
+    timeout: Duration,
+    report: &mut RobotLoopReport,
+) -> Result<Option<Ended>, String> {
+    loop {
+        // read_once waits for the next state (the robot sends them at 1 kHz in every mode).
+        let state = fci.read_once(timeout).map_err(|e| e.to_string())?;
+        let mut cycle = Cycle { state: &state, hand: hand.as_deref_mut(), command: state.q, commanding: false };
+        if let Next::End(e) = hal.tick(&mut cycle, Instant::now()) {
+            return Ok(Some(e));
+        }
+        if !recover.swap(false, Ordering::AcqRel) {
+            continue;
+        }
+        info!("recovery requested: running the robot's automatic error recovery");
+        if let Err(e) = fci.recover(timeout) {
+            warn!("the robot's error recovery failed: {e}; still holding");
+            continue;
+        }
+        let state = fci.read_once(timeout).map_err(|e| e.to_string())?;
+        match hal.control.resume_from(&measured(&state, hand.as_deref())) {
+            Ok(()) => {
+                report.recoveries += 1;
+                info!(q = ?state.q, "recovered: resuming from the measured pose; a controller starts a new session");
+                return Ok(None);
+            }
+            Err(e) => warn!("recovered, but the arm cannot be taken over: {e}; still holding"),
+        }
+    }
+}
+
+fn refuse_unless_ready(s: &RobotState, addr: &str) -> Result<(), FciStartRefusal> {
+    let bad_mode = matches!(s.robot_mode, RobotMode::Reflex | RobotMode::UserStopped | RobotMode::Other);
+    if bad_mode || s.current_errors.any() {
+        let mut names: Vec<String> = s.current_errors.names().into_iter().map(str::to_string).collect();
+        names.extend(s.last_motion_errors.names().into_iter().map(|n| format!("{n} (last motion)")));
+        return Err(FciStartRefusal::NotReady {
+            addr: addr.to_string(),
+            mode: s.robot_mode,
+            errors: if names.is_empty() { "none".into() } else { names.join(", ") },
+        });
+    }
+    Ok(())
+}
+
+/// Whether the running kernel is PREEMPT_RT.
+fn realtime_kernel() -> bool {
+    std::fs::read_to_string("/sys/kernel/realtime").is_ok_and(|s| s.trim() == "1")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use franka::Errors;
+
+    fn errors(names: &[&str]) -> Errors {
+        let mut e = Errors::default();
+        for n in names {
+            e.0[Errors::index_of(n).unwrap()] = true;
+        }
+        e
+    }
+
+    #[test]
+    fn a_robot_in_reflex_user_stopped_or_with_errors_is_refused_with_its_reasons() {
+        let ready = RobotState { robot_mode: RobotMode::Idle, ..RobotState::default() };
+        assert!(refuse_unless_ready(&ready, "r").is_ok());
+        assert!(refuse_unless_ready(&RobotState { robot_mode: RobotMode::Move, ..ready }, "r").is_ok());
+        let reflex = RobotState {
+            robot_mode: RobotMode::Reflex,
+            current_errors: errors(&["joint_reflex"]),
+            last_motion_errors: errors(&["communication_constraints_violation"]),
+            ..ready
+        };
+        let msg = refuse_unless_ready(&reflex, "172.16.0.2").unwrap_err().to_string();
+        assert!(msg.contains("Reflex") && msg.contains("joint_reflex"), "{msg}");
+        assert!(msg.contains("communication_constraints_violation (last motion)"), "{msg}");
+        assert!(msg.contains("mars-hal recover --robot-ip 172.16.0.2") && msg.contains("nothing was commanded"));
+        let stopped = RobotState { robot_mode: RobotMode::UserStopped, ..ready };
+        assert!(refuse_unless_ready(&stopped, "r").unwrap_err().to_string().contains("UserStopped"));
+        let errors_only = RobotState { current_errors: errors(&["joint_position_limits_violation"]), ..ready };
+        assert!(refuse_unless_ready(&errors_only, "r").is_err());
+    }
+
+    #[test]
+    fn error_flags_become_bits_in_libfrankas_order_and_modes_their_wire_values() {
+        let e = errors(&["joint_position_limits_violation", "communication_constraints_violation"]);
+        assert_eq!(error_bits(&e), 1 | (1 << 25));
+        assert_eq!(error_bits(&Errors::default()), 0);
+        assert_eq!(wire_mode(RobotMode::Reflex), mars_ipc::robot_mode::REFLEX);
+        assert_eq!(mars_ipc::robot_mode::name(wire_mode(RobotMode::Move)), "Move");
+    }
+}
