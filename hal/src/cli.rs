@@ -4,7 +4,7 @@ use std::path::PathBuf;
 use std::time::Duration;
 
 use crate::fault::FaultConfig;
-use crate::fci::Realtime;
+use crate::fci::{LateCommands, Realtime};
 use crate::profile::{BackendKind, Profile};
 use crate::runner::{Report, RunOptions, run};
 use crate::sim::SimBackend;
@@ -39,6 +39,10 @@ pub struct HalArgs {
     /// fci: require a PREEMPT_RT kernel (enforce) or not (ignore, e.g. for franka-sim); overrides `[fci] realtime`.
     #[arg(long, value_enum)]
     pub realtime: Option<Realtime>,
+    /// fci: what the robot does with a command that missed its cycle (dropped: a real FR3; applied: franka-sim);
+    /// overrides `[fci] late_commands`.
+    #[arg(long, value_enum)]
+    pub late_commands: Option<LateCommands>,
     /// fci: drive no Franka Hand (the gripper width reads 0); overrides `[fci] gripper`.
     #[arg(long)]
     pub no_gripper: bool,
@@ -208,6 +212,9 @@ pub fn run_hal(args: HalArgs) -> anyhow::Result<Report> {
     }
     if args.no_gripper {
         profile.fci.gripper = false;
+    }
+    if let Some(l) = args.late_commands {
+        profile.fci.late_commands = l;
     }
     profile.validate()?;
     if profile.sim.faults.any() {

@@ -458,6 +458,13 @@ impl HalControl {
         Ok(())
     }
 
+    /// The robot applied another setpoint than ours in the last cycle (it extrapolated over a command it did not
+    /// get in time, or over states we never saw): the filter continues from the robot's (see
+    /// [`SafetyFilter::resync`]), so the next command is continuous with what the robot did.
+    pub fn resync_setpoint(&mut self, q: &[f64], v: &[f64], a: &[f64]) {
+        self.filter.resync(q, v, a);
+    }
+
     /// The HAL was asked to exit: stop following, brake the setpoint to rest (see [`Self::stopped`]).
     pub fn begin_stop(&mut self) {
         self.stopping = true;

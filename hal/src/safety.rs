@@ -147,6 +147,14 @@ impl SafetyFilter {
         self.a = [0.0; MAX_JOINTS];
     }
 
+    /// Continues from the setpoint state the robot applied (position, velocity, acceleration), where it differs
+    /// from ours: after a cycle the robot did not get our command for, it extrapolated its own.
+    pub fn resync(&mut self, q: &[f64], v: &[f64], a: &[f64]) {
+        self.q = arr(q);
+        self.v = arr(v);
+        self.a = arr(a);
+    }
+
     /// The positions joint `i` may be commanded to and rest in.
     pub fn position_range(&self, i: usize) -> (f64, f64) {
         (self.q_min[i], self.q_max[i])

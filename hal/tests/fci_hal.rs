@@ -37,7 +37,7 @@ fn error_bit(name: &str) -> u64 {
 /// The arguments that run the HAL on franka-sim.
 fn hal_args<'a>(robot: &'a str, profile: &'a str, duration_s: &'a str) -> Vec<&'a str> {
     let mut a = vec!["--profile", profile, "--robot", robot, "--backend", "fci", "--robot-ip", "127.0.0.1"];
-    a.extend(["--realtime", "ignore", "--rt-priority", "80", "--duration-s", duration_s]);
+    a.extend(["--realtime", "ignore", "--late-commands", "applied", "--rt-priority", "80", "--duration-s", duration_s]);
     a
 }
 

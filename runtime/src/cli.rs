@@ -31,6 +31,9 @@ pub struct MarsdArgs {
     /// Fault injection: every ODE step of the engine busy-waits this long (ms).
     #[arg(long)]
     pub engine_step_delay_ms: Option<f64>,
+    /// Override `watchdog.max_state_gap_ms`.
+    #[arg(long)]
+    pub max_state_gap_ms: Option<f64>,
 }
 
 pub fn init_logging() {
@@ -49,6 +52,10 @@ pub fn marsd(args: MarsdArgs) -> ExitCode {
         if let Some(d) = args.engine_step_delay_ms {
             anyhow::ensure!(d.is_finite() && d >= 0.0, "--engine-step-delay-ms must be ≥ 0, got {d}");
             cfg.faults.engine_step_delay_ms = d;
+        }
+        if let Some(g) = args.max_state_gap_ms {
+            anyhow::ensure!(g.is_finite() && g > 0.0, "--max-state-gap-ms must be a positive number of ms, got {g}");
+            cfg.watchdog.max_state_gap_ms = g;
         }
         daemon::prepare(cfg)
     })();
@@ -82,7 +89,23 @@ pub struct DemoArgs {
     pub hal_stall_at_tick: Option<u64>,
     #[arg(long, requires = "hal_stall_at_tick")]
     pub hal_stall_ms: Option<f64>,
+    /// The robot behind the HAL: the mock plant in the HAL process, or franka-sim (a MuJoCo FR3 speaking the
+    /// Franka Control Interface, started here; the HAL drives it with its fci backend, as it would a real FR3).
+    #[arg(long, value_enum, default_value_t = DemoRobot::Mock)]
+    pub backend: DemoRobot,
+    /// franka-sim's virtual environment (made by `.ci/franka-sim-venv`, which the demo runs first).
+    #[arg(long, default_value = ".venv-sim")]
+    pub franka_sim_venv: PathBuf,
 }
+
+#[derive(clap::ValueEnum, Debug, Clone, Copy, PartialEq, Eq)]
+pub enum DemoRobot {
+    Mock,
+    FrankaSim,
+}
+
+/// marsd's allowed gap between usable frames when the robot is franka-sim (ms).
+const FRANKA_SIM_STATE_GAP_MS: f64 = 100.0;
 
 /// Kills a child on drop, so a failing demo never leaves a HAL running.
 struct Reaped(Child);
@@ -112,6 +135,11 @@ pub fn demo(args: DemoArgs) -> anyhow::Result<u8> {
         Ok(report) => print!("{report}"),
         Err(e) => eprintln!("doctor: could not measure this machine: {e:#}"),
     }
+    // franka-sim first: the HAL reads the robot before anything else.
+    let _sim = match args.backend {
+        DemoRobot::Mock => None,
+        DemoRobot::FrankaSim => Some(start_franka_sim(&args.franka_sim_venv, &out)?),
+    };
     let mut hal = Command::new(&exe);
     // The HAL is a robot's own control loop: real-time, above the servo loop it shares a core with.
     hal.args(["hal", "--profile"]).arg(&cfg.profile).args([
@@ -123,7 +151,12 @@ pub fn demo(args: DemoArgs) -> anyhow::Result<u8> {
         "85",
     ]);
     if let (Some(tick), Some(ms)) = (args.hal_stall_at_tick, args.hal_stall_ms) {
+        anyhow::ensure!(args.backend == DemoRobot::Mock, "--hal-stall-at-tick injects into the mock HAL only");
         hal.args(["--stall-at-tick", &tick.to_string(), "--stall-ms", &ms.to_string()]);
+    }
+    if args.backend == DemoRobot::FrankaSim {
+        // franka-sim runs on an ordinary kernel (a real FR3 wants PREEMPT_RT: see README, "On a real FR3").
+        hal.args(["--backend", "fci", "--robot-ip", "127.0.0.1", "--realtime", "ignore", "--late-commands", "applied"]);
     }
     let mut hal = Reaped(hal.spawn().context("starting the HAL process")?);
     let watch = crate::stall_watch::StallWatch::start(&robot)?;
@@ -141,9 +174,28 @@ pub fn demo(args: DemoArgs) -> anyhow::Result<u8> {
     if let Some(d) = args.marsd.engine_step_delay_ms {
         marsd.args(["--engine-step-delay-ms", &d.to_string()]);
     }
+    // franka-sim is a Python MuJoCo loop that pauses now and then on a loaded machine (it runs at 0.6–0.9× real
+    // time); its states then come late all together, counted in its own cycles, with no command lost. A real FR3
+    // never pauses, so on a robot marsd keeps its 20 ms.
+    let gap = args.marsd.max_state_gap_ms.or((args.backend == DemoRobot::FrankaSim).then_some(FRANKA_SIM_STATE_GAP_MS));
+    if let Some(g) = gap {
+        marsd.args(["--max-state-gap-ms", &g.to_string()]);
+    }
     // marsd's log passes through this process on its way to the terminal, so the trip line can be found.
     let mut marsd = Reaped(marsd.stderr(Stdio::piped()).spawn().context("starting marsd")?);
     let log = marsd.0.stderr.take().context("marsd's stderr")?;
+    // A termination request to the demo (Ctrl-C reaches marsd too; `kill` or `timeout` only us) is passed on to
+    // marsd, which ends its episodes; the demo then stops the HAL and the simulator as after a normal run.
+    let marsd_pid = marsd.0.id() as libc::pid_t;
+    let mut signals = signal_hook::iterator::Signals::new([signal_hook::consts::SIGTERM, signal_hook::consts::SIGINT])
+        .context("registering the demo's termination handler")?;
+    let signals_handle = signals.handle();
+    let forwarder = std::thread::spawn(move || {
+        for _ in signals.forever() {
+            // SAFETY: plain kill(2) on our own child's pid (at worst already reaped: ESRCH).
+            unsafe { libc::kill(marsd_pid, libc::SIGTERM) };
+        }
+    });
     let forward = std::thread::spawn(move || {
         let mut trip_line = None;
         for line in std::io::BufReader::new(log).lines().map_while(Result::ok) {
@@ -155,6 +207,8 @@ pub fn demo(args: DemoArgs) -> anyhow::Result<u8> {
         trip_line
     });
     let status = marsd.0.wait().context("running marsd")?;
+    signals_handle.close();
+    let _ = forwarder.join();
     let trip_line = forward.join().unwrap_or(None);
     let watched = watch.finish();
     if status.code() == Some(i32::from(exit::TRIPPED)) {
@@ -169,6 +223,23 @@ pub fn demo(args: DemoArgs) -> anyhow::Result<u8> {
     }
     drop(hal);
     Ok(status.code().map_or(exit::FAILURE, |c| c as u8))
+}
+
+/// franka-sim for the demo, with the robot's reflexes on (20 lost cycles, motion limits) and a 3 cm object
+/// between the hand's fingers (the task's mug, as far as the gripper can tell), installed first if it is not.
+fn start_franka_sim(venv: &Path, out: &Path) -> anyhow::Result<mars_hal::fci::franka_sim::FrankaSim> {
+    let installer = Path::new(".ci/franka-sim-venv");
+    if !venv.join("bin/run-franka-sim-server").exists() && installer.exists() {
+        eprintln!("installing franka-sim into {} ({})", venv.display(), installer.display());
+        let ok = Command::new(installer).status().context("running .ci/franka-sim-venv")?.success();
+        anyhow::ensure!(ok, ".ci/franka-sim-venv failed: franka-sim is not installed");
+    }
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    let log = out.join("franka-sim.log");
+    let args = ["--enforce-comm-constraints", "--enforce-motion-limits", "--gripper-object-width", "0.03"];
+    let sim = mars_hal::fci::franka_sim::FrankaSim::start(venv, &args, &log, Duration::from_secs(60))?;
+    eprintln!("franka-sim listening on 127.0.0.1:{} (log {})", mars_hal::fci::franka_sim::ROBOT_PORT, log.display());
+    Ok(sim)
 }
 
 /// After a trip: if marsd stopped on a timing check, says whether this machine stalled around it, with the

@@ -242,6 +242,18 @@ impl ServoTick {
             Some(f) => self.frames.judge(f, now).is_ok(),
             None => false,
         };
+        // A frame refused for its measurements can still say that the HAL stopped following this session (a robot
+        // reflex flags the frame and holds): that is the cause to report, not the gap of usable frames after it.
+        if !usable
+            && let Some(f) = input.frame
+            && self.followed
+            && f.session == self.session
+            && f.is(status::HOLDING)
+            && self.phase != Phase::Finished
+        {
+            let reason = HoldReason::from_u32(f.hold_reason).unwrap_or(HoldReason::None);
+            self.stop_with(StopCause::Trip(Trip::HalHolding(reason)));
+        }
         if usable {
             let f = input.frame.expect("usable implies a frame");
             self.last_state = *f;

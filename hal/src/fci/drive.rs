@@ -24,10 +24,11 @@ use std::time::{Duration, Instant};
 use franka::{ControllerMode, FrankaError, JointPositions, RobotMode, RobotState};
 use tracing::{info, warn};
 
-use super::hand::Hand;
+use super::hand::{Grasp, Hand};
 use super::report::RobotLoopReport;
+use super::setpoint_sync::RobotSetpoints;
 use super::state::{JOINTS, measurement};
-use super::{Fci, Realtime, connect};
+use super::{Fci, LateCommands, Realtime, connect};
 use crate::backend::{Backend, BackendError, Measurement, RobotReport};
 use crate::gripper::GripperMove;
 use crate::profile::Profile;
@@ -134,7 +135,8 @@ pub fn run(profile: &Profile, addr: &str, opts: &RunOptions) -> anyhow::Result<R
     let fci = connect(addr, timeout)?;
     let state = fci.read_once(timeout)?;
     refuse_unless_ready(&state, addr)?;
-    let mut hand = if p.gripper { Some(Hand::start(addr, timeout, p.grasp_force_n)?) } else { None };
+    let grasp = Grasp { below_m: p.grasp_below_m, force_n: p.grasp_force_n };
+    let mut hand = if p.gripper { Some(Hand::start(addr, timeout, grasp)?) } else { None };
     let mut hal = HalLoop::start(profile, measured(&state, hand.as_ref()), opts)?;
     let recover = Arc::new(AtomicBool::new(false));
     signal_hook::flag::register(signal_hook::consts::SIGUSR1, recover.clone())?;
@@ -181,6 +183,8 @@ fn control(
     let mut done = None;
     let mut last: Option<Instant> = None;
     let mut cycles_in_motion = 0u64;
+    let mut robot_setpoints = RobotSetpoints::new();
+    let mut last_resync: Option<u64> = None;
     let result = fci.robot().control_joint_positions(
         |state, period| {
             let woke = Instant::now();
@@ -196,8 +200,19 @@ fn control(
                 let r = state.control_command_success_rate;
                 report.min_success_rate = Some(report.min_success_rate.map_or(r, |m| m.min(r)));
             }
+            // The robot's q_d is the setpoint it applied last cycle: ours, unless it extrapolated over a command it
+            // did not get or over states we never saw (see `setpoint_sync`).
+            let skipped = period.as_millis() > 1;
+            if let Some(r) = robot_setpoints.observe(&state.q_d, &state.dq_d, &state.ddq_d, skipped)
+                && profile.fci.late_commands == LateCommands::Dropped
+            {
+                hal.control.resync_setpoint(&r.q, &r.v, &r.a);
+                report.resyncs += 1;
+                last_resync = Some(report.cycles);
+            }
             let mut cycle = Cycle { state, hand: hand.as_deref_mut(), command: state.q, commanding: true };
             let next = hal.tick(&mut cycle, woke);
+            robot_setpoints.sent(cycle.command);
             let mut cmd = JointPositions::new(cycle.command);
             if let Next::End(e) = next {
                 done = Some(e);
@@ -214,7 +229,12 @@ fn control(
         (Ok(()), None) => Phase::Lost("the robot ended the motion without being asked".into()),
         (Err(FrankaError::Control(ce)), _) => {
             let reasons = ce.last_motion_errors.names();
-            Phase::Reflex(if reasons.is_empty() { ce.message.clone() } else { reasons.join(", ") })
+            let mut why = if reasons.is_empty() { ce.message.clone() } else { reasons.join(", ") };
+            // Whether the robot had just extrapolated over a lost command (the usual cause of a discontinuity).
+            if let Some(at) = last_resync {
+                why += &format!(" ({} cycles after the last setpoint resync)", report.cycles - at);
+            }
+            Phase::Reflex(why)
         }
         (Err(e), _) => Phase::Lost(e.to_string()),
     }

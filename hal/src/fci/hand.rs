@@ -1,9 +1,10 @@
 //! The Franka Hand on threads of its own: its commands block for as long as the fingers move (seconds), so the
 //! 1 kHz loop only hands a target over (a wait-free ring) and reads the last measured width (an atomic).
 //!
-//! - A *commander* thread takes the newest target: closing is a grasp (close with the profile's force until the
-//!   fingers stop; it succeeds when they stop anywhere between the target and the hand's full opening, i.e. on
-//!   an object), opening is a move. A grasp that closes on nothing is reported (a warning, a counter) and never
+//! - A *commander* thread takes the newest target: closing below `[fci] grasp_below_m` is a grasp (close with the
+//!   profile's force until the fingers stop; it succeeds when they stop between 5 mm inside the target and where
+//!   they started, i.e. on an object), sent once the target has stood still for 60 ms (a policy's closing ramp is
+//!   one grasp, not many); any other target is a move, sent at once. A grasp that closes on nothing is reported (a warning, a counter) and never
 //!   retried: the next attempt is the controller's to make.
 //! - A *reader* thread reads the hand's state stream and publishes the width.
 //!
@@ -12,13 +13,16 @@
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::thread::JoinHandle;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use franka::Gripper;
 use tracing::{info, warn};
 
 use super::error::FciError;
 use crate::gripper::GripperMove;
+
+/// How long a closing target must stay unchanged before it is grasped.
+const GRASP_SETTLE: Duration = Duration::from_millis(60);
 
 /// What the hand did, counted since start.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
@@ -57,7 +61,7 @@ fn hand_addr(robot_addr: &str) -> String {
 
 impl Hand {
     /// Connects to the hand of the robot at `robot_addr` and reads its width, both within `timeout`.
-    pub fn start(robot_addr: &str, timeout: Duration, grasp_force_n: f64) -> Result<Self, FciError> {
+    pub fn start(robot_addr: &str, timeout: Duration, grasp: Grasp) -> Result<Self, FciError> {
         let addr = hand_addr(robot_addr);
         let owned = addr.clone();
         let gripper = match super::connect::run_bounded("fci-hand-connect", timeout, move || Gripper::new(&owned)) {
@@ -99,17 +103,29 @@ impl Hand {
         let commander = std::thread::Builder::new()
             .name("fci-hand-command".into())
             .spawn(move || {
+                let mut pending: Option<(GripperMove, Instant)> = None;
+                // After a successful grasp the hand holds its object with force: a narrower target changes nothing.
+                let mut holding = false;
                 while !s.load(Ordering::Acquire) {
-                    let mut newest = None;
                     while let Ok(mv) = rx.pop() {
-                        newest = Some(mv);
+                        pending = Some((mv, Instant::now()));
                     }
-                    let Some(mv) = newest else {
+                    let Some((mv, since)) = pending else {
                         std::thread::sleep(Duration::from_millis(2));
                         continue;
                     };
                     let now = f64::from_bits(w.load(Ordering::Acquire));
-                    execute(&g, &c, mv, now, grasp_force_n);
+                    // A closing target is grasped only once it stopped moving: the steps of a closing ramp would
+                    // each be a grasp of their own (closing on nothing, fully).
+                    if grasp.is_grasp(mv.width, now) && since.elapsed() < GRASP_SETTLE {
+                        std::thread::sleep(Duration::from_millis(2));
+                        continue;
+                    }
+                    pending = None;
+                    if holding && grasp.is_grasp(mv.width, now) {
+                        continue;
+                    }
+                    holding = execute(&g, &c, mv, now, grasp);
                 }
             })
             .map_err(|source| FciError::Thread { addr: hand_addr(robot_addr), source })?;
@@ -138,14 +154,29 @@ impl Hand {
     }
 }
 
-/// Closing to `mv.width` from `now`: a grasp; anything else: a move.
-fn execute(g: &Gripper, c: &Counters, mv: GripperMove, now: f64, force: f64) {
-    if mv.width < now {
+/// When a target is a grasp, and with what force.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Grasp {
+    /// Closing targets below this width (m) are grasps.
+    pub below_m: f64,
+    pub force_n: f64,
+}
+
+impl Grasp {
+    fn is_grasp(&self, target: f64, now: f64) -> bool {
+        target < now && target < self.below_m
+    }
+}
+
+/// A grasp or a move to `mv.width` from `now` (see [`Grasp`]); whether the hand now holds an object.
+fn execute(g: &Gripper, c: &Counters, mv: GripperMove, now: f64, grasp: Grasp) -> bool {
+    let force = grasp.force_n;
+    if grasp.is_grasp(mv.width, now) {
         c.grasps.fetch_add(1, Ordering::Relaxed);
         // Success when the fingers stop anywhere from 5 mm inside the target (libfranka's default tolerance) to
-        // where they started: on an object. Closing past that means nothing was between them.
-        match g.grasp(mv.width, mv.speed, force, 0.005, (now - mv.width).max(0.005)) {
-            Ok(true) => {}
+        // 5 mm beyond where they started: on an object. Closing past that means nothing was between them.
+        match g.grasp(mv.width, mv.speed, force, 0.005, (now - mv.width).max(0.0) + 0.005) {
+            Ok(true) => return true,
             Ok(false) => {
                 c.grasp_failures.fetch_add(1, Ordering::Relaxed);
                 warn!(target = mv.width, "the Franka Hand closed on nothing (grasp failed); not retried");
@@ -165,6 +196,7 @@ fn execute(g: &Gripper, c: &Counters, mv: GripperMove, now: f64, force: f64) {
             warn!(target = mv.width, "the Franka Hand did not move: {e}");
         }
     }
+    false
 }
 
 impl Drop for Hand {
@@ -186,7 +218,15 @@ impl Drop for Hand {
 
 #[cfg(test)]
 mod tests {
-    use super::hand_addr;
+    use super::{Grasp, hand_addr};
+
+    #[test]
+    fn only_closing_targets_below_the_threshold_are_grasps() {
+        let g = Grasp { below_m: 0.05, force_n: 20.0 };
+        assert!(g.is_grasp(0.02, 0.07), "closing toward an object");
+        assert!(!g.is_grasp(0.07, 0.08), "closing to an opening is a move");
+        assert!(!g.is_grasp(0.04, 0.03), "opening is a move");
+    }
 
     #[test]
     fn the_hand_is_reached_on_the_robots_host_at_its_own_port() {

@@ -5,20 +5,22 @@
 //! the filtered setpoint out, in the same cycle), holds on a reflex and recovers only when asked; [`state`] turns
 //! a `franka::RobotState` into our measurement; [`hand`] drives the Franka Hand on threads of its own.
 //! `mars-hal fci-status` ([`status`]) reads one state and commands nothing; `mars-hal recover` ([`recover`]) clears
-//! a reflex when no HAL is running.
+//! a reflex when no HAL is running. [`franka_sim`] starts the simulator that speaks the same protocol.
 
 pub mod connect;
 pub mod drive;
 pub mod error;
+pub mod franka_sim;
 pub mod hand;
 pub mod params;
 pub mod recover;
 pub mod report;
+pub mod setpoint_sync;
 pub mod state;
 pub mod status;
 
 pub use connect::{Fci, connect};
 pub use error::FciError;
-pub use params::{FciParams, Realtime};
+pub use params::{FciParams, LateCommands, Realtime};
 pub use report::RobotLoopReport;
 pub use state::JOINTS;

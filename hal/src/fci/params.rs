@@ -14,6 +14,23 @@ pub enum Realtime {
     Ignore,
 }
 
+/// What the robot does with a command that missed its 1 ms cycle.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "snake_case")]
+pub enum LateCommands {
+    /// A real FR3: the command is dropped and the robot extrapolates its setpoint at constant acceleration for
+    /// the cycle ("If a motion generator command packet is dropped, the robot takes the previous waypoints and
+    /// performs a linear extrapolation", libfranka's docs). The HAL continues from the robot's setpoint (see
+    /// `setpoint_sync`).
+    #[default]
+    Dropped,
+    /// franka-sim 1.1.7: the late command is applied when it arrives and the extrapolation is rewound ("the robot
+    /// would have dropped it, this sim applies it", its `state_stream.py`). The HAL continues its own stream:
+    /// continuing from the extrapolation would break the simulator's history (it tripped its discontinuity
+    /// reflexes).
+    Applied,
+}
+
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct FciParams {
@@ -22,14 +39,23 @@ pub struct FciParams {
     pub realtime: Realtime,
     /// Connecting and each blocking request (the first state, an error recovery) give up after this long (s).
     pub connect_timeout_s: f64,
-    /// libfranka's rate limiter behind our own safety filter: a second guard that keeps a command from tripping
-    /// the FR3's motion-limit reflexes (our filter already keeps the same limits, so it should never act).
+    /// libfranka's rate limiter on the commands, after our safety filter. Off by default: our filter already keeps
+    /// libfranka's FR3 rules (its position-dependent velocity bounds, acceleration and jerk limits; see
+    /// `velocity_limits` and `safety`), and libfranka's limiter differentiates from the *robot's* report of the
+    /// last command, so any rounding there becomes jerk: against franka-sim, whose states are float32, it added
+    /// ~500 rad/s³ of noise and tripped the acceleration-discontinuity reflex on a stream at 90 % of the limits.
     pub limit_rate: bool,
-    /// libfranka's low-pass filter on the commanded positions (Hz); 1000 switches it off. libfranka's default.
+    /// libfranka's low-pass filter on the commanded positions (Hz); 1000 (the default) switches it off, for the
+    /// same reason, and because our setpoints are already smooth (a filter would only add lag).
     pub cutoff_hz: f64,
     /// Drive the Franka Hand (the gripper's own connection, port 1338).
     pub gripper: bool,
-    /// The force (N) of a grasp: a closing target is a grasp, an opening one a move.
+    pub late_commands: LateCommands,
+    /// A closing gripper target below this width (m) is a grasp (close with `grasp_force_n` until the fingers stop
+    /// on an object); any other target is a move (position only, no force). Between the two the Franka Hand has no
+    /// third way: a move onto an object fails, a grasp toward an opening with nothing in between closes fully.
+    pub grasp_below_m: f64,
+    /// The force (N) of a grasp.
     pub grasp_force_n: f64,
 }
 
@@ -39,9 +65,12 @@ impl Default for FciParams {
             robot_ip: None,
             realtime: Realtime::Enforce,
             connect_timeout_s: 5.0,
-            limit_rate: true,
-            cutoff_hz: 100.0,
+            limit_rate: false,
+            cutoff_hz: 1000.0,
+            late_commands: LateCommands::Dropped,
             gripper: true,
+            // Pick Cup opens to 0.07 and grasps toward 0.02: the mug's rim and handle are narrower than 5 cm.
+            grasp_below_m: 0.05,
             grasp_force_n: 20.0,
         }
     }
@@ -54,6 +83,12 @@ impl FciParams {
         }
         if !(self.cutoff_hz.is_finite() && self.cutoff_hz > 0.0 && self.cutoff_hz <= 1000.0) {
             return Err(format!("cutoff_hz = {} must be in (0, 1000] Hz (1000: off)", self.cutoff_hz));
+        }
+        if !(self.grasp_below_m.is_finite() && (0.0..=0.08).contains(&self.grasp_below_m)) {
+            return Err(format!(
+                "grasp_below_m = {} must be in [0, 0.08] m (the Franka Hand's range)",
+                self.grasp_below_m
+            ));
         }
         // The Franka Hand's continuous force range is 20–70 N (its datasheet); libfranka refuses more.
         if !(self.grasp_force_n.is_finite() && (0.0..=70.0).contains(&self.grasp_force_n)) {

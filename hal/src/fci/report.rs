@@ -8,6 +8,9 @@ pub struct RobotLoopReport {
     pub cycles: u64,
     /// States the robot sent that the loop never saw (the robot's period counted past one cycle).
     pub lost_states: u64,
+    /// Cycles in which the robot reported another setpoint than our last command (it extrapolated over a lost
+    /// one), and the filter continued from the robot's.
+    pub resyncs: u64,
     /// The robot's control command success rate: the lowest seen once 100 cycles of a motion had passed, and the
     /// last one.
     pub min_success_rate: Option<f64>,
@@ -25,10 +28,12 @@ impl std::fmt::Display for RobotLoopReport {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(
             f,
-            "  robot {}: {} cycles, {} lost states, control success rate min {} last {:.3}; {} reflexes, {} recoveries",
+            "  robot {}: {} cycles, {} lost states, {} setpoint resyncs, control success rate min {} last {:.3}; {} \
+             reflexes, {} recoveries",
             self.addr,
             self.cycles,
             self.lost_states,
+            self.resyncs,
             self.min_success_rate.map_or("n/a".to_string(), |r| format!("{r:.3}")),
             self.last_success_rate,
             self.reflexes.len(),

@@ -12,16 +12,12 @@
 //!   is killed when the handle is dropped, so a failing test leaves no simulator behind.
 
 use std::fs::{File, OpenOptions, TryLockError};
-use std::io::Read;
-use std::net::{SocketAddr, TcpStream};
-use std::os::unix::process::CommandExt;
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::process::{Command, Stdio};
 use std::sync::atomic::{AtomicU32, Ordering};
 use std::time::{Duration, Instant};
 
-/// The simulator's robot (FCI command) port: libfranka's default, so `--robot-ip 127.0.0.1` reaches it.
-pub const ROBOT_PORT: u16 = 1337;
+use mars_hal::fci::franka_sim::FrankaSim as Sim;
 
 /// How long the simulator may take to listen (MuJoCo compiles the model and settles it first: ~1 s idle, several
 /// seconds on a loaded 2-core machine).
@@ -93,16 +89,11 @@ pub fn start_pose_and_rest_mode() -> ([f64; 7], String) {
     (q, mode.strip_prefix('k').unwrap_or(mode).to_string())
 }
 
-fn robot_port_accepts() -> bool {
-    let addr = SocketAddr::from(([127, 0, 0, 1], ROBOT_PORT));
-    TcpStream::connect_timeout(&addr, Duration::from_millis(200)).is_ok()
-}
-
-/// A running franka-sim on 127.0.0.1:1337; killed (its whole process group) when dropped.
+/// A running franka-sim on 127.0.0.1:1337 (see [`mars_hal::fci::franka_sim`]), under the machine-wide simulator
+/// lock; killed when dropped.
 pub struct FrankaSim {
-    child: Child,
-    log: PathBuf,
-    /// Held while the simulator runs; released after it was killed (fields drop after `Drop::drop`).
+    sim: Option<Sim>,
+    /// Held while the simulator runs; released after it was killed (fields drop in order).
     _lock: File,
 }
 
@@ -121,90 +112,41 @@ impl FrankaSim {
     pub fn start_with(args: &[&str]) -> Self {
         let venv = venv();
         let lock = lock("mars-franka-sim.lock");
-        // Under our lock nothing of ours listens there: anything that does is a simulator or robot some other
-        // program started, which our server could not bind past (and which we would otherwise test instead).
-        assert!(
-            !robot_port_accepts(),
-            "something already listens on 127.0.0.1:{ROBOT_PORT} (a franka-sim started by hand?): stop it first"
-        );
         static N: AtomicU32 = AtomicU32::new(0);
         let log = std::env::temp_dir().join(format!(
             "mars-franka-sim-{}-{}.log",
             std::process::id(),
             N.fetch_add(1, Ordering::Relaxed)
         ));
-        let out = File::create(&log).unwrap_or_else(|e| panic!("{}: {e}", log.display()));
-        let child = Command::new(venv.join("bin/run-franka-sim-server"))
-            .args(args)
-            .env("FR3_MJCF", venv.join("fr3.xml"))
-            .stdin(Stdio::null())
-            .stdout(out.try_clone().unwrap())
-            .stderr(out)
-            // Its own process group, so Drop can signal everything it started, and a Ctrl-C aimed at the test run
-            // reaches it only through our Drop.
-            .process_group(0)
-            .spawn()
-            .unwrap_or_else(|e| panic!("starting run-franka-sim-server: {e}"));
-        // From here a panic drops `sim`, which kills the server.
-        let mut sim = FrankaSim { child, log, _lock: lock };
         let start = Instant::now();
-        loop {
-            if let Some(status) = sim.child.try_wait().unwrap() {
-                panic!("franka-sim exited ({status}) before listening; its log:\n{}", sim.log_text());
-            }
-            if robot_port_accepts() {
-                eprintln!(
-                    "franka-sim listening after {:.1} s (log {})",
-                    start.elapsed().as_secs_f64(),
-                    sim.log.display()
-                );
-                return sim;
-            }
-            assert!(
-                start.elapsed() < START_TIMEOUT,
-                "franka-sim did not listen on {ROBOT_PORT} within {START_TIMEOUT:?}; its log:\n{}",
-                sim.log_text()
-            );
-            std::thread::sleep(Duration::from_millis(100));
-        }
+        let sim = Sim::start(&venv, args, &log, START_TIMEOUT).unwrap_or_else(|e| panic!("{e:#}"));
+        eprintln!("franka-sim listening after {:.1} s (log {})", start.elapsed().as_secs_f64(), log.display());
+        FrankaSim { sim: Some(sim), _lock: lock }
     }
 
     /// Everything the server wrote so far.
     pub fn log_text(&self) -> String {
-        let mut s = String::new();
-        let _ = File::open(&self.log).and_then(|mut f| f.read_to_string(&mut s));
-        s
+        self.sim.as_ref().map(Sim::log_text).unwrap_or_default()
     }
-}
 
-impl FrankaSim {
     /// Kills the server at once (SIGKILL to its group), like a robot losing power or its network.
     pub fn kill_now(&mut self) {
-        // SAFETY: kill(2) with a negative pid signals that process group; no memory is involved.
-        unsafe { libc::kill(-(self.child.id() as i32), libc::SIGKILL) };
-        let _ = self.child.wait();
+        if let Some(sim) = self.sim.as_mut() {
+            sim.kill_now();
+        }
     }
 }
 
 impl Drop for FrankaSim {
     fn drop(&mut self) {
-        let group = -(self.child.id() as i32);
-        // SIGTERM first (the server shuts down cleanly and frees its ports), SIGKILL if it has not within 5 s; then
-        // SIGKILL whatever else is left in its group.
-        // SAFETY: kill(2) with a negative pid signals that process group; no memory is involved.
-        unsafe { libc::kill(group, libc::SIGTERM) };
-        let end = Instant::now() + Duration::from_secs(5);
-        while Instant::now() < end && matches!(self.child.try_wait(), Ok(None)) {
-            std::thread::sleep(Duration::from_millis(20));
-        }
-        // SAFETY: as above; ESRCH (nothing left) is fine.
-        unsafe { libc::kill(group, libc::SIGKILL) };
-        let _ = self.child.wait();
+        let Some(sim) = self.sim.take() else { return };
+        let log = sim.log_path().to_path_buf();
+        drop(sim);
         // A failing test keeps the simulator's log for the reader (it says why a reflex fired).
         if std::thread::panicking() {
-            eprintln!("franka-sim's log kept: {}", self.log.display());
+            eprintln!("franka-sim's log kept: {}", log.display());
         } else {
-            let _ = std::fs::remove_file(&self.log);
+            let _ = std::fs::remove_file(&log);
         }
     }
 }

@@ -195,10 +195,13 @@ fn run_policy(args: &BenchArgs, name: &str, robot: &str) -> PolicyRun {
             out: Some(dir.clone()),
             checkpoint: Some(checkpoint.clone()),
             engine_step_delay_ms: None,
+            max_state_gap_ms: None,
         },
         hal_core: args.hal_core.unwrap_or_else(demo_hal_core),
         hal_stall_at_tick: None,
         hal_stall_ms: None,
+        backend: crate::cli::DemoRobot::Mock,
+        franka_sim_venv: ".venv-sim".into(),
     };
     let probe = LoadProbe::start();
     let teed = tee_stderr(|| crate::cli::demo(demo));
