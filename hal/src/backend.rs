@@ -11,12 +11,14 @@
 //! ([`mars_ipc::HoldReason::HalError`]), and goes on; only a [`BackendError::Fatal`] ends the process, and only
 //! once the setpoint is at rest.
 //!
-//! What a real backend would have to do:
-//! - **FR3 over FCI (libfranka)**: libfranka owns the 1 kHz loop (`Robot::control` calls back once per packet),
-//!   so the backend would run the HAL tick inside that callback: `read` from `franka::RobotState` (`q`, `dq`,
-//!   `tau_J`, gripper width from `franka::Gripper` on its own thread), `apply` by returning
-//!   `franka::JointPositions`; a `franka::ControlException` (reflex, communication lost) maps to a backend
-//!   fault, after which the HAL holds and the robot needs `automaticErrorRecovery` before a new session.
+//! The backends:
+//! - [`crate::sim::SimBackend`], the HIL mock plant, paced by the HAL's own timer ([`crate::runner::run`]).
+//! - **FR3 over FCI** ([`crate::fci::drive`]): the robot owns the 1 kHz loop (franka-rs calls back once per state),
+//!   so the HAL tick runs inside that callback with a backend whose `read` is the state just received and whose
+//!   `apply` fills the command the callback returns; a `ControlException` (reflex) ends the motion, and the HAL
+//!   holds until a recovery is asked for.
+//!
+//! What the next one would have to do:
 //! - **R1 Lite over ROS 2**: subscribe to `/hdas/feedback_arm_right` (`sensor_msgs/JointState`) for `read`,
 //!   publish the setpoint on `/motion_target/target_joint_state_arm_right` for `apply`, with the HAL loop timed
 //!   by the profile rate; a feedback topic older than the command timeout is a fault.

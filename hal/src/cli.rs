@@ -46,6 +46,9 @@ pub struct HalArgs {
     /// fci: drive no Franka Hand (the gripper width reads 0); overrides `[fci] gripper`.
     #[arg(long)]
     pub no_gripper: bool,
+    /// Also write the exit report as JSON to this file (timing quantiles, counters, the robot's side).
+    #[arg(long)]
+    pub report_json: Option<PathBuf>,
     #[command(flatten)]
     pub faults: FaultArgs,
 }
@@ -233,16 +236,23 @@ pub fn run_hal(args: HalArgs) -> anyhow::Result<Report> {
         // A real robot is released only at rest; the sim ends at once (its tests count on it).
         brake_before_exit: profile.backend == BackendKind::Fci,
     };
-    match profile.backend {
-        BackendKind::Sim => run(&profile, &mut SimBackend::new(&profile), &opts),
+    let report = match profile.backend {
+        BackendKind::Sim => run(&profile, &mut SimBackend::new(&profile), &opts)?,
         BackendKind::Fci => {
             anyhow::ensure!(!profile.sim.faults.any(), "fault injection is a sim backend feature; not with fci");
             let Some(addr) = profile.fci.robot_ip.clone() else {
                 anyhow::bail!("backend fci needs the robot's address: --robot-ip or [fci] robot_ip in the profile");
             };
-            crate::fci::drive::run(&profile, &addr, &opts)
+            crate::fci::drive::run(&profile, &addr, &opts)?
         }
+    };
+    // The run is over and the arm at rest: a file that cannot be written costs only the file.
+    if let Some(path) = &args.report_json
+        && let Err(e) = crate::report_json::write(&report, path)
+    {
+        tracing::warn!("could not write the JSON report: {e:#}");
     }
+    Ok(report)
 }
 
 /// Prints the outcome of [`run_hal`] and returns the process's exit status: 0 after a duration or a termination

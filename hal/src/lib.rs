@@ -14,6 +14,7 @@ pub mod fault;
 pub mod fci;
 pub mod gripper;
 pub mod profile;
+pub mod report_json;
 pub mod runner;
 pub mod safety;
 pub mod session;

@@ -31,21 +31,6 @@ fn braking_ms(v: f64, a: f64) -> f64 {
     1e3 * (v / a + 2.0 * a / 5000.0)
 }
 
-/// Generous: the first start may include iceoryx2 setup and the checkpoint's warm-up on a loaded machine.
-const START: Duration = Duration::from_secs(30);
-
-fn hold_reason(s: &RobotState) -> Option<HoldReason> {
-    HoldReason::from_u32(s.hold_reason)
-}
-
-/// Starts the HAL and waits for its first frame (so marsd never races the HAL's service creation).
-fn hal_with_recorder(robot: &str, extra: &[&str], logs: &TempDir) -> (Proc, Recorder) {
-    let rec = Recorder::start(robot);
-    let hal = spawn_hal(robot, extra, logs);
-    rec.expect_state("the HAL's first state frame", 0, START, |_| true);
-    (hal, rec)
-}
-
 /// The session id marsd used: the only non-zero session in the frames, and in every command.
 fn marsd_session(r: &Recorded) -> u64 {
     let sessions: std::collections::BTreeSet<u64> =
@@ -54,17 +39,6 @@ fn marsd_session(r: &Recorded) -> u64 {
     let s = *sessions.first().unwrap();
     assert!(r.commands.iter().all(|(c, _)| c.session == s), "a command of another session");
     s
-}
-
-fn assert_limits(r: &Recorded, lim: &Limits, what: &str) -> AppliedStats {
-    let st = check_applied(&r.states, lim, in_session).unwrap_or_else(|e| panic!("{what}: applied stream: {e}"));
-    let checked = check_commands(&r.commands, lim).unwrap_or_else(|e| panic!("{what}: command stream: {e}"));
-    eprintln!(
-        "{what}: {} session frames ({} jerk samples; max |v|/v_max {:.3}, |a|/a_max {:.3}, |j|/j_max {:.3}), \
-         {checked} commands checked, all within limits",
-        st.frames, st.jerk_samples, st.max_ratio[0], st.max_ratio[1], st.max_ratio[2]
-    );
-    st
 }
 
 /// Whether a failed run is explained by a stall of the machine rather than by marsd, with the evidence tied to

@@ -25,6 +25,7 @@ use franka::{ControllerMode, FrankaError, JointPositions, RobotMode, RobotState}
 use tracing::{info, warn};
 
 use super::hand::{Grasp, Hand};
+use super::recent_cycles::{CycleRecord, RecentCycles};
 use super::report::RobotLoopReport;
 use super::setpoint_sync::RobotSetpoints;
 use super::state::{JOINTS, measurement};
@@ -183,8 +184,9 @@ fn control(
     let mut done = None;
     let mut last: Option<Instant> = None;
     let mut cycles_in_motion = 0u64;
-    let mut robot_setpoints = RobotSetpoints::new();
-    let mut last_resync: Option<u64> = None;
+    let mut robot_setpoints = RobotSetpoints::new(profile.fci.late_commands == LateCommands::Applied);
+    let mut last_resync: Option<(u64, u64)> = None;
+    let mut recent = RecentCycles::<8>::default();
     let result = fci.robot().control_joint_positions(
         |state, period| {
             let woke = Instant::now();
@@ -202,17 +204,24 @@ fn control(
             }
             // The robot's q_d is the setpoint it applied last cycle: ours, unless it extrapolated over a command it
             // did not get or over states we never saw (see `setpoint_sync`).
-            let skipped = period.as_millis() > 1;
-            if let Some(r) = robot_setpoints.observe(&state.q_d, &state.dq_d, &state.ddq_d, skipped)
-                && profile.fci.late_commands == LateCommands::Dropped
-            {
+            let missed = period.as_millis().saturating_sub(1);
+            let resync = robot_setpoints.observe(&state.q_d, &state.dq_d, &state.ddq_d, missed);
+            if let Some(r) = resync {
                 hal.control.resync_setpoint(&r.q, &r.v, &r.a);
                 report.resyncs += 1;
-                last_resync = Some(report.cycles);
+                last_resync = Some((report.cycles, missed));
             }
             let mut cycle = Cycle { state, hand: hand.as_deref_mut(), command: state.q, commanding: true };
             let next = hal.tick(&mut cycle, woke);
             robot_setpoints.sent(cycle.command);
+            recent.push(CycleRecord {
+                period_ms: period.as_millis(),
+                q_d: state.q_d,
+                dq_d: state.dq_d,
+                ddq_d: state.ddq_d,
+                sent: cycle.command,
+                resynced: resync.is_some(),
+            });
             let mut cmd = JointPositions::new(cycle.command);
             if let Next::End(e) = next {
                 done = Some(e);
@@ -231,9 +240,20 @@ fn control(
             let reasons = ce.last_motion_errors.names();
             let mut why = if reasons.is_empty() { ce.message.clone() } else { reasons.join(", ") };
             // Whether the robot had just extrapolated over a lost command (the usual cause of a discontinuity).
-            if let Some(at) = last_resync {
-                why += &format!(" ({} cycles after the last setpoint resync)", report.cycles - at);
+            if let (Some((at, missed)), Some(from)) = (last_resync, robot_setpoints.last_from) {
+                why += &format!(
+                    " ({} cycles after the last setpoint resync, over {missed} unseen states, from {from:?})",
+                    report.cycles - at
+                );
             }
+            // The cycles before it, for the joint our last commands moved fastest (a discontinuity is usually there).
+            let joint = (0..JOINTS)
+                .max_by(|&a, &b| {
+                    let speed = |j: usize| recent.iter().map(|c| c.dq_d[j].abs()).fold(0.0, f64::max);
+                    speed(a).total_cmp(&speed(b))
+                })
+                .unwrap_or(0);
+            warn!("the last cycles before the reflex, joint {}:{}", joint + 1, recent.describe(joint));
             Phase::Reflex(why)
         }
         (Err(e), _) => Phase::Lost(e.to_string()),

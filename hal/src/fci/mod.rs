@@ -13,6 +13,7 @@ pub mod error;
 pub mod franka_sim;
 pub mod hand;
 pub mod params;
+pub mod recent_cycles;
 pub mod recover;
 pub mod report;
 pub mod setpoint_sync;

@@ -1,15 +1,23 @@
 //! Keeping the HAL's setpoint continuous with what the robot actually applied.
 //!
-//! When a command does not reach the robot in its cycle (or we never see a state), the robot extrapolates its
-//! own setpoint at constant acceleration ("a linear extrapolation ... for the missed time step", libfranka's
-//! `docs/system_requirements.rst`) and reports it as `q_d`. Our next command, continuing a trajectory whose
-//! acceleration changed meanwhile, then differs from the extrapolation by about jerk·dt³, which the robot's
-//! differencing reads as a step in acceleration: with marsd planning at 90 % of the limits it tripped franka-sim's
-//! velocity-discontinuity reflex. libfranka's rate limiter avoids this by always continuing from the robot's
-//! reported `q_d`/`dq_d`/`ddq_d`; but those are rounded (franka-sim sends float32), and continuing from a rounded
-//! position every cycle is itself ~500 rad/s³ of jerk noise. So the HAL continues from the robot only when the
-//! robot applied something else, and then from the robot's *applied positions* differenced exactly as the robot
-//! differences them, our own exact values wherever the robot applied them.
+//! The robot judges each command by backward differences against its own history: the setpoint it applied last
+//! and that setpoint's velocity and acceleration. When a command does not reach it in its cycle (or we never see a
+//! state), the robot extrapolates that history at constant acceleration (`v += a·dt; q += v·dt`; "a linear
+//! extrapolation ... for the missed time step", libfranka's `docs/system_requirements.rst`), and our next command,
+//! continuing a trajectory whose acceleration changed meanwhile, reads as a step in acceleration. libfranka's rate
+//! limiter avoids this by always continuing from the robot's reported `q_d`/`dq_d`/`ddq_d`; but those arrive
+//! rounded (franka-sim sends float32), and continuing from a rounded position every cycle is itself ~500 rad/s³
+//! of jerk noise. So this module keeps a model of the robot's history, advanced in double precision from the
+//! exact commands it applied (ours), and the HAL continues from the model only when the robot applied something
+//! else than our last command; `q_d` says which of the possible histories happened.
+//!
+//! Two robots differ in what they do with a command that missed its cycle:
+//! - **dropped** (a real FR3): the extrapolation stands; the command never existed.
+//! - **applied** (franka-sim): the command replaces the robot's guesses once it arrives, and is differenced over
+//!   the cycles since the last command recorded. After states we never saw, that interval spans the unseen
+//!   cycles too, and the robot's velocity there is the interval's mean: our next command, differenced over one
+//!   cycle against it, read as 1.5× our acceleration (measured: 9.5 rad/s² planned, 14.25 judged, a reflex). The
+//!   model does the same arithmetic, so the filter continues from the history the robot will judge against.
 
 use super::state::JOINTS;
 
@@ -28,17 +36,81 @@ pub struct Resync {
     pub a: [f64; JOINTS],
 }
 
-/// The robot's applied setpoints of its last three cycles (oldest first), and our last command.
-#[derive(Debug, Default)]
+/// Where a resync continued from (kept for the reflex report).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ResyncFrom {
+    /// Our last command applied, then this many cycles extrapolated by the robot.
+    OursThenExtrapolated(u64),
+    /// Our last command lost (dropped), and this many cycles extrapolated by the robot.
+    LostThenExtrapolated(u64),
+    /// Our last command applied late, differenced over this many cycles (the unseen ones before it included).
+    LateOverCycles(u64),
+    /// The robot's own reported `q_d`, `dq_d`, `ddq_d` (float32, as received).
+    RobotReport,
+}
+
+/// The robot's differencing history: its last applied setpoint and that setpoint's backward differences.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct History {
+    q: [f64; JOINTS],
+    v: [f64; JOINTS],
+    a: [f64; JOINTS],
+}
+
+impl History {
+    /// `c` applied, `cycles` after the last applied setpoint.
+    fn record(&mut self, c: &[f64; JOINTS], cycles: u64) {
+        let step = cycles as f64 * DT;
+        for (j, &c) in c.iter().enumerate() {
+            let v = (c - self.q[j]) / step;
+            self.a[j] = (v - self.v[j]) / step;
+            self.v[j] = v;
+            self.q[j] = c;
+        }
+    }
+
+    /// One cycle extrapolated at constant acceleration (franka-sim's law, in its order of operations).
+    fn extrapolate(&mut self) {
+        for j in 0..JOINTS {
+            self.q[j] += (self.v[j] + self.a[j] * DT) * DT;
+            self.v[j] += self.a[j] * DT;
+        }
+    }
+
+    fn extrapolated(mut self, cycles: u64) -> Self {
+        for _ in 0..cycles {
+            self.extrapolate();
+        }
+        self
+    }
+
+    fn resync(&self) -> Resync {
+        Resync { q: self.q, v: self.v, a: self.a }
+    }
+}
+
+/// A gap longer than this is not reconstructed: the robot's communication reflex fires at 20 lost cycles (and
+/// franka-sim stops extrapolating there).
+const MAX_RECONSTRUCTED_CYCLES: u64 = 19;
+
+/// The model of the robot's history, and our last command.
+#[derive(Debug)]
 pub struct RobotSetpoints {
-    applied: Vec<[f64; JOINTS]>,
+    history: Option<History>,
     sent: Option<[f64; JOINTS]>,
+    /// The robot applies a command that missed its cycle once it arrives (franka-sim); a real FR3 drops it.
+    late_commands_applied: bool,
+    /// Applied mode, after unseen states: the history at our last command before them, and the cycles from it to
+    /// our first command after them, over which the robot differences that command when it replaces the robot's
+    /// guesses of the gap (that command came late, or our last one before the gap did: both rewind the guesses).
+    before_gap: Option<(History, u64)>,
+    /// How the last resync was made.
+    pub last_from: Option<ResyncFrom>,
 }
 
 impl RobotSetpoints {
-    pub fn new() -> Self {
-        // Capacity 4: pushing the fourth before dropping the first never reallocates.
-        Self { applied: Vec::with_capacity(4), sent: None }
+    pub fn new(late_commands_applied: bool) -> Self {
+        Self { history: None, sent: None, late_commands_applied, before_gap: None, last_from: None }
     }
 
     /// Our command for this cycle.
@@ -47,110 +119,250 @@ impl RobotSetpoints {
     }
 
     /// One state: `q_d`, `dq_d`, `ddq_d` (the setpoint applied last cycle and the robot's derivatives of it) and
-    /// whether states were skipped since the last one. Returns where to continue from when the robot applied
-    /// something else than our last command.
+    /// how many states came between it and the last one we saw. Returns where to continue from when the robot
+    /// applied something else than our last command.
     pub fn observe(
         &mut self,
         q_d: &[f64; JOINTS],
         dq_d: &[f64; JOINTS],
         ddq_d: &[f64; JOINTS],
-        skipped: bool,
+        missed_states: u64,
     ) -> Option<Resync> {
-        let sent = self.sent.take();
-        let matched = sent.filter(|s| s.iter().zip(q_d).all(|(a, b)| (a - b).abs() <= RESYNC_RAD));
-        if skipped {
-            // The cycles between are unknown: no differences across them.
-            self.applied.clear();
-        }
-        if self.applied.len() == 3 {
-            self.applied.remove(0);
-        }
-        self.applied.push(matched.unwrap_or(*q_d));
-        if matched.is_some() || sent.is_none() {
-            return None;
-        }
-        if let [q0, q1, q2] = self.applied[..] {
-            let mut r = Resync { q: q2, v: [0.0; JOINTS], a: [0.0; JOINTS] };
-            for j in 0..JOINTS {
-                r.v[j] = (q2[j] - q1[j]) / DT;
-                r.a[j] = (r.v[j] - (q1[j] - q0[j]) / DT) / DT;
+        let reported = History { q: *q_d, v: *dq_d, a: *ddq_d };
+        let (Some(h), Some(s)) = (self.history, self.sent.take()) else {
+            // The motion's first state (the robot's history is what it reports), or one we did not answer.
+            self.history = Some(reported);
+            return (missed_states > 0).then(|| self.continue_from(reported, ResyncFrom::RobotReport));
+        };
+        let mut ours = h;
+        ours.record(&s, 1);
+        let before_gap = self.before_gap.take();
+        if missed_states == 0 {
+            if let Some((mut b, cycles)) = before_gap {
+                // Our first command after unseen states: recorded one cycle after the robot's guesses of the gap, or
+                // replacing them, differenced over the whole interval from our last command before them. Which one
+                // the robot's reported velocity tells (its published derivatives are its history's): the two differ
+                // by half a cycle of acceleration, far above float32 rounding whenever it matters.
+                b.record(&s, cycles);
+                let replaced = !within(&s, q_d) || distance(&b.v, dq_d) < distance(&ours.v, dq_d);
+                if replaced {
+                    return Some(self.continue_from(b, ResyncFrom::LateOverCycles(cycles)));
+                }
             }
-            Some(r)
-        } else {
-            Some(Resync { q: *q_d, v: *dq_d, a: *ddq_d })
+            if within(&s, q_d) || self.late_commands_applied {
+                // Applied on time; or late (applied mode), replacing the robot's one guess one cycle after ours.
+                self.history = Some(ours);
+                return None;
+            }
+            // Dropped: the robot extrapolated over our lost command.
+            let lost = h.extrapolated(1);
+            let from = ResyncFrom::LostThenExtrapolated(1);
+            return Some(if within(&lost.q, q_d) { self.continue_from(lost, from) } else { self.robot(reported) });
         }
+        if missed_states > MAX_RECONSTRUCTED_CYCLES {
+            return Some(self.robot(reported));
+        }
+        // States we never saw: our last command applied, then one extrapolated cycle per unseen state.
+        let gap = ours.extrapolated(missed_states);
+        if self.late_commands_applied || within(&gap.q, q_d) {
+            if self.late_commands_applied {
+                // Which history the robot keeps shows once our next command is in (see `before_gap`); until then
+                // the gap's guesses are where a smooth continuation goes either way.
+                self.before_gap = Some((ours, missed_states + 1));
+            }
+            let at_rest = gap.q == s && gap.v.iter().chain(&gap.a).all(|&x| x == 0.0);
+            if at_rest {
+                self.history = Some(gap);
+                return None;
+            }
+            return Some(self.continue_from(gap, ResyncFrom::OursThenExtrapolated(missed_states)));
+        }
+        // Dropped: our last command was lost too.
+        let lost = h.extrapolated(missed_states + 1);
+        let from = ResyncFrom::LostThenExtrapolated(missed_states + 1);
+        Some(if within(&lost.q, q_d) { self.continue_from(lost, from) } else { self.robot(reported) })
     }
+
+    fn continue_from(&mut self, h: History, from: ResyncFrom) -> Resync {
+        self.history = Some(h);
+        self.last_from = Some(from);
+        h.resync()
+    }
+
+    /// What the robot applied cannot be reconstructed (a longer gap): its own report, rounded as it is.
+    fn robot(&mut self, reported: History) -> Resync {
+        self.continue_from(reported, ResyncFrom::RobotReport)
+    }
+}
+
+/// The largest difference between two joint vectors.
+fn distance(a: &[f64; JOINTS], b: &[f64; JOINTS]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0, f64::max)
+}
+
+/// Whether the robot's reported setpoint is ours, up to its rounding.
+fn within(ours: &[f64; JOINTS], reported: &[f64; JOINTS]) -> bool {
+    ours.iter().zip(reported).all(|(a, b)| (a - b).abs() <= RESYNC_RAD)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
 
+    const ZERO: [f64; JOINTS] = [0.0; JOINTS];
+
     /// A joint-1 trajectory with jerk 4500 rad/s³ from rest: the command of cycle k.
-    fn traj(k: usize) -> [f64; JOINTS] {
+    fn traj(k: u64) -> [f64; JOINTS] {
         let t = k as f64 * DT;
         let mut q = [0.5; JOINTS];
         q[0] = 0.5 + 4500.0 * t * t * t / 6.0;
         q
     }
 
-    /// The robot's constant-acceleration extrapolation after cycles k−2, k−1 (as franka-sim does it).
-    fn extrapolated(k: usize) -> [f64; JOINTS] {
-        let (q0, q1, q2) = (traj(k - 3), traj(k - 2), traj(k - 1));
-        let mut e = q2;
-        for j in 0..JOINTS {
-            let v = (q2[j] - q1[j]) / DT;
-            let a = (v - (q1[j] - q0[j]) / DT) / DT;
-            e[j] = q2[j] + (v + a * DT) * DT;
+    /// Commands 0..n sent and applied in time, each reported back rounded to float32.
+    fn applied_until(n: u64, late_applied: bool) -> RobotSetpoints {
+        let mut s = RobotSetpoints::new(late_applied);
+        s.observe(&traj(0), &ZERO, &ZERO, 0);
+        for k in 1..n {
+            s.sent(traj(k));
+            assert_eq!(s.observe(&traj(k).map(|q| q as f32 as f64), &ZERO, &ZERO, 0), None, "cycle {k}");
         }
-        e
+        s
+    }
+
+    /// The robot's history after commands 0..=k applied in time.
+    fn history_at(k: u64) -> History {
+        let mut h = History { q: traj(0), v: ZERO, a: ZERO };
+        for i in 1..=k {
+            h.record(&traj(i), 1);
+        }
+        h
     }
 
     #[test]
     fn a_command_the_robot_applied_needs_no_resync_even_rounded_to_float32() {
-        let mut s = RobotSetpoints::new();
-        let zero = [0.0; JOINTS];
-        for k in 0..10 {
-            s.sent(traj(k));
-            let reported = traj(k).map(|q| q as f32 as f64);
-            assert_eq!(s.observe(&reported, &zero, &zero, false), None, "cycle {k}");
-        }
+        let s = applied_until(20, false);
+        assert_eq!(s.history, Some(history_at(19)));
+        assert_eq!(s.last_from, None);
     }
 
     #[test]
-    fn after_a_lost_command_it_continues_from_the_extrapolation_differenced_like_the_robot() {
-        let mut s = RobotSetpoints::new();
-        let zero = [0.0; JOINTS];
-        for k in 0..10 {
-            s.sent(traj(k));
-            assert_eq!(s.observe(&traj(k), &zero, &zero, false), None);
-        }
-        // Command 10 is lost: the robot reports its extrapolation, and a velocity one cycle stale (what the
-        // HAL must not take).
+    fn dropped_a_lost_command_continues_from_the_robots_extrapolation() {
+        let mut s = applied_until(10, false);
         s.sent(traj(10));
-        let e = extrapolated(10);
-        let stale = [9.0; JOINTS];
-        let r = s.observe(&e, &stale, &stale, false).expect("a resync");
-        assert_eq!(r.q, e);
-        let v = (e[0] - traj(9)[0]) / DT;
-        let a = (v - (traj(9)[0] - traj(8)[0]) / DT) / DT;
-        assert!((r.v[0] - v).abs() < 1e-9 && (r.a[0] - a).abs() < 1e-6, "{r:?}");
-        // The extrapolation kept the acceleration of the last two real commands.
-        let a_before = ((traj(9)[0] - traj(8)[0]) - (traj(8)[0] - traj(7)[0])) / (DT * DT);
-        assert!((r.a[0] - a_before).abs() < 1e-6, "{} vs {a_before}", r.a[0]);
+        let e = history_at(9).extrapolated(1);
+        let r = s.observe(&e.q.map(|q| q as f32 as f64), &[9.0; JOINTS], &[9.0; JOINTS], 0).expect("a resync");
+        assert_eq!(r, e.resync(), "exact, not differenced from the rounded report nor the robot's dq_d/ddq_d");
+        assert_eq!(s.last_from, Some(ResyncFrom::LostThenExtrapolated(1)));
     }
 
     #[test]
-    fn after_skipped_states_it_takes_the_robots_own_derivatives() {
-        let mut s = RobotSetpoints::new();
-        let zero = [0.0; JOINTS];
-        for k in 0..5 {
-            s.sent(traj(k));
-            s.observe(&traj(k), &zero, &zero, false);
+    fn over_an_unseen_state_it_continues_from_our_command_extrapolated_exactly() {
+        for late_applied in [false, true] {
+            let mut s = applied_until(10, late_applied);
+            s.sent(traj(10));
+            let e = history_at(10).extrapolated(1);
+            let r = s.observe(&e.q.map(|q| q as f32 as f64), &ZERO, &ZERO, 1).expect("a resync");
+            assert_eq!(r, e.resync());
+            assert_eq!(s.last_from, Some(ResyncFrom::OursThenExtrapolated(1)));
         }
+    }
+
+    #[test]
+    fn dropped_over_an_unseen_state_after_a_lost_command_too() {
+        let mut s = applied_until(10, false);
+        s.sent(traj(10));
+        let e = history_at(9).extrapolated(2);
+        assert_eq!(s.observe(&e.q, &ZERO, &ZERO, 1), Some(e.resync()));
+        assert_eq!(s.last_from, Some(ResyncFrom::LostThenExtrapolated(2)));
+    }
+
+    #[test]
+    fn what_cannot_be_reconstructed_comes_from_the_robots_report() {
+        let mut s = applied_until(5, false);
         s.sent(traj(5));
         let (dq, ddq) = ([0.1; JOINTS], [0.2; JOINTS]);
-        let r = s.observe(&traj(7), &dq, &ddq, true).expect("a resync");
-        assert_eq!((r.q, r.v, r.a), (traj(7), dq, ddq));
+        let r = s.observe(&traj(30), &dq, &ddq, 20).expect("a resync");
+        assert_eq!((r.q, r.v, r.a), (traj(30), dq, ddq));
+        assert_eq!(s.last_from, Some(ResyncFrom::RobotReport));
+    }
+
+    #[test]
+    fn an_unseen_state_at_rest_needs_no_resync() {
+        let mut s = RobotSetpoints::new(false);
+        let rest = [0.3; JOINTS];
+        s.observe(&rest, &ZERO, &ZERO, 0);
+        for _ in 0..5 {
+            s.sent(rest);
+            assert_eq!(s.observe(&rest, &ZERO, &ZERO, 0), None);
+        }
+        s.sent(rest);
+        assert_eq!(s.observe(&rest, &ZERO, &ZERO, 1), None);
+    }
+
+    #[test]
+    fn applied_a_lone_late_command_needs_no_resync() {
+        let mut s = applied_until(10, true);
+        // franka-sim reports its guess, then replaces it with our late command: nothing to continue from.
+        s.sent(traj(10));
+        assert_eq!(s.observe(&history_at(9).extrapolated(1).q, &ZERO, &ZERO, 0), None);
+        s.sent(traj(11));
+        assert_eq!(s.observe(&traj(11), &ZERO, &ZERO, 0), None);
+        assert_eq!(s.history, Some(history_at(11)));
+    }
+
+    /// The reflex this module was measured against: a 2 ms stall of the HAL, then our first command after it late.
+    #[test]
+    fn applied_a_late_command_after_an_unseen_state_is_differenced_over_both_cycles() {
+        let mut s = applied_until(10, true);
+        s.sent(traj(9 + 1));
+        let gap = history_at(10).extrapolated(1);
+        s.observe(&gap.q, &ZERO, &ZERO, 1).expect("the resync over the unseen state");
+        // We continue from the gap's history and send c1; the robot has not read it when it publishes the next state
+        // (q_d shows its second guess), and will record it over two cycles from our command 10.
+        let c1 = traj(12);
+        s.sent(c1);
+        let r = s.observe(&gap.extrapolated(1).q, &ZERO, &ZERO, 0).expect("a resync");
+        let mut robot = history_at(10);
+        robot.record(&c1, 2);
+        assert_eq!(r, robot.resync());
+        assert_eq!(s.last_from, Some(ResyncFrom::LateOverCycles(2)));
+        // The robot's velocity there is the two cycles' mean, below our own at c1 by half a cycle of acceleration.
+        let ours_v = (traj(12)[0] - traj(11)[0]) / DT;
+        assert!(r.v[0] < ours_v, "{} vs {ours_v}", r.v[0]);
+    }
+
+    /// Measured too: our last command before the gap came late itself (`q_d` shows the robot's two guesses); it
+    /// replaces them when it arrives, so our next command is differenced over both cycles even when on time.
+    #[test]
+    fn applied_a_late_command_before_an_unseen_state_makes_the_next_differenced_over_both_cycles() {
+        let mut s = applied_until(10, true);
+        s.sent(traj(10));
+        let guesses = history_at(9).extrapolated(2);
+        let gap = history_at(10).extrapolated(1);
+        assert_eq!(s.observe(&guesses.q, &ZERO, &ZERO, 1), Some(gap.resync()));
+        let c1 = traj(12);
+        s.sent(c1);
+        let mut robot = history_at(10);
+        robot.record(&c1, 2);
+        let r = s.observe(&c1, &robot.v.map(|v| v as f32 as f64), &ZERO, 0).expect("a resync although c1 was on time");
+        assert_eq!(r, robot.resync());
+        // And on from there as usual.
+        s.sent(traj(13));
+        assert_eq!(s.observe(&traj(13), &ZERO, &ZERO, 0), None);
+    }
+
+    #[test]
+    fn applied_an_on_time_command_after_an_unseen_state_keeps_the_robots_guess() {
+        let mut s = applied_until(10, true);
+        s.sent(traj(10));
+        let gap = history_at(10).extrapolated(1);
+        s.observe(&gap.q, &ZERO, &ZERO, 1).expect("the resync over the unseen state");
+        let c1 = traj(12);
+        s.sent(c1);
+        let mut robot = gap;
+        robot.record(&c1, 1);
+        assert_eq!(s.observe(&c1, &robot.v.map(|v| v as f32 as f64), &ZERO, 0), None);
+        assert_eq!(s.history, Some(robot));
     }
 }

@@ -18,7 +18,7 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use mars_ipc::node::create_node;
-use mars_ipc::{CommandReader, JointCommand, RobotNamespace, RobotState, StateReader, status};
+use mars_ipc::{CommandReader, HoldReason, JointCommand, RobotNamespace, RobotState, StateReader, status};
 use mars_runtime::stall::{self, Evidence, FrameGap, StealSample};
 pub use mars_runtime::stall::{log_time_of_day, now_time_of_day};
 
@@ -700,4 +700,31 @@ pub fn hal_gaps(r: &Recorded) -> Vec<FrameGap> {
 pub fn trip_evidence(r: &Recorded, marsd: &Proc) -> Option<Evidence> {
     let trip_ns = stall::trip_time_from_log(&marsd.stderr_text())?;
     Some(stall::around_trip(trip_ns, &hal_gaps(r), &r.steal))
+}
+
+/// Generous: the first start may include iceoryx2 setup and the checkpoint's warm-up on a loaded machine.
+pub const START: Duration = Duration::from_secs(30);
+
+pub fn hold_reason(s: &RobotState) -> Option<HoldReason> {
+    HoldReason::from_u32(s.hold_reason)
+}
+
+/// Starts the HAL and waits for its first frame (so marsd never races the HAL's service creation).
+pub fn hal_with_recorder(robot: &str, extra: &[&str], logs: &TempDir) -> (Proc, Recorder) {
+    let rec = Recorder::start(robot);
+    let hal = spawn_hal(robot, extra, logs);
+    rec.expect_state("the HAL's first state frame", 0, START, |_| true);
+    (hal, rec)
+}
+
+/// The applied stream (session frames) and the command stream within `lim`, by the tests' own checker.
+pub fn assert_limits(r: &Recorded, lim: &Limits, what: &str) -> AppliedStats {
+    let st = check_applied(&r.states, lim, in_session).unwrap_or_else(|e| panic!("{what}: applied stream: {e}"));
+    let checked = check_commands(&r.commands, lim).unwrap_or_else(|e| panic!("{what}: command stream: {e}"));
+    eprintln!(
+        "{what}: {} session frames ({} jerk samples; max |v|/v_max {:.3}, |a|/a_max {:.3}, |j|/j_max {:.3}), \
+         {checked} commands checked, all within limits",
+        st.frames, st.jerk_samples, st.max_ratio[0], st.max_ratio[1], st.max_ratio[2]
+    );
+    st
 }

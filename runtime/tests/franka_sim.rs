@@ -1,0 +1,216 @@
+//! The runtime on the other protocol: marsd → mars-hal (fci backend) → franka-sim (a MuJoCo FR3 behind the Franka
+//! Control Interface), with the simulator's reflexes on (20 lost cycles, motion limits). Pick Cup as a user runs
+//! it (`mars-hil demo --backend franka-sim`), and marsd killed mid-motion.
+//!
+//! franka-sim serves one client on fixed ports, so these tests (like hal/tests/fci_hal.rs) run one at a time under
+//! the machine-wide real-time rig lock.
+
+// The helpers are shared with the HIL tests; this file uses a part of them.
+#[allow(unused_imports)]
+mod common;
+
+use std::path::PathBuf;
+use std::process::Command;
+use std::time::Duration;
+
+use common::*;
+use mars_hal::fci::franka_sim::FrankaSim;
+use mars_hal::profile::Profile;
+use mars_ipc::{HoldReason, RobotState, status};
+
+/// franka-sim's environment, installed by `.ci/franka-sim-venv` (returns at once when it is).
+fn franka_sim_venv() -> PathBuf {
+    let installed = Command::new(root().join(".ci/franka-sim-venv")).current_dir(root()).status().unwrap();
+    assert!(installed.success(), ".ci/franka-sim-venv failed");
+    root().join(".venv-sim")
+}
+
+/// The HAL on franka-sim, as `mars-hil demo --backend franka-sim` runs it.
+const FCI_HAL: [&str; 8] =
+    ["--backend", "fci", "--robot-ip", "127.0.0.1", "--realtime", "ignore", "--late-commands", "applied"];
+
+/// franka-sim pauses now and then on a loaded machine (see `mars-hil demo`): marsd allows it 100 ms.
+const MARSD_ON_FRANKA_SIM: [&str; 2] = ["--max-state-gap-ms", "100"];
+
+/// franka-sim with the robot's reflexes on (20 lost cycles, motion limits), as the demo starts it.
+fn strict_franka_sim(venv: &std::path::Path, logs: &TempDir) -> FrankaSim {
+    let args = ["--enforce-comm-constraints", "--enforce-motion-limits", "--gripper-object-width", "0.03"];
+    FrankaSim::start(venv, &args, &logs.join("franka-sim.log"), Duration::from_secs(60)).unwrap()
+}
+
+/// The number after `name` in `text` (e.g. "min 0.970" → 0.97).
+fn number_after(text: &str, name: &str) -> f64 {
+    let rest = &text[text.find(name).unwrap_or_else(|| panic!("no {name:?} in:\n{text}")) + name.len()..];
+    rest.split_whitespace()
+        .next()
+        .and_then(|w| w.trim_end_matches([',', ';']).parse().ok())
+        .unwrap_or_else(|| panic!("no number after {name:?} in:\n{text}"))
+}
+
+/// The HAL report's robot line ("robot 127.0.0.1: … 0 reflexes …"): no reflex, and the robot's own control
+/// command success rate ≥ 0.95 throughout.
+fn assert_robot_line_clean(hal_stdout: &str, hal_stderr: &str, sim_log: &str) {
+    let line = assert_no_reflex(hal_stdout, hal_stderr, sim_log);
+    let rate = number_after(line, "control success rate min");
+    assert!(rate >= 0.95, "the robot's control command success rate fell to {rate}");
+}
+
+/// The HAL report's robot line, with no reflex in it nor in the HAL's log (on failure, the simulator's own
+/// account of it too).
+fn assert_no_reflex<'a>(hal_stdout: &'a str, hal_stderr: &str, sim_log: &str) -> &'a str {
+    let line = find_line(hal_stdout, &["robot 127.0.0.1:"]).unwrap_or_else(|| panic!("no robot line:\n{hal_stdout}"));
+    eprintln!("{line}");
+    let reflexes: Vec<&str> = hal_stderr.lines().filter(|l| l.contains("reflex:")).collect();
+    let sim: Vec<&str> = sim_log.lines().filter(|l| l.contains("iolation") || l.contains("eflex")).take(20).collect();
+    assert!(
+        line.contains(" 0 reflexes") && reflexes.is_empty(),
+        "{line}\n{}\nfranka-sim:\n{}",
+        reflexes.join("\n"),
+        sim.join("\n")
+    );
+    line
+}
+
+/// The applied velocities within libfranka's position-dependent FR3 bounds (what the robot's own velocity
+/// reflex judges; the constant bounds `assert_limits` checks are the outer envelope).
+fn assert_within_position_dependent_velocity_bounds(r: &Recorded) {
+    let p = Profile::load(&root().join("configs/fr3.toml")).unwrap();
+    let bounds = p.velocity_bounds();
+    for s in r.states.iter().map(|(s, _)| s).filter(|s| in_session(s)) {
+        for (j, b) in bounds.iter().enumerate() {
+            let (q, v) = (s.applied_position[j], s.applied_velocity[j]);
+            let (lo, hi) = b.hard(q);
+            assert!(
+                (lo - 1e-9..=hi + 1e-9).contains(&v),
+                "seq {} joint {j}: {v} rad/s outside [{lo}, {hi}] at {q}",
+                s.seq
+            );
+        }
+    }
+}
+
+#[test]
+fn pick_cup_succeeds_through_the_fci_hal_on_franka_sim_with_no_reflex() {
+    franka_sim_venv();
+    let _rt = rt_rig_lock();
+    let logs = TempDir::new("franka-sim-demo");
+    let robot = robot("fsdemo");
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_mars-hil"));
+    cmd.args(["demo", "--backend", "franka-sim", "--episodes", "3", "--robot", &robot])
+        .arg("--out")
+        .arg(logs.join("out"));
+    let mut demo = spawn_named(cmd, "demo", &logs);
+    let code = demo.exit_code(Duration::from_secs(300));
+    let out = demo.stdout_text();
+    assert_eq!(code, 0, "{}", demo.logs());
+    let s: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(logs.join("out/summary.json")).unwrap()).unwrap();
+    // The task completed through the other protocol. The checkpoint's own success through franka-sim was 29 of 31
+    // episodes in the runs measured (README): one success in three fails by chance ~3e-4 of the time at that rate,
+    // while a pipeline that cannot pick the cup fails every time. The robot's side is judged strictly below.
+    assert_eq!(u64_at(&s, "/episodes"), 3, "{s}");
+    assert!(u64_at(&s, "/successes") >= 1, "no episode succeeded: {s}");
+    assert_eq!(u64_at(&s, "/limit_violations/final_check"), 0);
+    assert_eq!(u64_at(&s, "/limit_violations/hal_rejected"), 0);
+    assert_eq!(u64_at(&s, "/limit_violations/hal_clamped"), 0);
+    // The HAL's report (the demo's stdout): the robot's side.
+    let sim_log = std::fs::read_to_string(logs.join("out/franka-sim.log")).unwrap_or_default();
+    assert_robot_line_clean(&out, &demo.stderr_text(), &sim_log);
+    assert!(find_line(&out, &["loop allocations after warm-up: 0 system-allocator calls"]).is_some(), "{out}");
+}
+
+/// marsd SIGKILLed while the arm moves on franka-sim: the HAL brakes to rest on its own, the robot raises no
+/// reflex, and the applied stream (checked by the tests' own checker, with the FR3's position-dependent velocity
+/// bounds, acceleration and jerk limits) stays within the limits through the stop.
+#[test]
+fn sigkill_of_marsd_mid_motion_brakes_the_fr3_to_rest_with_no_reflex() {
+    let venv = franka_sim_venv();
+    let _rt = rt_rig_lock();
+    let logs = TempDir::new("franka-sim-kill");
+    let sim = strict_franka_sim(&venv, &logs);
+    let robot = robot("fskill");
+    let (mut hal, rec) = hal_with_recorder(&robot, &FCI_HAL, &logs);
+    let mut marsd = spawn_marsd(&robot, &shipped_config(), 0, &MARSD_ON_FRANKA_SIM, &logs);
+    let Some((_, moving)) = rec.wait_moving(START, || marsd.running()) else {
+        panic!("the arm never moved:\n{}\n{}\nfranka-sim:\n{}", marsd.logs(), hal.logs(), sim.log_text());
+    };
+    let from = rec.states_len();
+    marsd.signal(libc::SIGKILL);
+    assert!(marsd.wait_timeout(Duration::from_secs(5)).is_some());
+    let (_, held) = rec.expect_state("the HAL holding after the SIGKILL", from, Duration::from_secs(3), |s| {
+        s.is(status::HOLDING) && s.session == moving.session
+    });
+    let reason = hold_reason(&held);
+    assert!(matches!(reason, Some(HoldReason::ControllerLost | HoldReason::CommandTimeout)), "hold reason {reason:?}");
+    let (_, rest) = rec.expect_state("the HAL at rest", from, Duration::from_secs(3), |s| {
+        s.is(status::HOLDING) && s.is(status::AT_REST)
+    });
+    std::thread::sleep(Duration::from_millis(300));
+    let r = rec.finish();
+    // Held where it stopped, with the robot in its running motion and no error of its own.
+    let after: Vec<&RobotState> = r.states.iter().map(|(s, _)| s).filter(|s| s.seq > rest.seq).collect();
+    assert!(after.len() > 100, "{} frames after rest", after.len());
+    for s in r.states.iter().map(|(s, _)| s) {
+        assert_eq!((s.robot_errors, s.robot_reflex_errors), (0, 0), "seq {}: the robot reported errors", s.seq);
+        if s.seq >= moving.seq {
+            assert_eq!(s.robot_mode, mars_ipc::robot_mode::MOVE, "seq {}", s.seq);
+        }
+    }
+    for s in &after {
+        let drift = (0..7).map(|j| (s.applied_position[j] - rest.applied_position[j]).abs()).fold(0.0, f64::max);
+        assert!(s.is(status::HOLDING) && s.is(status::AT_REST) && drift < 1e-4, "seq {}: drift {drift}", s.seq);
+    }
+    let st = assert_limits(&r, &Limits::fr3(), "SIGKILL marsd (franka-sim)");
+    assert!(st.jerk_samples > 500, "{st:?}");
+    assert_within_position_dependent_velocity_bounds(&r);
+    // The HAL, stopped the way systemd would, reports the robot's side.
+    hal.signal(libc::SIGTERM);
+    assert_eq!(hal.exit_code(Duration::from_secs(10)), 0, "{}", hal.logs());
+    assert_robot_line_clean(&hal.stdout_text(), &hal.stderr_text(), &sim.log_text());
+}
+
+/// The machine stalls the HAL (SIGSTOP/SIGCONT, 8 ms every 300 ms, as a noisy VM or a PC without PREEMPT_RT
+/// would): states the HAL never sees, commands that reach the robot late. The HAL continues from the robot's own
+/// differencing history (`mars_hal::fci::setpoint_sync`), so Pick Cup goes on with no reflex. Before that model
+/// (continuing from the robot's reported, rounded `q_d`), 2 ms stalls tripped franka-sim's discontinuity reflexes
+/// within seconds (11–17 rad/s², 7000 rad/s³).
+#[test]
+fn a_hal_stalled_for_milliseconds_again_and_again_raises_no_reflex() {
+    let venv = franka_sim_venv();
+    let _rt = rt_rig_lock();
+    let logs = TempDir::new("franka-sim-stalls");
+    let sim = strict_franka_sim(&venv, &logs);
+    let robot = robot("fsstall");
+    let (mut hal, _rec) = hal_with_recorder(&robot, &FCI_HAL, &logs);
+    let mut marsd = spawn_marsd(&robot, &shipped_config(), 2, &MARSD_ON_FRANKA_SIM, &logs);
+    let (pid, done) = (hal.pid(), std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false)));
+    let stop = done.clone();
+    let staller = std::thread::spawn(move || {
+        let mut stalls = 0u32;
+        while !stop.load(std::sync::atomic::Ordering::Acquire) {
+            std::thread::sleep(Duration::from_millis(300));
+            // SAFETY: kill(2) on our own child's pid; SIGCONT follows at once, whatever happens between.
+            unsafe { libc::kill(pid, libc::SIGSTOP) };
+            std::thread::sleep(Duration::from_millis(8));
+            unsafe { libc::kill(pid, libc::SIGCONT) };
+            stalls += 1;
+        }
+        stalls
+    });
+    let code = marsd.exit_code(Duration::from_secs(120));
+    done.store(true, std::sync::atomic::Ordering::Release);
+    let stalls = staller.join().unwrap();
+    hal.signal(libc::SIGTERM);
+    let hal_code = hal.exit_code(Duration::from_secs(10));
+    let hal_out = hal.stdout_text();
+    assert_no_reflex(&hal_out, &hal.stderr_text(), &sim.log_text());
+    assert_eq!((code, hal_code), (0, 0), "{}\n{}", marsd.logs(), hal.logs());
+    let s = summary(&logs, "marsd");
+    assert!(u64_at(&s, "/successes") >= 1, "no episode succeeded: {s}");
+    assert_eq!(u64_at(&s, "/limit_violations/hal_rejected"), 0);
+    // The stalls did what they are for: states the HAL never saw, and resyncs.
+    let line = find_line(&hal_out, &["robot 127.0.0.1:"]).unwrap();
+    let lost = number_after(line, "cycles,");
+    eprintln!("{stalls} stalls of 8 ms: {line}");
+    assert!(stalls >= 20 && lost >= 50.0, "{stalls} stalls, {lost} lost states: the stalls did not bite");
+}
