@@ -154,6 +154,9 @@ pub fn demo(args: DemoArgs) -> anyhow::Result<u8> {
         anyhow::ensure!(args.backend == DemoRobot::Mock, "--hal-stall-at-tick injects into the mock HAL only");
         hal.args(["--stall-at-tick", &tick.to_string(), "--stall-ms", &ms.to_string()]);
     }
+    // The HAL's exit report as JSON next to marsd's summary (the backend benchmark reads it).
+    std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
+    hal.arg("--report-json").arg(out.join("hal.json"));
     if args.backend == DemoRobot::FrankaSim {
         // franka-sim runs on an ordinary kernel (a real FR3 wants PREEMPT_RT: see README, "On a real FR3").
         hal.args(["--backend", "fci", "--robot-ip", "127.0.0.1", "--realtime", "ignore", "--late-commands", "applied"]);

@@ -22,6 +22,7 @@ use serde_json::Value;
 
 use crate::cli::{DemoArgs, MarsdArgs};
 
+pub mod backends;
 mod cyclictest;
 mod load;
 
@@ -241,7 +242,7 @@ fn run_policy(args: &BenchArgs, name: &str, robot: &str) -> PolicyRun {
 }
 
 /// `mars-hil demo`'s default --hal-core.
-fn demo_hal_core() -> usize {
+pub(crate) fn demo_hal_core() -> usize {
     #[derive(clap::Parser)]
     struct Demo {
         #[command(flatten)]

@@ -41,6 +41,13 @@ enum Command {
         #[command(flatten)]
         args: mars_runtime::bench::BenchArgs,
     },
+    /// The HAL's backends side by side in one run: the mock plant and the fci backend on franka-sim, on a quiet
+    /// machine and under noise (busy cores, the HAL stopped for milliseconds again and again); prints a markdown
+    /// table and writes it to <out>/results.md.
+    BenchBackends {
+        #[command(flatten)]
+        args: mars_runtime::bench::backends::BackendBenchArgs,
+    },
     /// The controller daemon (the same as the `marsd` binary; the demo starts it this way).
     Marsd {
         #[command(flatten)]
@@ -100,6 +107,7 @@ fn main() -> std::process::ExitCode {
             Err(e) => Err(e),
         },
         Command::Bench { args } => mars_runtime::bench::run(args),
+        Command::BenchBackends { args } => mars_runtime::bench::backends::run(args),
         Command::Marsd { args } => return mars_runtime::cli::marsd(args),
         Command::Hal { args } => {
             let code = mars_hal::cli::report_and_exit_code(mars_hal::cli::run_hal(args));
