@@ -252,7 +252,7 @@ fn the_hal_drives_franka_sim_from_its_measured_pose_and_brakes_on_command_loss_w
 }
 
 #[test]
-fn sigterm_mid_motion_brakes_to_rest_before_the_hal_releases_the_robot() {
+fn sigterm_mid_motion_brakes_to_rest_before_the_hal_releases_the_robot_and_a_hal_restarted_there_moves_nothing() {
     let _sim = FrankaSim::start_strict();
     let mut rig = Rig::start();
     let start = q7(&rig.wait_for("a frame", Duration::from_secs(5), |_| true));
@@ -286,6 +286,26 @@ fn sigterm_mid_motion_brakes_to_rest_before_the_hal_releases_the_robot() {
     assert!(out.contains("0 reflexes"), "{out}");
     assert_within_fr3_limits(stopping);
     eprintln!("SIGTERM at {:.2} rad/s: {} frames to rest", moving.applied_velocity[0], stopping.len());
+    // A HAL started again with the arm where this one left it (away from the profile's home and from where the
+    // first HAL found it): it holds the arm where it measures it, and nothing moves.
+    let left_at = q7(last);
+    drop(rig);
+    let mut rig = Rig::start();
+    let first = rig.frames[0];
+    let home = Profile::load(Path::new(&fr3_profile())).unwrap().home;
+    let away = |a: &[f64; 7], b: &[f64]| a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0, f64::max);
+    assert!(away(&q7(&first), &home) > 0.3 && away(&q7(&first), &start) > 0.1, "{:?}", q7(&first));
+    assert!(away(&q7(&first), &left_at) < 1e-3, "the arm is where the first HAL left it");
+    let idle = rig.watch(Duration::from_millis(500)).to_vec();
+    assert!(idle.len() > 300, "{} frames in 0.5 s", idle.len());
+    for f in &idle {
+        assert_eq!(f.hold_reason, HoldReason::NoSession as u32);
+        assert_eq!((f.fault, f.robot_errors), (0, 0));
+        for j in 0..7 {
+            assert_eq!(f.applied_position[j], first.position[j], "joint {j}: the setpoint is the measured pose");
+            assert!((f.position[j] - first.position[j]).abs() < 1e-3, "joint {j} moved to {}", f.position[j]);
+        }
+    }
 }
 
 #[test]

@@ -18,6 +18,15 @@ use mars_hal::fci::franka_sim::FrankaSim;
 use mars_hal::profile::Profile;
 use mars_ipc::{HoldReason, RobotState, status};
 
+/// franka-sim serves one client on fixed ports: the machine-wide simulator lock hal/tests/support/franka_sim.rs
+/// takes too, taken before the real-time rig lock as there (so the two binaries never wait on each other crosswise).
+fn franka_sim_lock() -> std::fs::File {
+    let path = std::env::temp_dir().join("mars-franka-sim.lock");
+    let file = std::fs::OpenOptions::new().create(true).truncate(false).write(true).open(&path).unwrap();
+    file.lock().unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    file
+}
+
 /// franka-sim's environment, installed by `.ci/franka-sim-venv` (returns at once when it is).
 fn franka_sim_venv() -> PathBuf {
     let installed = Command::new(root().join(".ci/franka-sim-venv")).current_dir(root()).status().unwrap();
@@ -92,6 +101,7 @@ fn assert_within_position_dependent_velocity_bounds(r: &Recorded) {
 #[test]
 fn pick_cup_succeeds_through_the_fci_hal_on_franka_sim_with_no_reflex() {
     franka_sim_venv();
+    let _sim_lock = franka_sim_lock();
     let _rt = rt_rig_lock();
     let logs = TempDir::new("franka-sim-demo");
     let robot = robot("fsdemo");
@@ -125,6 +135,7 @@ fn pick_cup_succeeds_through_the_fci_hal_on_franka_sim_with_no_reflex() {
 #[test]
 fn sigkill_of_marsd_mid_motion_brakes_the_fr3_to_rest_with_no_reflex() {
     let venv = franka_sim_venv();
+    let _sim_lock = franka_sim_lock();
     let _rt = rt_rig_lock();
     let logs = TempDir::new("franka-sim-kill");
     let sim = strict_franka_sim(&venv, &logs);
@@ -177,6 +188,7 @@ fn sigkill_of_marsd_mid_motion_brakes_the_fr3_to_rest_with_no_reflex() {
 #[test]
 fn a_hal_stalled_for_milliseconds_again_and_again_raises_no_reflex() {
     let venv = franka_sim_venv();
+    let _sim_lock = franka_sim_lock();
     let _rt = rt_rig_lock();
     let logs = TempDir::new("franka-sim-stalls");
     let sim = strict_franka_sim(&venv, &logs);

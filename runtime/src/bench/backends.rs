@@ -230,7 +230,7 @@ fn table(runs: &[Run], args: &BackendBenchArgs) -> String {
     let _ = writeln!(t, "| | {} |", runs.iter().map(|r| r.label.as_str()).collect::<Vec<_>>().join(" | "));
     let _ = writeln!(t, "|---|{}", "---:|".repeat(runs.len()));
     for (name, cell) in &rows {
-        let _ = writeln!(t, "| {name} | {} |", runs.iter().map(|r| cell(r)).collect::<Vec<_>>().join(" | "));
+        let _ = writeln!(t, "| {name} | {} |", runs.iter().map(cell).collect::<Vec<_>>().join(" | "));
     }
     t
 }
