@@ -142,22 +142,24 @@ pub struct FciStatusArgs {
 /// the exit status: 0 the state was read (whatever mode the robot is in: the output says), 1 the robot could not
 /// be reached or read, 2 a bad argument (nothing was sent).
 pub fn fci_status(args: FciStatusArgs) -> i32 {
-    if !(args.timeout_s.is_finite() && args.timeout_s > 0.0 && args.timeout_s <= 3600.0) {
-        eprintln!("mars-hal fci-status: --timeout-s must be a number of seconds in (0, 3600], got {}", args.timeout_s);
+    fci_command("fci-status", args.timeout_s, |timeout| {
+        print!("{}", crate::fci::status::probe(&args.robot_ip, timeout)?);
+        Ok(0)
+    })
+}
+
+/// The shape both robot commands share: `--timeout-s` checked (2 when bad, nothing sent), then `run`'s exit
+/// status, or its error on stderr with 2 for a bad address (nothing sent) and 1 for anything else.
+fn fci_command(name: &str, timeout_s: f64, run: impl FnOnce(Duration) -> Result<i32, crate::fci::FciError>) -> i32 {
+    if !(timeout_s.is_finite() && timeout_s > 0.0 && timeout_s <= 3600.0) {
+        eprintln!("mars-hal {name}: --timeout-s must be a number of seconds in (0, 3600], got {timeout_s}");
         return 2;
     }
-    match crate::fci::status::probe(&args.robot_ip, Duration::from_secs_f64(args.timeout_s)) {
-        Ok(status) => {
-            print!("{status}");
-            0
-        }
-        Err(e @ crate::fci::FciError::BadAddress { .. }) => {
-            eprintln!("mars-hal fci-status: {e}");
-            2
-        }
+    match run(Duration::from_secs_f64(timeout_s)) {
+        Ok(code) => code,
         Err(e) => {
-            eprintln!("mars-hal fci-status: {e}");
-            1
+            eprintln!("mars-hal {name}: {e}");
+            if matches!(e, crate::fci::FciError::BadAddress { .. }) { 2 } else { 1 }
         }
     }
 }
@@ -176,27 +178,14 @@ pub struct RecoverArgs {
 /// Runs `mars-hal recover`: exit 0 when the robot is ready afterwards (printed), 1 when it could not be reached
 /// or is still not ready, 2 for a bad argument.
 pub fn recover(args: RecoverArgs) -> i32 {
-    if !(args.timeout_s.is_finite() && args.timeout_s > 0.0 && args.timeout_s <= 3600.0) {
-        eprintln!("mars-hal recover: --timeout-s must be a number of seconds in (0, 3600], got {}", args.timeout_s);
-        return 2;
-    }
-    match crate::fci::recover::recover(&args.robot_ip, Duration::from_secs_f64(args.timeout_s)) {
-        Ok((needed, status)) => {
-            println!("{}", if needed { "error recovery ran" } else { "no error to recover from" });
-            print!("{status}");
-            let ready = status.status.current_errors.is_empty()
-                && !matches!(status.status.mode, franka::RobotMode::Reflex | franka::RobotMode::UserStopped);
-            if ready { 0 } else { 1 }
-        }
-        Err(e @ crate::fci::FciError::BadAddress { .. }) => {
-            eprintln!("mars-hal recover: {e}");
-            2
-        }
-        Err(e) => {
-            eprintln!("mars-hal recover: {e}");
-            1
-        }
-    }
+    fci_command("recover", args.timeout_s, |timeout| {
+        let (needed, status) = crate::fci::recover::recover(&args.robot_ip, timeout)?;
+        println!("{}", if needed { "error recovery ran" } else { "no error to recover from" });
+        print!("{status}");
+        let ready = status.status.current_errors.is_empty()
+            && !matches!(status.status.mode, franka::RobotMode::Reflex | franka::RobotMode::UserStopped);
+        Ok(if ready { 0 } else { 1 })
+    })
 }
 
 /// Runs the HAL process loop with the profile's backend (or `--backend`) until the duration ends, SIGINT/SIGTERM,

@@ -17,6 +17,7 @@ use common::*;
 use mars_hal::fci::franka_sim::FrankaSim;
 use mars_hal::profile::Profile;
 use mars_ipc::{HoldReason, RobotState, status};
+use mars_runtime::bench::backends::ProcessStops;
 
 /// franka-sim serves one client on fixed ports: the machine-wide simulator lock hal/tests/support/franka_sim.rs
 /// takes too, taken before the real-time rig lock as there (so the two binaries never wait on each other crosswise).
@@ -41,10 +42,29 @@ const FCI_HAL: [&str; 8] =
 /// franka-sim pauses now and then on a loaded machine (see `mars-hil demo`): marsd allows it 100 ms.
 const MARSD_ON_FRANKA_SIM: [&str; 2] = ["--max-state-gap-ms", "100"];
 
-/// franka-sim with the robot's reflexes on (20 lost cycles, motion limits), as the demo starts it.
-fn strict_franka_sim(venv: &std::path::Path, logs: &TempDir) -> FrankaSim {
+/// What a test on franka-sim holds besides its processes, dropped in this order: the simulator, the logs, then the
+/// locks.
+struct OnFrankaSim {
+    sim: FrankaSim,
+    logs: TempDir,
+    _rt: RtRigLock,
+    _sim_lock: std::fs::File,
+}
+
+/// franka-sim with the robot's reflexes on (20 lost cycles, motion limits), as the demo starts it; the HAL on fci
+/// with a recorder; marsd for `episodes` (0: until stopped). Bind the result in this order, so the processes end
+/// before the simulator and the locks.
+fn start_on_franka_sim(name: &str, episodes: usize) -> (OnFrankaSim, Proc, Recorder, Proc) {
+    let venv = franka_sim_venv();
+    let sim_lock = franka_sim_lock();
+    let rt = rt_rig_lock();
+    let logs = TempDir::new(name);
     let args = ["--enforce-comm-constraints", "--enforce-motion-limits", "--gripper-object-width", "0.03"];
-    FrankaSim::start(venv, &args, &logs.join("franka-sim.log"), Duration::from_secs(60)).unwrap()
+    let sim = FrankaSim::start(&venv, &args, &logs.join("franka-sim.log"), Duration::from_secs(60)).unwrap();
+    let robot = robot(name);
+    let (hal, rec) = hal_with_recorder(&robot, &FCI_HAL, &logs);
+    let marsd = spawn_marsd(&robot, &shipped_config(), episodes, &MARSD_ON_FRANKA_SIM, &logs);
+    (OnFrankaSim { sim, logs, _rt: rt, _sim_lock: sim_lock }, hal, rec, marsd)
 }
 
 /// The number after `name` in `text` (e.g. "min 0.970" → 0.97).
@@ -134,16 +154,9 @@ fn pick_cup_succeeds_through_the_fci_hal_on_franka_sim_with_no_reflex() {
 /// bounds, acceleration and jerk limits) stays within the limits through the stop.
 #[test]
 fn sigkill_of_marsd_mid_motion_brakes_the_fr3_to_rest_with_no_reflex() {
-    let venv = franka_sim_venv();
-    let _sim_lock = franka_sim_lock();
-    let _rt = rt_rig_lock();
-    let logs = TempDir::new("franka-sim-kill");
-    let sim = strict_franka_sim(&venv, &logs);
-    let robot = robot("fskill");
-    let (mut hal, rec) = hal_with_recorder(&robot, &FCI_HAL, &logs);
-    let mut marsd = spawn_marsd(&robot, &shipped_config(), 0, &MARSD_ON_FRANKA_SIM, &logs);
+    let (rig, mut hal, rec, mut marsd) = start_on_franka_sim("fskill", 0);
     let Some((_, moving)) = rec.wait_moving(START, || marsd.running()) else {
-        panic!("the arm never moved:\n{}\n{}\nfranka-sim:\n{}", marsd.logs(), hal.logs(), sim.log_text());
+        panic!("the arm never moved:\n{}\n{}\nfranka-sim:\n{}", marsd.logs(), hal.logs(), rig.sim.log_text());
     };
     let from = rec.states_len();
     marsd.signal(libc::SIGKILL);
@@ -177,7 +190,7 @@ fn sigkill_of_marsd_mid_motion_brakes_the_fr3_to_rest_with_no_reflex() {
     // The HAL, stopped the way systemd would, reports the robot's side.
     hal.signal(libc::SIGTERM);
     assert_eq!(hal.exit_code(Duration::from_secs(10)), 0, "{}", hal.logs());
-    assert_robot_line_clean(&hal.stdout_text(), &hal.stderr_text(), &sim.log_text());
+    assert_robot_line_clean(&hal.stdout_text(), &hal.stderr_text(), &rig.sim.log_text());
 }
 
 /// The machine stalls the HAL (SIGSTOP/SIGCONT, 8 ms every 300 ms, as a noisy VM or a PC without PREEMPT_RT
@@ -187,40 +200,20 @@ fn sigkill_of_marsd_mid_motion_brakes_the_fr3_to_rest_with_no_reflex() {
 /// within seconds (11–17 rad/s², 7000 rad/s³).
 #[test]
 fn a_hal_stalled_for_milliseconds_again_and_again_raises_no_reflex() {
-    let venv = franka_sim_venv();
-    let _sim_lock = franka_sim_lock();
-    let _rt = rt_rig_lock();
-    let logs = TempDir::new("franka-sim-stalls");
-    let sim = strict_franka_sim(&venv, &logs);
-    let robot = robot("fsstall");
-    let (mut hal, _rec) = hal_with_recorder(&robot, &FCI_HAL, &logs);
-    let mut marsd = spawn_marsd(&robot, &shipped_config(), 2, &MARSD_ON_FRANKA_SIM, &logs);
-    let (pid, done) = (hal.pid(), std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false)));
-    let stop = done.clone();
-    let staller = std::thread::spawn(move || {
-        let mut stalls = 0u32;
-        while !stop.load(std::sync::atomic::Ordering::Acquire) {
-            std::thread::sleep(Duration::from_millis(300));
-            // SAFETY: kill(2) on our own child's pid; SIGCONT follows at once, whatever happens between.
-            unsafe { libc::kill(pid, libc::SIGSTOP) };
-            std::thread::sleep(Duration::from_millis(8));
-            unsafe { libc::kill(pid, libc::SIGCONT) };
-            stalls += 1;
-        }
-        stalls
-    });
+    let (rig, mut hal, _rec, mut marsd) = start_on_franka_sim("fsstall", 2);
+    let pid = hal.pid();
+    let stops = ProcessStops::start(move || Some(pid), Duration::from_millis(8), Duration::from_millis(300));
     let code = marsd.exit_code(Duration::from_secs(120));
-    done.store(true, std::sync::atomic::Ordering::Release);
-    let stalls = staller.join().unwrap();
+    let stalls = stops.finish();
     hal.signal(libc::SIGTERM);
     let hal_code = hal.exit_code(Duration::from_secs(10));
     let hal_out = hal.stdout_text();
-    assert_no_reflex(&hal_out, &hal.stderr_text(), &sim.log_text());
+    assert_no_reflex(&hal_out, &hal.stderr_text(), &rig.sim.log_text());
     assert_eq!((code, hal_code), (0, 0), "{}\n{}", marsd.logs(), hal.logs());
-    let s = summary(&logs, "marsd");
+    let s = summary(&rig.logs, "marsd");
     assert!(u64_at(&s, "/successes") >= 1, "no episode succeeded: {s}");
     assert_eq!(u64_at(&s, "/limit_violations/hal_rejected"), 0);
-    // The stalls did what they are for: states the HAL never saw, and resyncs.
+    // The stalls did what they are for: states the HAL never saw.
     let line = find_line(&hal_out, &["robot 127.0.0.1:"]).unwrap();
     let lost = number_after(line, "cycles,");
     eprintln!("{stalls} stalls of 8 ms: {line}");

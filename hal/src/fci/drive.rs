@@ -194,8 +194,10 @@ fn control(
                 hal.late_us.saturating_record((woke - prev).as_micros().saturating_sub(1000) as u64);
             }
             last = Some(woke);
+            // States the robot sent between the last one we saw and this one.
+            let missed = period.as_millis().saturating_sub(1);
             report.cycles += 1;
-            report.lost_states += period.as_millis().saturating_sub(1);
+            report.lost_states += missed;
             cycles_in_motion += 1;
             report.last_success_rate = state.control_command_success_rate;
             if cycles_in_motion > 100 {
@@ -204,7 +206,6 @@ fn control(
             }
             // The robot's q_d is the setpoint it applied last cycle: ours, unless it extrapolated over a command it
             // did not get or over states we never saw (see `setpoint_sync`).
-            let missed = period.as_millis().saturating_sub(1);
             let resync = robot_setpoints.observe(&state.q_d, &state.dq_d, &state.ddq_d, missed);
             if let Some(r) = resync {
                 hal.control.resync_setpoint(&r.q, &r.v, &r.a);

@@ -28,14 +28,6 @@ pub const RESYNC_RAD: f64 = 5e-7;
 /// The FCI cycle (s).
 const DT: f64 = 1e-3;
 
-/// The state the filter continues from after the robot applied another setpoint.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Resync {
-    pub q: [f64; JOINTS],
-    pub v: [f64; JOINTS],
-    pub a: [f64; JOINTS],
-}
-
 /// Where a resync continued from (kept for the reflex report).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum ResyncFrom {
@@ -49,12 +41,13 @@ pub enum ResyncFrom {
     RobotReport,
 }
 
-/// The robot's differencing history: its last applied setpoint and that setpoint's backward differences.
+/// The robot's differencing history: its last applied setpoint and that setpoint's backward differences; after a
+/// resync, the state the filter continues from.
 #[derive(Debug, Clone, Copy, PartialEq)]
-struct History {
-    q: [f64; JOINTS],
-    v: [f64; JOINTS],
-    a: [f64; JOINTS],
+pub struct History {
+    pub q: [f64; JOINTS],
+    pub v: [f64; JOINTS],
+    pub a: [f64; JOINTS],
 }
 
 impl History {
@@ -82,10 +75,6 @@ impl History {
             self.extrapolate();
         }
         self
-    }
-
-    fn resync(&self) -> Resync {
-        Resync { q: self.q, v: self.v, a: self.a }
     }
 }
 
@@ -127,7 +116,7 @@ impl RobotSetpoints {
         dq_d: &[f64; JOINTS],
         ddq_d: &[f64; JOINTS],
         missed_states: u64,
-    ) -> Option<Resync> {
+    ) -> Option<History> {
         let reported = History { q: *q_d, v: *dq_d, a: *ddq_d };
         let (Some(h), Some(s)) = (self.history, self.sent.take()) else {
             // The motion's first state (the robot's history is what it reports), or one we did not answer.
@@ -155,9 +144,7 @@ impl RobotSetpoints {
                 return None;
             }
             // Dropped: the robot extrapolated over our lost command.
-            let lost = h.extrapolated(1);
-            let from = ResyncFrom::LostThenExtrapolated(1);
-            return Some(if within(&lost.q, q_d) { self.continue_from(lost, from) } else { self.robot(reported) });
+            return Some(self.lost_then_extrapolated(h, 1, q_d, reported));
         }
         if missed_states > MAX_RECONSTRUCTED_CYCLES {
             return Some(self.robot(reported));
@@ -178,19 +165,28 @@ impl RobotSetpoints {
             return Some(self.continue_from(gap, ResyncFrom::OursThenExtrapolated(missed_states)));
         }
         // Dropped: our last command was lost too.
-        let lost = h.extrapolated(missed_states + 1);
-        let from = ResyncFrom::LostThenExtrapolated(missed_states + 1);
-        Some(if within(&lost.q, q_d) { self.continue_from(lost, from) } else { self.robot(reported) })
+        Some(self.lost_then_extrapolated(h, missed_states + 1, q_d, reported))
     }
 
-    fn continue_from(&mut self, h: History, from: ResyncFrom) -> Resync {
+    /// Dropped mode: the robot extrapolated `h` over `cycles` without our command, if that is what `q_d` shows;
+    /// otherwise its own report.
+    fn lost_then_extrapolated(&mut self, h: History, cycles: u64, q_d: &[f64; JOINTS], reported: History) -> History {
+        let lost = h.extrapolated(cycles);
+        if within(&lost.q, q_d) {
+            self.continue_from(lost, ResyncFrom::LostThenExtrapolated(cycles))
+        } else {
+            self.robot(reported)
+        }
+    }
+
+    fn continue_from(&mut self, h: History, from: ResyncFrom) -> History {
         self.history = Some(h);
         self.last_from = Some(from);
-        h.resync()
+        h
     }
 
     /// What the robot applied cannot be reconstructed (a longer gap): its own report, rounded as it is.
-    fn robot(&mut self, reported: History) -> Resync {
+    fn robot(&mut self, reported: History) -> History {
         self.continue_from(reported, ResyncFrom::RobotReport)
     }
 }
@@ -202,7 +198,7 @@ fn distance(a: &[f64; JOINTS], b: &[f64; JOINTS]) -> f64 {
 
 /// Whether the robot's reported setpoint is ours, up to its rounding.
 fn within(ours: &[f64; JOINTS], reported: &[f64; JOINTS]) -> bool {
-    ours.iter().zip(reported).all(|(a, b)| (a - b).abs() <= RESYNC_RAD)
+    distance(ours, reported) <= RESYNC_RAD
 }
 
 #[cfg(test)]
@@ -252,7 +248,7 @@ mod tests {
         s.sent(traj(10));
         let e = history_at(9).extrapolated(1);
         let r = s.observe(&e.q.map(|q| q as f32 as f64), &[9.0; JOINTS], &[9.0; JOINTS], 0).expect("a resync");
-        assert_eq!(r, e.resync(), "exact, not differenced from the rounded report nor the robot's dq_d/ddq_d");
+        assert_eq!(r, e, "exact, not differenced from the rounded report nor the robot's dq_d/ddq_d");
         assert_eq!(s.last_from, Some(ResyncFrom::LostThenExtrapolated(1)));
     }
 
@@ -263,7 +259,7 @@ mod tests {
             s.sent(traj(10));
             let e = history_at(10).extrapolated(1);
             let r = s.observe(&e.q.map(|q| q as f32 as f64), &ZERO, &ZERO, 1).expect("a resync");
-            assert_eq!(r, e.resync());
+            assert_eq!(r, e);
             assert_eq!(s.last_from, Some(ResyncFrom::OursThenExtrapolated(1)));
         }
     }
@@ -273,7 +269,7 @@ mod tests {
         let mut s = applied_until(10, false);
         s.sent(traj(10));
         let e = history_at(9).extrapolated(2);
-        assert_eq!(s.observe(&e.q, &ZERO, &ZERO, 1), Some(e.resync()));
+        assert_eq!(s.observe(&e.q, &ZERO, &ZERO, 1), Some(e));
         assert_eq!(s.last_from, Some(ResyncFrom::LostThenExtrapolated(2)));
     }
 
@@ -325,7 +321,7 @@ mod tests {
         let r = s.observe(&gap.extrapolated(1).q, &ZERO, &ZERO, 0).expect("a resync");
         let mut robot = history_at(10);
         robot.record(&c1, 2);
-        assert_eq!(r, robot.resync());
+        assert_eq!(r, robot);
         assert_eq!(s.last_from, Some(ResyncFrom::LateOverCycles(2)));
         // The robot's velocity there is the two cycles' mean, below our own at c1 by half a cycle of acceleration.
         let ours_v = (traj(12)[0] - traj(11)[0]) / DT;
@@ -340,13 +336,13 @@ mod tests {
         s.sent(traj(10));
         let guesses = history_at(9).extrapolated(2);
         let gap = history_at(10).extrapolated(1);
-        assert_eq!(s.observe(&guesses.q, &ZERO, &ZERO, 1), Some(gap.resync()));
+        assert_eq!(s.observe(&guesses.q, &ZERO, &ZERO, 1), Some(gap));
         let c1 = traj(12);
         s.sent(c1);
         let mut robot = history_at(10);
         robot.record(&c1, 2);
         let r = s.observe(&c1, &robot.v.map(|v| v as f32 as f64), &ZERO, 0).expect("a resync although c1 was on time");
-        assert_eq!(r, robot.resync());
+        assert_eq!(r, robot);
         // And on from there as usual.
         s.sent(traj(13));
         assert_eq!(s.observe(&traj(13), &ZERO, &ZERO, 0), None);

@@ -43,11 +43,45 @@ pub struct BackendBenchArgs {
     pub franka_sim_venv: PathBuf,
 }
 
-/// Busy threads on every core and a thread that stops the HAL process now and then, until finished.
+/// A thread that stops a process (SIGSTOP) for `stall` every `every` until finished, as a noisy VM or a kernel
+/// without PREEMPT_RT does to a real-time loop; `pid_of` finds the process each time (none yet: no stop).
+pub struct ProcessStops {
+    stop: Arc<AtomicBool>,
+    thread: JoinHandle<u64>,
+}
+
+impl ProcessStops {
+    pub fn start(pid_of: impl Fn() -> Option<libc::pid_t> + Send + 'static, stall: Duration, every: Duration) -> Self {
+        let stop = Arc::new(AtomicBool::new(false));
+        let halt = stop.clone();
+        let thread = std::thread::spawn(move || {
+            let mut stops = 0;
+            while !halt.load(Ordering::Acquire) {
+                std::thread::sleep(every);
+                let Some(pid) = pid_of() else { continue };
+                // SAFETY: kill(2) on a pid the caller names; SIGCONT follows whatever happens between.
+                unsafe { libc::kill(pid, libc::SIGSTOP) };
+                std::thread::sleep(stall);
+                unsafe { libc::kill(pid, libc::SIGCONT) };
+                stops += 1;
+            }
+            stops
+        });
+        Self { stop, thread }
+    }
+
+    /// Ends the stops (the process is running when this returns); how many there were.
+    pub fn finish(self) -> u64 {
+        self.stop.store(true, Ordering::Release);
+        self.thread.join().unwrap_or(0)
+    }
+}
+
+/// Busy threads on every core and [`ProcessStops`] on the HAL process, until finished.
 struct Noise {
     stop: Arc<AtomicBool>,
     hogs: Vec<JoinHandle<()>>,
-    staller: JoinHandle<u64>,
+    stops: ProcessStops,
 }
 
 impl Noise {
@@ -65,21 +99,8 @@ impl Noise {
                 })
             })
             .collect();
-        let halt = stop.clone();
-        let staller = std::thread::spawn(move || {
-            let mut stalls = 0;
-            while !halt.load(Ordering::Relaxed) {
-                std::thread::sleep(every);
-                let Some(pid) = hal_pid(&robot) else { continue };
-                // SAFETY: kill(2) on the HAL this benchmark started; SIGCONT follows whatever happens between.
-                unsafe { libc::kill(pid, libc::SIGSTOP) };
-                std::thread::sleep(stall);
-                unsafe { libc::kill(pid, libc::SIGCONT) };
-                stalls += 1;
-            }
-            stalls
-        });
-        Self { stop, hogs, staller }
+        let stops = ProcessStops::start(move || hal_pid(&robot), stall, every);
+        Self { stop, hogs, stops }
     }
 
     /// Stops the noise; how many times the HAL was stopped.
@@ -88,7 +109,7 @@ impl Noise {
         for h in self.hogs {
             let _ = h.join();
         }
-        self.staller.join().unwrap_or(0)
+        self.stops.finish()
     }
 }
 
