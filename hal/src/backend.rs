@@ -46,6 +46,8 @@ pub struct RobotReport {
     pub reflex_errors: u64,
     /// The robot's control command success rate over its last 100 cycles.
     pub success_rate: f64,
+    /// The robot's cycles since the previous state (see `RobotState::robot_cycles`); 0 when not reported.
+    pub cycles: u32,
 }
 
 /// What went wrong in the backend (the text names it; `&'static` so reporting never allocates).

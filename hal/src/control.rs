@@ -404,6 +404,7 @@ impl HalControl {
             robot_reflex_errors: m.robot.reflex_errors,
             robot_success_rate: m.robot.success_rate,
             robot_mode: m.robot.mode,
+            robot_cycles: m.robot.cycles,
             ..Default::default()
         };
         st.applied_position[..n].copy_from_slice(f.position());

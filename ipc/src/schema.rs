@@ -15,7 +15,8 @@ use iceoryx2::prelude::ZeroCopySend;
 /// v5: `fault::NO_MEASUREMENT`, `RobotState::duplicate_commands`; the gripper fields are a target, sent on change.
 /// v6: the robot's own report (`RobotState::robot_errors`, `robot_reflex_errors`, `robot_success_rate`,
 /// `robot_mode`), `fault::ROBOT_REFLEX` / `ROBOT_CONNECTION_LOST`, `HoldReason::RobotFault` / `HalStopping`.
-pub const SCHEMA_VERSION: u32 = 6;
+/// v7: `RobotState::robot_cycles` (the robot's cycles since the previous frame) in place of the padding.
+pub const SCHEMA_VERSION: u32 = 7;
 
 /// The iceoryx2 user header of state and command frames.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ZeroCopySend)]

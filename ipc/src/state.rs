@@ -177,8 +177,10 @@ pub struct RobotState {
     pub robot_success_rate: f64,
     /// A [`robot_mode`] value.
     pub robot_mode: u32,
-    /// Padding to a multiple of 8 bytes, always 0.
-    pub reserved: u32,
+    /// The robot's control cycles since the previous frame, for a backend the robot paces (fci): 1 normally, more
+    /// after states the HAL never saw, across which the applied setpoint moved as the robot did (difference it
+    /// over this many cycles, not one). 0 for a backend paced by the HAL's own timer: one setpoint step per frame.
+    pub robot_cycles: u32,
 }
 
 impl Default for RobotState {
@@ -211,7 +213,7 @@ impl Default for RobotState {
             robot_reflex_errors: 0,
             robot_success_rate: 0.0,
             robot_mode: robot_mode::NOT_REPORTED,
-            reserved: 0,
+            robot_cycles: 0,
         }
     }
 }

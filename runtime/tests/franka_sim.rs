@@ -200,7 +200,7 @@ fn sigkill_of_marsd_mid_motion_brakes_the_fr3_to_rest_with_no_reflex() {
 /// within seconds (11–17 rad/s², 7000 rad/s³).
 #[test]
 fn a_hal_stalled_for_milliseconds_again_and_again_raises_no_reflex() {
-    let (rig, mut hal, _rec, mut marsd) = start_on_franka_sim("fsstall", 2);
+    let (rig, mut hal, rec, mut marsd) = start_on_franka_sim("fsstall", 2);
     let pid = hal.pid();
     let stops = ProcessStops::start(move || Some(pid), Duration::from_millis(8), Duration::from_millis(300));
     let code = marsd.exit_code(Duration::from_secs(120));
@@ -213,6 +213,9 @@ fn a_hal_stalled_for_milliseconds_again_and_again_raises_no_reflex() {
     let s = summary(&rig.logs, "marsd");
     assert!(u64_at(&s, "/successes") >= 1, "no episode succeeded: {s}");
     assert_eq!(u64_at(&s, "/limit_violations/hal_rejected"), 0);
+    // The frames say where the robot moved on over states the HAL never saw (what the limit checker needs).
+    let gaps = rec.finish().states.iter().filter(|(f, _)| f.robot_cycles > 1).count();
+    assert!(gaps > 0, "no frame reported more than one robot cycle");
     // The stalls did what they are for: states the HAL never saw.
     let line = find_line(&hal_out, &["robot 127.0.0.1:"]).unwrap();
     let lost = number_after(line, "cycles,");

@@ -79,6 +79,7 @@ fn measured(s: &RobotState, hand: Option<&Hand>) -> Measurement {
         errors: error_bits(&s.current_errors),
         reflex_errors: error_bits(&s.last_motion_errors),
         success_rate: s.control_command_success_rate,
+        cycles: 0,
     };
     m
 }
@@ -91,11 +92,15 @@ struct Cycle<'a> {
     command: [f64; JOINTS],
     /// Whether the robot takes commands now (false while holding after a reflex: the setpoint is only reported).
     commanding: bool,
+    /// The robot's cycles since the last state the HAL saw (0 while holding: nothing is commanded).
+    cycles: u32,
 }
 
 impl Backend for Cycle<'_> {
     fn read(&mut self) -> Result<Measurement, BackendError> {
-        Ok(measured(self.state, self.hand.as_deref()))
+        let mut m = measured(self.state, self.hand.as_deref());
+        m.robot.cycles = self.cycles;
+        Ok(m)
     }
 
     fn apply(&mut self, position: &[f64]) -> Result<(), BackendError> {
@@ -212,7 +217,13 @@ fn control(
                 report.resyncs += 1;
                 last_resync = Some((report.cycles, missed));
             }
-            let mut cycle = Cycle { state, hand: hand.as_deref_mut(), command: state.q, commanding: true };
+            let mut cycle = Cycle {
+                state,
+                hand: hand.as_deref_mut(),
+                command: state.q,
+                commanding: true,
+                cycles: u32::try_from(missed + 1).unwrap_or(u32::MAX),
+            };
             let next = hal.tick(&mut cycle, woke);
             robot_setpoints.sent(cycle.command);
             recent.push(CycleRecord {
@@ -274,7 +285,8 @@ fn hold(
     loop {
         // read_once waits for the next state (the robot sends them at 1 kHz in every mode).
         let state = fci.read_once(timeout).map_err(|e| e.to_string())?;
-        let mut cycle = Cycle { state: &state, hand: hand.as_deref_mut(), command: state.q, commanding: false };
+        let mut cycle =
+            Cycle { state: &state, hand: hand.as_deref_mut(), command: state.q, commanding: false, cycles: 0 };
         if let Next::End(e) = hal.tick(&mut cycle, Instant::now()) {
             return Ok(Some(e));
         }
