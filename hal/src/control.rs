@@ -378,6 +378,7 @@ impl HalControl {
         } else if self.stopping {
             hold_reason = HoldReason::HalStopping;
         }
+        self.filter.note_published(self.frames);
         let f = &self.filter;
         let mut st = RobotState {
             seq: self.frames,

@@ -76,6 +76,11 @@ pub struct Profile {
     /// `dq_max` caps it either way.
     #[serde(default)]
     pub velocity_limits: VelocityLimits,
+    /// How far (rad/s) every trajectory is planned below the velocity bounds (default 0). A robot that judges the
+    /// arm's *measured* velocity (the FR3's safety controller) sees the commanded velocity plus the arm's tracking
+    /// overshoot; commands themselves are still judged against the bounds.
+    #[serde(default)]
+    pub velocity_headroom: f64,
     pub ddq_max: Vec<f64>,
     pub jerk_max: Vec<f64>,
     /// Where the sim backend starts (unless `sim.start` says otherwise); must lie inside the limits. The HAL
@@ -150,10 +155,20 @@ impl Profile {
         (0..self.joints).map(|i| JointVelocityBound::new(self.velocity_limits, i, self.dq_max[i])).collect()
     }
 
+    /// The bounds trajectories are planned with: [`Self::velocity_bounds`] less `velocity_headroom`.
+    pub fn planning_velocity_bounds(&self) -> Vec<JointVelocityBound> {
+        self.velocity_bounds().iter().map(|b| b.with_headroom(self.velocity_headroom)).collect()
+    }
+
     /// The position range each joint may be commanded to and rest in: `[q_min, q_max]`, narrowed where the
-    /// velocity bound forbids standing still (the FR3's braking curves reach zero a little inside some limits).
+    /// planning velocity bound forbids standing still (the FR3's braking curves reach zero a little inside some
+    /// limits).
     pub fn position_limits(&self) -> (Vec<f64>, Vec<f64>) {
-        self.velocity_bounds().iter().enumerate().map(|(i, b)| b.rest_range(self.q_min[i], self.q_max[i])).unzip()
+        self.planning_velocity_bounds()
+            .iter()
+            .enumerate()
+            .map(|(i, b)| b.rest_range(self.q_min[i], self.q_max[i]))
+            .unzip()
     }
 
     /// Gripper target interval in ticks (at least one).
@@ -194,6 +209,16 @@ impl Profile {
         }
         if let Err(msg) = self.velocity_limits.check_joints(self.joints) {
             return bad(msg);
+        }
+        let slowest = self.dq_max.iter().copied().fold(f64::INFINITY, f64::min);
+        if !(self.velocity_headroom.is_finite()
+            && self.velocity_headroom >= 0.0
+            && self.velocity_headroom < 0.5 * slowest)
+        {
+            return bad(format!(
+                "velocity_headroom = {} but must be ≥ 0 and below half the smallest dq_max ({slowest})",
+                self.velocity_headroom
+            ));
         }
         for i in 0..self.joints {
             if self.q_min[i] >= self.q_max[i] {
@@ -296,9 +321,25 @@ mod tests {
         assert_eq!(p.jerk_max, [5000.0; 7]);
         assert_eq!(p.command_timeout_ms, 20.0);
         assert_eq!(p.velocity_limits, VelocityLimits::Fr3);
-        // The braking curves narrow joint 1 to about the datasheet's ±2.7437 rad.
+        // The braking curves narrow joint 1 to about the datasheet's ±2.7437 rad…
+        let (lo, hi) = p.velocity_bounds()[0].rest_range(p.q_min[0], p.q_max[0]);
+        assert!((hi - 2.7426).abs() < 1e-3 && (lo + 2.7426).abs() < 1e-3, "{lo} {hi}");
+        // … and the 0.25 rad/s velocity headroom the planners keep narrows it to where that bound is 0.25 rad/s.
+        assert_eq!(p.velocity_headroom, 0.25);
         let (lo, hi) = p.position_limits();
-        assert!((hi[0] - 2.7426).abs() < 1e-3 && (lo[0] + 2.7426).abs() < 1e-3, "{lo:?} {hi:?}");
+        let bound = p.velocity_bounds()[0];
+        assert!(
+            (bound.hard(hi[0]).1 - 0.25).abs() < 1e-9 && (bound.hard(lo[0]).0 + 0.25).abs() < 1e-9,
+            "{lo:?} {hi:?}"
+        );
+    }
+
+    #[test]
+    fn velocity_headroom_must_leave_a_velocity_to_plan_with() {
+        for bad in ["-0.1", "1.4", "nan"] {
+            let t = fr3_text().replace("velocity_headroom = 0.25", &format!("velocity_headroom = {bad}"));
+            assert!(invalid(&t).contains("velocity_headroom"), "{bad}: {}", invalid(&t));
+        }
     }
 
     #[test]

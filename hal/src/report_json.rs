@@ -50,6 +50,7 @@ pub fn to_json(r: &Report) -> Value {
         "rejected": r.rejected,
         "clamped": r.clamped,
         "late_commands": r.late_commands,
+        "timing_steps": r.timing_steps,
         "position_guard_hits": r.position_guard_hits,
         "infeasible_steps": r.infeasible_steps,
         "errors": r.errors.total(),

@@ -75,6 +75,8 @@ pub struct Report {
     pub overruns: u64,
     pub rejected: u64,
     pub clamped: u64,
+    /// Commands whose step from the setpoint was off by timing the HAL found itself (`SafetyFilter::timing_steps`).
+    pub timing_steps: u64,
     pub schema_refusals: u64,
     /// Commands that arrived after the tick they answered for (see `RobotState::late_commands`).
     pub late_commands: u64,
@@ -130,8 +132,14 @@ impl std::fmt::Display for Report {
         )?;
         writeln!(
             f,
-            "  commands: {} rejected, {} clamped, {} wrong schema, {} late for their tick; {} gripper moves",
-            self.rejected, self.clamped, self.schema_refusals, self.late_commands, self.gripper_moves
+            "  commands: {} rejected, {} clamped, {} wrong schema, {} late for their tick, {} more stepping from \
+             a setpoint timing moved; {} gripper moves",
+            self.rejected,
+            self.clamped,
+            self.schema_refusals,
+            self.late_commands,
+            self.timing_steps,
+            self.gripper_moves
         )?;
         writeln!(
             f,
@@ -412,6 +420,7 @@ impl HalLoop {
             overruns,
             rejected: f.rejected,
             clamped: f.clamped,
+            timing_steps: f.timing_steps,
             schema_refusals: control.schema_refusals,
             late_commands: control.late_commands,
             position_guard_hits: f.position_guard_hits,

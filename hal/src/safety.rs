@@ -8,12 +8,18 @@
 //!    the current setpoint that would exceed velocity/acceleration/jerk is counted the same way, unless the
 //!    caller knows the step is off because of *timing* (the command came late, or is a second answer to the
 //!    same frame): then it is not counted as out of limits, the caller counts it, and [`SafetyFilter::step`]
-//!    smooths it.
+//!    smooths it. Timing the caller cannot see does the same: a HAL that missed a tick gets two ticks of the
+//!    stream at once, and after the robot extrapolated its own setpoint ([`SafetyFilter::resync`]) the setpoint
+//!    lags the stream. So a command whose step from the setpoint is too big is judged by the two steps its
+//!    controller may have meant: from its own previous command (over their seq interval), or from the setpoint
+//!    published in the frame it answers (where a controller that re-synchronises, as marsd does, continues
+//!    from). Within limits either way, it is timing (smoothed, counted apart); a first command or a jump of the
+//!    stream itself is still out of limits.
 //! 2. [`SafetyFilter::step`] moves the applied setpoint one tick toward the admitted target (or to rest when
 //!    braking) with a jerk-, acceleration- and velocity-bounded law, so even a clamped jump is reached smoothly.
 //!
 //! Velocity bounds may depend on position (the FR3's, see [`crate::velocity_limits`]). The filter plans with
-//! their braking *envelope*, tightened by the most its velocity law can lag a falling bound (A²/J: it follows
+//! their braking *envelope*, less the profile's `velocity_headroom`, tightened by the most its velocity law can lag a falling bound (A²/J: it follows
 //! a bound that drops at A/2 from A²/(2J) above, and twice that covers the transients), so the applied velocity
 //! meets the robot's bound at every position it reaches.
 
@@ -56,9 +62,31 @@ pub struct Target {
     pub gripper_speed: f64,
     /// Whether anything had to be clamped because it was out of limits (counted in `clamped`).
     pub clamped: bool,
-    /// The step from the applied setpoint exceeds a rate limit, and the caller said that is timing (not counted
-    /// as clamped; `step` smooths it).
+    /// The step from the applied setpoint exceeds a rate limit, and that is timing: the caller said so, or the
+    /// setpoint is catching up with the command stream (not counted as clamped; `step` smooths it).
     pub late_step: bool,
+}
+
+/// How many published setpoints are kept for judging the commands that answer them.
+const PUBLISHED_KEPT: usize = 8;
+
+/// A setpoint as published in a state frame.
+#[derive(Debug, Clone, Copy)]
+struct Published {
+    frame: u64,
+    q: [f64; MAX_JOINTS],
+    v: [f64; MAX_JOINTS],
+    a: [f64; MAX_JOINTS],
+}
+
+/// The last position command admitted, for judging the next one by the controller's own step.
+#[derive(Debug, Clone, Copy)]
+struct StreamPoint {
+    session: u64,
+    seq: u64,
+    q: [f64; MAX_JOINTS],
+    /// The stream's velocity there, if the command before it was its predecessor (seq − 1).
+    v: Option<[f64; MAX_JOINTS]>,
 }
 
 /// The fraction of the acceleration and jerk limits the filter's own trajectories use (marsd's smoother plans at
@@ -87,8 +115,14 @@ pub struct SafetyFilter {
     /// Position and velocity loop gains of [`Self::step`] (1/s).
     kp: f64,
     kv: f64,
+    stream: Option<StreamPoint>,
+    /// The setpoints of the last frames published, by frame seq modulo the length.
+    published: [Option<Published>; PUBLISHED_KEPT],
     pub rejected: u64,
     pub clamped: u64,
+    /// Commands whose step from the setpoint was too big, the caller did not know why, and the step the controller
+    /// meant was within limits (timing: a tick the HAL missed, or a setpoint the robot moved).
+    pub timing_steps: u64,
     /// Ticks in which the position guard had to stop a joint at its limit (expected to stay zero).
     pub position_guard_hits: u64,
     /// Joint steps in which no acceleration met every bound at once, so the middle of the empty interval was
@@ -109,9 +143,9 @@ impl SafetyFilter {
         let unused = JointVelocityBound::new(VelocityLimits::Constant, 0, 1.0);
         let (mut bound, mut plan) = ([unused; MAX_JOINTS], [unused; MAX_JOINTS]);
         let (mut q_min, mut q_max) = ([0.0; MAX_JOINTS], [0.0; MAX_JOINTS]);
-        for (i, b) in p.velocity_bounds().into_iter().enumerate() {
+        for (i, (b, planning)) in p.velocity_bounds().into_iter().zip(p.planning_velocity_bounds()).enumerate() {
             bound[i] = b;
-            plan[i] = b.tightened(p.ddq_max[i] * p.ddq_max[i] / p.jerk_max[i]);
+            plan[i] = planning.tightened(p.ddq_max[i] * p.ddq_max[i] / p.jerk_max[i]);
             (q_min[i], q_max[i]) = plan[i].rest_range(p.q_min[i], p.q_max[i]);
         }
         Self {
@@ -132,8 +166,11 @@ impl SafetyFilter {
             // kv = 4·kp is critical damping; kv·dt ≤ 0.5 keeps the discrete loop well inside stability.
             kp: KV.min(0.5 * p.rate_hz) / 4.0,
             kv: KV.min(0.5 * p.rate_hz),
+            stream: None,
+            published: [None; PUBLISHED_KEPT],
             rejected: 0,
             clamped: 0,
+            timing_steps: 0,
             position_guard_hits: 0,
             infeasible_steps: 0,
         }
@@ -153,6 +190,12 @@ impl SafetyFilter {
         self.q = arr(q);
         self.v = arr(v);
         self.a = arr(a);
+    }
+
+    /// The setpoint now goes out in state frame `frame`: a command answering that frame may continue from it.
+    pub fn note_published(&mut self, frame: u64) {
+        self.published[(frame % PUBLISHED_KEPT as u64) as usize] =
+            Some(Published { frame, q: self.q, v: self.v, a: self.a });
     }
 
     /// The positions joint `i` may be commanded to and rest in.
@@ -181,7 +224,20 @@ impl SafetyFilter {
         match &r {
             Err(_) => self.rejected += 1,
             Ok(t) if t.clamped => self.clamped += 1,
+            Ok(t) if t.late_step && !timing => self.timing_steps += 1,
             Ok(_) => {}
+        }
+        if let Ok(t) = &r
+            && cmd.mode == CommandMode::Position as u32
+        {
+            let v = self.stream.filter(|p| p.session == cmd.session && p.seq + 1 == cmd.seq).map(|p| {
+                let mut v = [0.0; MAX_JOINTS];
+                for ((v, q), q0) in v.iter_mut().zip(&t.position).zip(&p.q).take(self.n) {
+                    *v = (q - q0) / self.dt;
+                }
+                v
+            });
+            self.stream = Some(StreamPoint { session: cmd.session, seq: cmd.seq, q: t.position, v });
         }
         r
     }
@@ -243,13 +299,21 @@ impl SafetyFilter {
                 }
                 t.clamped = true;
             }
-            // The step from the applied setpoint, differentiated like libfranka does, must be within limits.
-            if let Some((quantity, value, limit)) = self.step_excess(i, t.position[i]) {
-                if timing {
+            // The step from the applied setpoint, differentiated like libfranka does, must be within limits, or
+            // else one of the steps the controller meant (see the module doc) must.
+            if let Some(excess) = self.step_excess(i, t.position[i]) {
+                let content = if timing {
+                    None
+                } else {
+                    self.intended_step_excess(i, cmd, t.position[i]).unwrap_or(Some(excess))
+                };
+                if let Some((quantity, value, limit)) = content
+                    && reject
+                {
+                    return Err(Refusal::Rate { joint: i, quantity, value, limit });
+                } else if content.is_none() {
                     // Timing, not content: smoothed by `step`, counted by the caller.
                     t.late_step = true;
-                } else if reject {
-                    return Err(Refusal::Rate { joint: i, quantity, value, limit });
                 } else {
                     // Clamped by `step`, which never exceeds the limits on the way to the target.
                     t.clamped = true;
@@ -268,9 +332,19 @@ impl SafetyFilter {
 
     /// The first rate limit a one-tick step of joint `i` to `target` would exceed: (quantity, value, limit).
     fn step_excess(&self, i: usize, target: f64) -> Option<(&'static str, f64, f64)> {
-        let v = (target - self.q[i]) / self.dt;
-        let a = (v - self.v[i]) / self.dt;
-        let j = (a - self.a[i]) / self.dt;
+        self.step_excess_from(i, (self.q[i], self.v[i], self.a[i]), target)
+    }
+
+    /// [`Self::step_excess`] from the setpoint `(q, v, a)`.
+    fn step_excess_from(
+        &self,
+        i: usize,
+        (q, v0, a0): (f64, f64, f64),
+        target: f64,
+    ) -> Option<(&'static str, f64, f64)> {
+        let v = (target - q) / self.dt;
+        let a = (v - v0) / self.dt;
+        let j = (a - a0) / self.dt;
         let (v_lo, v_hi) = self.bound[i].hard(target);
         if v > v_hi + EPS * v_hi.abs() || v < v_lo - EPS * v_lo.abs() {
             return Some(("implied velocity", v, if v >= 0.0 { v_hi } else { v_lo }));
@@ -282,6 +356,48 @@ impl SafetyFilter {
             return Some(("implied jerk", j, self.j_max[i]));
         }
         None
+    }
+
+    /// The excess of a command whose step from the setpoint is too big, judged by the steps its controller
+    /// meant: none if its step from the controller's previous command or from the setpoint published in the
+    /// frame it answers is within the limits, else the first found; `None` (outer) when neither is known.
+    #[allow(clippy::option_option)] // outer: whether it can be judged; inner: the verdict
+    fn intended_step_excess(
+        &self,
+        i: usize,
+        cmd: &JointCommand,
+        target: f64,
+    ) -> Option<Option<(&'static str, f64, f64)>> {
+        let from_stream = self.stream_excess(i, cmd, target);
+        let from_frame = self.published[(cmd.state_seq % PUBLISHED_KEPT as u64) as usize]
+            .filter(|p| p.frame == cmd.state_seq)
+            .map(|p| self.step_excess_from(i, (p.q[i], p.v[i], p.a[i]), target));
+        match (from_stream, from_frame) {
+            (Some(None), _) | (_, Some(None)) => Some(None),
+            (None, None) => None,
+            (a, b) => Some(a.flatten().or(b.flatten())),
+        }
+    }
+
+    /// The first rate limit the controller's own step to `target` exceeds, from its previous command (velocity
+    /// and acceleration over the commands' seq interval: a HAL that missed a tick gets two ticks of the stream at
+    /// once); `None` (outer) when the previous command is not of this stream.
+    #[allow(clippy::option_option)] // outer: whether the stream can judge; inner: its verdict
+    fn stream_excess(&self, i: usize, cmd: &JointCommand, target: f64) -> Option<Option<(&'static str, f64, f64)>> {
+        let p = self.stream.filter(|p| p.session == cmd.session && p.seq < cmd.seq)?;
+        let v = (target - p.q[i]) / ((cmd.seq - p.seq) as f64 * self.dt);
+        let (v_lo, v_hi) = self.bound[i].hard(target);
+        if v > v_hi + EPS * v_hi.abs() || v < v_lo - EPS * v_lo.abs() {
+            return Some(Some(("implied velocity", v, if v >= 0.0 { v_hi } else { v_lo })));
+        }
+        if let Some(pv) = p.v {
+            // The two velocities are means over their intervals, whose middles lie (gap + 1)/2 ticks apart.
+            let a = (v - pv[i]) / (0.5 * (cmd.seq - p.seq + 1) as f64 * self.dt);
+            if a.abs() > self.a_max[i] * (1.0 + EPS) {
+                return Some(Some(("implied acceleration", a, self.a_max[i])));
+            }
+        }
+        Some(None)
     }
 
     fn reachable_in_one_tick(&self, t: &[f64; MAX_JOINTS]) -> bool {
@@ -452,9 +568,9 @@ mod tests {
         let t = f.admit(&cmd(&q), false).unwrap();
         assert!(t.clamped);
         // Into the range where the FR3's joint 4 may rest: a little below its q_max of −0.1169 rad, where the
-        // braking curve's bound reaches zero.
+        // braking curve's bound, less the profile's headroom and the filter's lag margin, reaches zero.
         assert_eq!(t.position[3], f.position_range(3).1);
-        assert!(t.position[3] < -0.1169 && t.position[3] > -0.17, "{}", t.position[3]);
+        assert!(t.position[3] < -0.1169 && t.position[3] > -0.19, "{}", t.position[3]);
         assert_eq!((f.rejected, f.clamped), (0, 1));
     }
 
@@ -499,6 +615,78 @@ mod tests {
             // The same jump on time is out of limits.
             let on_time = f.admit(&cmd(&q), false);
             assert_eq!(f.clamped + f.rejected, 1, "{policy:?}: {on_time:?}");
+        }
+    }
+
+    /// After the robot applied a setpoint of its own (a resync), or a tick the HAL missed, the setpoint is off the
+    /// controller's stream: a command continuing the stream smoothly is timing's (smoothed, not counted) however
+    /// far the setpoint lags, while a command that jumps from the controller's previous one is still out of limits.
+    #[test]
+    fn a_command_is_judged_by_the_step_its_controller_meant() {
+        for policy in [LimitPolicy::Clamp, LimitPolicy::Reject] {
+            let mut p = fr3();
+            p.limit_policy = policy;
+            let mut f = SafetyFilter::new(&p, &p.home);
+            let at = |k: u64| {
+                let mut q = p.home.clone();
+                q[0] += 1e-6 * k as f64;
+                JointCommand::position(1, k, k, &q)
+            };
+            for k in 1..=3 {
+                let t = f.admit(&at(k), false).unwrap();
+                assert!(!t.late_step && !t.clamped);
+                f.step(Some(&t.position));
+            }
+            // The robot extrapolated elsewhere: 5 mrad off the stream (5 rad/s for a one-tick step).
+            let mut q = f.position().to_vec();
+            q[0] -= 5e-3;
+            f.resync(&q, &[0.0; 7], &[0.0; 7]);
+            for k in 4..=6 {
+                let t = f.admit(&at(k), false).unwrap();
+                assert!(t.late_step && !t.clamped, "{policy:?} seq {k}");
+                f.step(Some(&t.position));
+            }
+            assert_eq!((f.clamped, f.rejected, f.timing_steps), (0, 0, 3), "{policy:?}");
+            // A jump of the stream itself while the setpoint catches up: 20 mrad in one tick.
+            let mut jump = at(7);
+            jump.position[0] += 0.02;
+            let r = f.admit(&jump, false);
+            assert_eq!(f.clamped + f.rejected, 1, "{policy:?}: {r:?}");
+            // A controller that re-synchronised to the setpoint frame 9 published (10 mrad off its own stream),
+            // answering it after the robot moved the setpoint again: its step from that frame is what it meant.
+            let mut q = p.home.clone();
+            q[0] -= 0.01;
+            f.resync(&q, &[0.0; 7], &[0.0; 7]);
+            f.note_published(9);
+            q[0] += 0.005;
+            f.resync(&q, &[0.0; 7], &[0.0; 7]);
+            let mut resynced = JointCommand::position(1, 8, 9, &p.home);
+            resynced.position[0] = p.home[0] - 0.01 + 1e-6;
+            let t = f.admit(&resynced, false).unwrap();
+            assert!(t.late_step && !t.clamped, "{policy:?}");
+            assert_eq!(f.clamped + f.rejected, 1, "{policy:?}");
+            // A HAL that missed a tick: the stream at 2 rad/s, seq 12 right after seq 10 (4 mrad at once, a
+            // 2 rad/s → 4 rad/s step for the setpoint) is timing; a jump of the same size on consecutive seqs is not.
+            let mut f = SafetyFilter::new(&p, &p.home);
+            let moving = |k: u64| {
+                let mut q = p.home.clone();
+                q[0] += 2e-3 * k as f64 - 2e-3 * 10.0;
+                JointCommand::position(1, k, k, &q)
+            };
+            let mut q = p.home.clone();
+            q[0] -= 2e-3;
+            f.resync(&q, &[0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0], &[0.0; 7]);
+            f.v[0] = 2.0;
+            let t = f.admit(&moving(10), false).unwrap();
+            assert!(!t.late_step && !t.clamped, "{policy:?}");
+            f.step(Some(&t.position));
+            let t = f.admit(&moving(12), false).unwrap();
+            assert!(t.late_step && !t.clamped, "{policy:?}");
+            assert_eq!((f.clamped, f.rejected), (0, 0), "{policy:?}");
+            let mut jump = moving(13);
+            jump.position[0] += 2e-3;
+            let r = f.admit(&jump, false);
+            assert_eq!(f.clamped + f.rejected, 1, "{policy:?}: {r:?}");
         }
     }
 

@@ -13,7 +13,8 @@
 //! Position-dependent velocity bounds (the FR3's, `mars_hal::velocity_limits`): ruckig takes constant limits, so
 //! before every step the smoother hands it the bounds at the current position, from their braking envelope
 //! (which falls no faster than half the acceleration limit, so ruckig, braking at up to 90 % of it, keeps up)
-//! tightened by A²/J for ruckig's jerk-limited lag, scaled like every other limit.
+//! tightened by A²/J for ruckig's jerk-limited lag, scaled like every other limit. All velocity limits are the
+//! profile's planning bounds: the robot's, less its `velocity_headroom` (the FR3 judges the *measured* velocity).
 //!
 //! Allocation caveat: rsruckig formats a `String` when *it* reports an error. [`Smoother`] validates, clamps and
 //! range-checks every input first so ruckig's validation never fails; only a numerical failure inside ruckig would
@@ -39,8 +40,6 @@ const REST_VELOCITY: f64 = 1e-9;
 const REST_ACCELERATION: f64 = 1e-6;
 /// Ruckig refuses a velocity limit of 0: where the bound is 0 (at a position limit), this is the limit.
 const MIN_VELOCITY_LIMIT: f64 = 1e-9;
-/// A position-dependent velocity limit is raised only once the bound exceeds ruckig's by this fraction.
-const LIMIT_HYSTERESIS: f64 = 0.01;
 
 /// Per-joint kinematic limits of the robot (absolute values; only the first `n` entries are used).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -53,8 +52,8 @@ pub struct Limits {
 }
 
 impl Limits {
-    /// The profile's `dq_max`, `ddq_max`, `jerk_max` and position-dependent velocity bounds. Entries the profile
-    /// lacks stay 0, which [`Smoother::new`] rejects.
+    /// The profile's `dq_max` (less its `velocity_headroom`), `ddq_max`, `jerk_max` and position-dependent
+    /// planning velocity bounds. Entries the profile lacks stay 0, which [`Smoother::new`] rejects.
     pub fn from_profile(profile: &Profile) -> Self {
         let mut l = Limits {
             velocity: [0.0; MAX_JOINTS],
@@ -70,7 +69,10 @@ impl Limits {
             let k = src.len().min(MAX_JOINTS);
             dst[..k].copy_from_slice(&src[..k]);
         }
-        let bounds = profile.velocity_bounds();
+        for v in &mut l.velocity[..profile.dq_max.len().min(MAX_JOINTS)] {
+            *v -= profile.velocity_headroom;
+        }
+        let bounds = profile.planning_velocity_bounds();
         if bounds.iter().any(JointVelocityBound::depends_on_position) {
             let mut b = [bounds[0]; MAX_JOINTS];
             b[..bounds.len().min(MAX_JOINTS)].copy_from_slice(&bounds[..bounds.len().min(MAX_JOINTS)]);
@@ -264,24 +266,18 @@ impl Smoother {
         (lo, self.input.max_velocity[i])
     }
 
-    /// Position-dependent bounds: ruckig gets this step's limits at the current position. A change of a limit
-    /// makes ruckig plan anew, so a limit moves only once the bound is [`LIMIT_HYSTERESIS`] away from the one
-    /// ruckig has (a lag the 10 % safety factor covers: ruckig's limit stays below 0.9 / 0.99 of the bound).
+    /// Position-dependent bounds: ruckig gets this step's limits at the current position, every step. (Moving
+    /// them only in 1 % steps, to spare ruckig a re-plan, made a joint braking along a falling bound saw between
+    /// +9 and −6 rad/s² at the jerk limit, each step a new braking pulse; franka-sim's arm rang with it, 0.3 rad/s
+    /// above the commanded velocity. The servo's target moves every tick anyway, so ruckig re-plans regardless.)
     fn velocity_limits_here(&mut self) {
         let Some((bounds, brake)) = &self.position_dependent else { return };
         let sf = self.safety_factor;
-        let far = |new: f64, old: f64| (new - old).abs() > LIMIT_HYSTERESIS * old.abs();
         for i in 0..self.n {
             let (lo, hi) = bounds[i].envelope(self.state.position[i], brake[i]);
-            let hi = (sf * hi).clamp(MIN_VELOCITY_LIMIT, self.max_velocity[i]);
-            if far(hi, self.input.max_velocity[i]) {
-                self.input.max_velocity[i] = hi;
-            }
+            self.input.max_velocity[i] = (sf * hi).clamp(MIN_VELOCITY_LIMIT, self.max_velocity[i]);
             if let Some(min) = self.input.min_velocity.as_mut() {
-                let lo = (sf * lo).clamp(-self.max_velocity[i], -MIN_VELOCITY_LIMIT);
-                if far(lo, min[i]) {
-                    min[i] = lo;
-                }
+                min[i] = (sf * lo).clamp(-self.max_velocity[i], -MIN_VELOCITY_LIMIT);
             }
         }
     }

@@ -77,11 +77,22 @@ fn number_after(text: &str, name: &str) -> f64 {
 }
 
 /// The HAL report's robot line ("robot 127.0.0.1: … 0 reflexes …"): no reflex, and the robot's own control
-/// command success rate ≥ 0.95 throughout.
+/// command success rate (over its last 100 cycles) ≥ 0.95 throughout — unless the machine shows it held the HAL
+/// up: a rate of r means (1 − r)·100 commands missing in some 100 cycles, and the HAL cannot answer a state it
+/// never got, so the states the HAL never saw must account for that many.
 fn assert_robot_line_clean(hal_stdout: &str, hal_stderr: &str, sim_log: &str) {
     let line = assert_no_reflex(hal_stdout, hal_stderr, sim_log);
     let rate = number_after(line, "control success rate min");
-    assert!(rate >= 0.95, "the robot's control command success rate fell to {rate}");
+    let unseen = number_after(line, "cycles,");
+    let missing = ((1.0 - rate) * 100.0).round();
+    assert!(
+        rate >= 0.95 || unseen >= missing,
+        "the robot's control command success rate fell to {rate} ({missing} of 100 commands missing) while the HAL \
+         saw all but {unseen} states: {line}"
+    );
+    if rate < 0.95 {
+        eprintln!("the success rate fell to {rate}: the machine kept {unseen} robot states from the HAL ({line})");
+    }
 }
 
 /// The HAL report's robot line, with no reflex in it nor in the HAL's log (on failure, the simulator's own
@@ -98,6 +109,31 @@ fn assert_no_reflex<'a>(hal_stdout: &'a str, hal_stderr: &str, sim_log: &str) ->
         sim.join("\n")
     );
     line
+}
+
+/// The arm's *measured* velocity within the FR3's position-dependent bound at its measured position, in every
+/// frame of the session: what the robot's safety controller judges (franka-sim forgives 0.1 rad/s past the bound
+/// for its integrator's noise; this does not). The planners keep `velocity_headroom` off the bound for the arm's
+/// tracking overshoot; before they did, the least room seen in this test's runs was −0.09 to 0.29 rad/s, and one
+/// run in ~10 raised franka-sim's velocity reflex.
+fn assert_measured_velocity_within_the_bounds(r: &Recorded) {
+    let p = Profile::load(&root().join("configs/fr3.toml")).unwrap();
+    let bounds = p.velocity_bounds();
+    let mut least = (f64::INFINITY, 0, 0);
+    for s in r.states.iter().map(|(s, _)| s).filter(|s| in_session(s)) {
+        for (j, b) in bounds.iter().enumerate() {
+            let (lo, hi) = b.hard(s.position[j]);
+            let room = (hi - s.velocity[j]).min(s.velocity[j] - lo);
+            assert!(room >= 0.0, "seq {} joint {j}: measured {} rad/s outside [{lo}, {hi}]", s.seq, s.velocity[j]);
+            if room < least.0 {
+                least = (room, s.seq, j);
+            }
+        }
+    }
+    eprintln!(
+        "measured velocity: least room to the FR3's bound {:.3} rad/s (seq {}, joint {})",
+        least.0, least.1, least.2
+    );
 }
 
 /// The applied velocities within libfranka's position-dependent FR3 bounds (what the robot's own velocity
@@ -187,6 +223,7 @@ fn sigkill_of_marsd_mid_motion_brakes_the_fr3_to_rest_with_no_reflex() {
     let st = assert_limits(&r, &Limits::fr3(), "SIGKILL marsd (franka-sim)");
     assert!(st.jerk_samples > 500, "{st:?}");
     assert_within_position_dependent_velocity_bounds(&r);
+    assert_measured_velocity_within_the_bounds(&r);
     // The HAL, stopped the way systemd would, reports the robot's side.
     hal.signal(libc::SIGTERM);
     assert_eq!(hal.exit_code(Duration::from_secs(10)), 0, "{}", hal.logs());
@@ -213,8 +250,13 @@ fn a_hal_stalled_for_milliseconds_again_and_again_raises_no_reflex() {
     let s = summary(&rig.logs, "marsd");
     assert!(u64_at(&s, "/successes") >= 1, "no episode succeeded: {s}");
     assert_eq!(u64_at(&s, "/limit_violations/hal_rejected"), 0);
+    // Commands the HAL clamped (not required to be 0 here: when a stop outlasts marsd's 3 ms stale-frame limit,
+    // marsd's stream restarts from an old frame, and a few of its first steps are judged out of limits).
+    eprintln!("HAL clamped {} commands", u64_at(&s, "/limit_violations/hal_clamped"));
     // The frames say where the robot moved on over states the HAL never saw (what the limit checker needs).
-    let gaps = rec.finish().states.iter().filter(|(f, _)| f.robot_cycles > 1).count();
+    let r = rec.finish();
+    assert_measured_velocity_within_the_bounds(&r);
+    let gaps = r.states.iter().filter(|(f, _)| f.robot_cycles > 1).count();
     assert!(gaps > 0, "no frame reported more than one robot cycle");
     // The stalls did what they are for: states the HAL never saw.
     let line = find_line(&hal_out, &["robot 127.0.0.1:"]).unwrap();

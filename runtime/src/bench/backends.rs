@@ -238,6 +238,7 @@ fn table(runs: &[Run], args: &BackendBenchArgs) -> String {
             }),
         ),
         ("HAL: commands late for their tick", Box::new(|r| show(num(&r.hal, "/late_commands"), 0))),
+        ("HAL: commands stepping from a setpoint timing moved", Box::new(|r| show(num(&r.hal, "/timing_steps"), 0))),
         (
             "HAL: commands rejected / clamped",
             Box::new(|r| format!("{} / {}", show(num(&r.hal, "/rejected"), 0), show(num(&r.hal, "/clamped"), 0))),
