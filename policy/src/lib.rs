@@ -5,6 +5,7 @@
 //! writes safetensors + config → a task's evaluation calls the model through [`rollout::ChunkPolicy`].
 
 pub mod ablation;
+pub mod augment;
 pub mod checkpoint;
 pub mod cli;
 pub mod config;

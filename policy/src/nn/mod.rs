@@ -6,5 +6,7 @@ pub mod dit;
 pub mod linear;
 pub mod mlp;
 pub mod norm;
+pub mod resnet;
 pub mod seeded_init;
+pub mod spatial_softmax;
 pub mod time_embed;
