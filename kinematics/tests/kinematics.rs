@@ -1,7 +1,7 @@
 //! FR3 kinematics against a peer's model (MuJoCo on franky-sim's FR3), against itself (Jacobian vs finite
 //! differences, IK round trips), and against bad targets (unreachable, singular, not finite: a reason, never a NaN).
 
-use mars_kinematics::{Arm, IkError, IkParams, Joints, Pose, flange_pose, jacobian, solve};
+use mars_kinematics::{Arm, IkError, IkParams, Joints, Plane, Pose, flange_pose, jacobian, solve};
 use nalgebra::{Matrix3, UnitQuaternion, Vector3};
 use rand::{Rng, SeedableRng, rngs::StdRng};
 
@@ -104,6 +104,31 @@ fn reachable_poses_round_trip() {
     );
     assert_eq!(near_ok, n);
     assert!(far_ok * 10 >= n * 7, "{far_ok} of {n} from the start pose");
+}
+
+/// A pushing policy's path on a table plane (the flange 0.25 m up, pointing down): each point reached from the
+/// previous solution, as the servo would, with the flange on the plane and pointing down at every point.
+#[test]
+fn a_planar_path_is_followed_point_by_point() {
+    let arm = Arm::fr3();
+    let params = IkParams::default();
+    let plane = Plane::pointing_down(0.25);
+    let mut q = start_pose();
+    let mut reached = 0;
+    for k in 0..=200 {
+        let s = k as f64 / 200.0;
+        let (x, y) =
+            (0.45 + 0.15 * (2.0 * std::f64::consts::PI * s).cos(), 0.2 * (2.0 * std::f64::consts::PI * s).sin());
+        let target = plane.pose(x, y);
+        let sol = solve(&arm, &target, &q, &params).unwrap_or_else(|e| panic!("point {k} ({x:.3}, {y:.3}): {e}"));
+        let at = flange_pose(&arm, &sol.q);
+        let (ax, ay) = Plane::xy(&at);
+        assert!((ax - x).hypot(ay - y) < 1e-4 && (at.translation.z - 0.25).abs() < 1e-4, "point {k}");
+        assert!((at.rotation * Vector3::z() + Vector3::z()).norm() < 1e-3, "point {k}: not pointing down");
+        q = sol.q;
+        reached += 1;
+    }
+    assert_eq!(reached, 201);
 }
 
 /// Targets out of reach, beyond a stretched (singular) arm, or anywhere at random with random seeds: the solver
