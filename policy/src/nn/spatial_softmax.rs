@@ -3,16 +3,17 @@
 //! *where* things are, which average pooling throws away; a pushing policy needs where the block is.
 
 use candle_core::{D, Module, Result, Tensor};
-use candle_nn::{Conv2d, Conv2dConfig, VarBuilder, conv2d};
+use candle_nn::{Conv2d, Conv2dConfig, VarBuilder, conv2d_no_bias};
 
 pub struct SpatialSoftmax {
-    /// 1 × 1 convolution from the backbone's channels to the K keypoint maps.
+    /// 1 × 1 convolution from the backbone's channels to the K keypoint maps. No bias: a constant added to a
+    /// whole map does not change its softmax, so a bias would get no gradient (exactly 0; robomimic's head has one).
     keypoints: Conv2d,
 }
 
 impl SpatialSoftmax {
     pub fn new(channels: usize, keypoints: usize, vb: VarBuilder) -> Result<Self> {
-        Ok(Self { keypoints: conv2d(channels, keypoints, 1, Conv2dConfig::default(), vb.pp("keypoints"))? })
+        Ok(Self { keypoints: conv2d_no_bias(channels, keypoints, 1, Conv2dConfig::default(), vb.pp("keypoints"))? })
     }
 
     /// `features`: [B, C, H, W] → [B, 2K]: (x, y) of each keypoint, x along W, y along H.
