@@ -19,9 +19,9 @@
 //!    braking) with a jerk-, acceleration- and velocity-bounded law, so even a clamped jump is reached smoothly.
 //!
 //! Velocity bounds may depend on position (the FR3's, see [`crate::velocity_limits`]). The filter plans with
-//! their braking *envelope*, less the profile's `velocity_headroom`, tightened by the most its velocity law can lag a falling bound (A²/J: it follows
-//! a bound that drops at A/2 from A²/(2J) above, and twice that covers the transients), so the applied velocity
-//! meets the robot's bound at every position it reaches.
+//! their braking *envelope*, less the profile's `velocity_headroom`, tightened by the most its velocity law can
+//! lag a falling bound (A²/J: it follows a bound that drops at A/2 from A²/(2J) above, and twice that covers the
+//! transients), so the applied velocity meets the robot's bound at every position it reaches.
 
 use mars_ipc::{CommandMode, JointCommand, MAX_JOINTS};
 
@@ -63,9 +63,12 @@ pub struct Target {
     /// Whether anything had to be clamped because it was out of limits (counted in `clamped`).
     pub clamped: bool,
     /// The step from the applied setpoint exceeds a rate limit, and that is timing: the caller said so, or the
-    /// setpoint is catching up with the command stream (not counted as clamped; `step` smooths it).
+    /// step the controller meant is within the limits (not counted as clamped; `step` smooths it).
     pub late_step: bool,
 }
+
+/// A rate limit exceeded: (quantity, value, limit).
+type Excess = (&'static str, f64, f64);
 
 /// How many published setpoints are kept for judging the commands that answer them.
 const PUBLISHED_KEPT: usize = 8;
@@ -331,17 +334,12 @@ impl SafetyFilter {
     }
 
     /// The first rate limit a one-tick step of joint `i` to `target` would exceed: (quantity, value, limit).
-    fn step_excess(&self, i: usize, target: f64) -> Option<(&'static str, f64, f64)> {
+    fn step_excess(&self, i: usize, target: f64) -> Option<Excess> {
         self.step_excess_from(i, (self.q[i], self.v[i], self.a[i]), target)
     }
 
     /// [`Self::step_excess`] from the setpoint `(q, v, a)`.
-    fn step_excess_from(
-        &self,
-        i: usize,
-        (q, v0, a0): (f64, f64, f64),
-        target: f64,
-    ) -> Option<(&'static str, f64, f64)> {
+    fn step_excess_from(&self, i: usize, (q, v0, a0): (f64, f64, f64), target: f64) -> Option<Excess> {
         let v = (target - q) / self.dt;
         let a = (v - v0) / self.dt;
         let j = (a - a0) / self.dt;
@@ -362,12 +360,7 @@ impl SafetyFilter {
     /// meant: none if its step from the controller's previous command or from the setpoint published in the
     /// frame it answers is within the limits, else the first found; `None` (outer) when neither is known.
     #[allow(clippy::option_option)] // outer: whether it can be judged; inner: the verdict
-    fn intended_step_excess(
-        &self,
-        i: usize,
-        cmd: &JointCommand,
-        target: f64,
-    ) -> Option<Option<(&'static str, f64, f64)>> {
+    fn intended_step_excess(&self, i: usize, cmd: &JointCommand, target: f64) -> Option<Option<Excess>> {
         let from_stream = self.stream_excess(i, cmd, target);
         let from_frame = self.published[(cmd.state_seq % PUBLISHED_KEPT as u64) as usize]
             .filter(|p| p.frame == cmd.state_seq)
@@ -383,7 +376,7 @@ impl SafetyFilter {
     /// and acceleration over the commands' seq interval: a HAL that missed a tick gets two ticks of the stream at
     /// once); `None` (outer) when the previous command is not of this stream.
     #[allow(clippy::option_option)] // outer: whether the stream can judge; inner: its verdict
-    fn stream_excess(&self, i: usize, cmd: &JointCommand, target: f64) -> Option<Option<(&'static str, f64, f64)>> {
+    fn stream_excess(&self, i: usize, cmd: &JointCommand, target: f64) -> Option<Option<Excess>> {
         let p = self.stream.filter(|p| p.session == cmd.session && p.seq < cmd.seq)?;
         let v = (target - p.q[i]) / ((cmd.seq - p.seq) as f64 * self.dt);
         let (v_lo, v_hi) = self.bound[i].hard(target);
@@ -675,7 +668,7 @@ mod tests {
             };
             let mut q = p.home.clone();
             q[0] -= 2e-3;
-            f.resync(&q, &[0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0], &[0.0; 7]);
+            f.resync(&q, &[0.0; 7], &[0.0; 7]);
             f.v[0] = 2.0;
             let t = f.admit(&moving(10), false).unwrap();
             assert!(!t.late_step && !t.clamped, "{policy:?}");

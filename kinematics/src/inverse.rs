@@ -94,7 +94,9 @@ pub fn solve(arm: &Arm, target: &Pose, seed: &Joints, params: &IkParams) -> Resu
     let mid = (lo + hi) * 0.5;
     let range = hi - lo;
     let mut best = (f64::INFINITY, q, 0.0, 0.0);
+    let mut iterations = 0;
     for iteration in 0..=params.max_iterations {
+        iterations = iteration;
         let (pose, j) = jacobian(arm, &q);
         let e = pose_error(&pose, target);
         let (ep, er) = (e.fixed_rows::<3>(0).norm(), e.fixed_rows::<3>(3).norm());
@@ -129,7 +131,7 @@ pub fn solve(arm: &Arm, target: &Pose, seed: &Joints, params: &IkParams) -> Resu
         q = (q + dq).zip_zip_map(&lo, &hi, |x, l, h| x.clamp(l, h));
     }
     let (_, closest, position_error, orientation_error) = best;
-    Err(IkError::Unreachable { closest, position_error, orientation_error, iterations: params.max_iterations })
+    Err(IkError::Unreachable { closest, position_error, orientation_error, iterations })
 }
 
 /// The joint limits less `margin`.

@@ -1,26 +1,11 @@
-//! Forward kinematics, the Jacobian and the IK solve allocate nothing (they run in the servo tick): every heap
-//! allocation of this test binary is counted.
-
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::sync::atomic::{AtomicU64, Ordering};
+//! Forward kinematics, the Jacobian and the IK solve allocate nothing (they run in the servo tick): this thread's
+//! heap allocations are counted by the runtime's own counting allocator (mars-rt's `CountingAlloc`).
 
 use mars_kinematics::{Arm, IkParams, Joints, flange_pose, jacobian, solve};
-
-struct Counting;
-static ALLOCATIONS: AtomicU64 = AtomicU64::new(0);
-
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
-        unsafe { System.alloc(layout) }
-    }
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        unsafe { System.dealloc(ptr, layout) }
-    }
-}
+use mars_rt::alloc_count::{self, CountingAlloc};
 
 #[global_allocator]
-static GLOBAL: Counting = Counting;
+static GLOBAL: CountingAlloc = CountingAlloc;
 
 #[test]
 fn kinematics_calls_allocate_nothing() {
@@ -32,7 +17,7 @@ fn kinematics_calls_allocate_nothing() {
     q[3] += 0.2;
     let target = flange_pose(&arm, &q);
     let far = mars_kinematics::Pose::translation(3.0, 0.0, 0.0);
-    let before = ALLOCATIONS.load(Ordering::Relaxed);
+    let before = alloc_count::thread_counts().expect("CountingAlloc is this binary's global allocator");
     let mut sink = 0.0;
     for _ in 0..100 {
         sink += flange_pose(&arm, &home).translation.x;
@@ -40,9 +25,9 @@ fn kinematics_calls_allocate_nothing() {
         sink += solve(&arm, &target, &home, &params).map(|s| s.q[0]).unwrap_or(0.0);
         sink += solve(&arm, &far, &home, &params).map(|s| s.q[0]).unwrap_or(1.0);
     }
-    let after = ALLOCATIONS.load(Ordering::Relaxed);
+    let after = alloc_count::thread_counts().unwrap();
     assert!(sink.is_finite());
-    assert_eq!(after - before, 0, "allocations in 100 rounds of FK, Jacobian and two IK solves");
+    assert_eq!(after.system - before.system, 0, "allocations in 100 rounds of FK, Jacobian and two IK solves");
 }
 
 /// libfranka's examples' start pose [0, −π/4, 0, −3π/4, 0, π/2, π/4].

@@ -9,10 +9,6 @@ fn random_q(arm: &Arm, rng: &mut StdRng, margin: f64) -> Joints {
     Joints::from_fn(|i, _| rng.random_range(arm.q_min[i] + margin..arm.q_max[i] - margin))
 }
 
-fn angle_between(a: &UnitQuaternion<f64>, b: &UnitQuaternion<f64>) -> f64 {
-    a.angle_to(b)
-}
-
 /// 64 configurations over the model's joint ranges (`tests/fixtures/fr3_mujoco_poses.py` says how they were made):
 /// our DH table and MuJoCo's body tree agree on the flange to 1e-9.
 #[test]
@@ -31,7 +27,7 @@ fn the_flange_pose_agrees_with_mujoco_on_franky_sims_fr3_model() {
         let pos = Vector3::from_row_slice(&f(&p["position"]));
         let rot = UnitQuaternion::from_matrix(&Matrix3::from_row_slice(&f(&p["rotation"])));
         worst_p = worst_p.max((ours.translation.vector - pos).norm());
-        worst_r = worst_r.max(angle_between(&ours.rotation, &rot));
+        worst_r = worst_r.max(ours.rotation.angle_to(&rot));
     }
     eprintln!("64 poses: worst {worst_p:e} m, {worst_r:e} rad");
     assert!(worst_p < 1e-9 && worst_r < 1e-9, "{worst_p} m, {worst_r} rad");

@@ -1,6 +1,8 @@
 //! The ResNet-18 image encoder (GroupNorm, spatial-softmax or average-pool head) and its crop augmentation: the
 //! shapes, every weight reached by the gradient (candle's fused ops would silently stop it), and the crops.
 
+mod gradients;
+
 use candle_core::{DType, Device, Tensor, Var};
 use candle_nn::{VarBuilder, VarMap};
 use mars_policy::augment::{centre_crop, random_crop};
@@ -57,13 +59,7 @@ fn every_weight_of_the_encoder_gets_a_nonzero_gradient() {
         let k = out.dim(1).unwrap();
         let t = target.narrow(0, 0, k.min(12)).unwrap();
         let loss = out.narrow(1, 0, k.min(12)).unwrap().broadcast_sub(&t).unwrap().sqr().unwrap().sum_all().unwrap();
-        let grads = loss.backward().unwrap();
-        let data = varmap.data().lock().unwrap();
-        for (name, var) in data.iter() {
-            let g = grads.get(var).unwrap_or_else(|| panic!("{head:?}: no gradient for {name}"));
-            let norm = g.sqr().unwrap().sum_all().unwrap().to_scalar::<f32>().unwrap();
-            assert!(norm > 0.0 && norm.is_finite(), "{head:?}: gradient of {name} is {norm}");
-        }
+        gradients::assert_every_var_has_a_gradient(&varmap, &loss.backward().unwrap(), &format!("{head:?}"));
     }
 }
 

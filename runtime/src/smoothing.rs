@@ -272,8 +272,8 @@ impl Smoother {
     /// makes ruckig plan anew, so a limit moves only once the bound is [`LIMIT_HYSTERESIS`] away from the one
     /// ruckig has (a lag the 10 % safety factor covers: ruckig's limit stays below 0.9 / 0.99 of the bound).
     /// (Handing ruckig the bound every tick instead was tried: a joint braking along a falling bound then brakes
-    /// in a 4-tick pulse rather than the 1 % steps' ±9 rad/s² saw, but with the HAL stopped 8 ms every 300 ms
-    /// franka-sim raised its velocity-discontinuity reflex in 3 runs of 12, against 0 of 12 with the steps.)
+    /// in a short pulse each tick rather than a full jerk-limited pulse each step, but in 12 runs of the franka-sim
+    /// stall test franka-sim raised its velocity-discontinuity reflex 3 times, against 0 of 12 with the steps.)
     fn velocity_limits_here(&mut self) {
         let Some((bounds, brake)) = &self.position_dependent else { return };
         let sf = self.safety_factor;

@@ -132,17 +132,15 @@ pub fn max_pool_3x3_stride_2(x: &Tensor) -> Result<Tensor> {
     let (ho, wo) = ((h - 1) / 2 + 1, (w - 1) / 2 + 1);
     // One more row and column than padding 1 needs, so every shifted view below has 2·out rows to fold.
     let x = x.pad_with_same(2, 1, 2)?.pad_with_same(3, 1, 2)?;
-    let mut out: Option<Tensor> = None;
-    for di in 0..3 {
-        // Rows di, di + 2, …: 2·ho rows folded into (ho, 2), the first of each pair kept.
+    // The pixel at (di, dj) of every 3 × 3 window: rows di, di + 2, … (2·ho rows folded into (ho, 2), the first of
+    // each pair kept), then the same for the columns.
+    let window_pixel = |di: usize, dj: usize| -> Result<Tensor> {
         let rows = x.narrow(2, di, 2 * ho)?.reshape((b, c, ho, 2, w + 3))?.narrow(3, 0, 1)?.squeeze(3)?;
-        for dj in 0..3 {
-            let v = rows.narrow(3, dj, 2 * wo)?.reshape((b, c, ho, wo, 2))?.narrow(4, 0, 1)?.squeeze(4)?;
-            out = Some(match out {
-                Some(m) => m.maximum(&v)?,
-                None => v,
-            });
-        }
+        rows.narrow(3, dj, 2 * wo)?.reshape((b, c, ho, wo, 2))?.narrow(4, 0, 1)?.squeeze(4)
+    };
+    let mut out = window_pixel(0, 0)?;
+    for k in 1..9 {
+        out = out.maximum(&window_pixel(k / 3, k % 3)?)?;
     }
-    out.ok_or_else(|| candle_core::Error::Msg("empty pool".into()))
+    Ok(out)
 }
