@@ -17,6 +17,13 @@ pub enum Refusal {
     OutOfOrder,
 }
 
+impl Refusal {
+    /// Refused for what the frame says (its measurements or shape), not for when it came.
+    pub fn is_content(self) -> bool {
+        matches!(self, Self::WrongDof | Self::NonFinite | Self::SensorFault)
+    }
+}
+
 /// Counts of refused frames, by reason.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize)]
 pub struct FrameCounts {

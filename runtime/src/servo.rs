@@ -147,6 +147,9 @@ pub struct ServoTick {
     last_state: RobotState,
     /// The HAL has followed this session at least once (so a HOLDING status afterwards means it stopped).
     followed: bool,
+    /// A frame was refused for its content since the last usable one: marsd has nothing new to answer, so every
+    /// command it sends answers an old frame and the HAL's command timeout runs out too.
+    refused_for_content: bool,
     /// The HAL's counters at the handshake: the HAL counts since it started.
     hal_counts_at_start: HalCounts,
     /// Whether each command reached the HAL before its next tick.
@@ -190,6 +193,7 @@ impl ServoTick {
             settle_tolerance: cfg.servo.settle_tolerance,
             last_state: RobotState::default(),
             followed: false,
+            refused_for_content: false,
             hal_counts_at_start: HalCounts::default(),
             timeliness: CommandTimeliness::default(),
             first_violation: None,
@@ -238,12 +242,16 @@ impl ServoTick {
         }
 
         // 1. The state frame.
-        let usable = match input.frame {
-            Some(f) => self.frames.judge(f, now).is_ok(),
-            None => false,
-        };
+        let verdict = input.frame.map(|f| self.frames.judge(f, now));
+        let usable = matches!(verdict, Some(Ok(())));
+        if let Some(Err(r)) = verdict {
+            self.refused_for_content |= r.is_content();
+        }
         // A frame refused for its measurements can still say that the HAL stopped following this session (a robot
-        // reflex flags the frame and holds): that is the cause to report, not the gap of usable frames after it.
+        // reflex flags the frame and holds): that is the cause to report, not the gap of usable frames after it —
+        // unless the HAL's hold is the command timeout that marsd's own refusals caused (it had no new frame to
+        // answer, as long as the HAL's timeout and marsd's allowed gap, 20 ms each): then the cause is the unusable
+        // state, whichever of the two limits marsd happens to notice first.
         if !usable
             && let Some(f) = input.frame
             && self.followed
@@ -252,9 +260,15 @@ impl ServoTick {
             && self.phase != Phase::Finished
         {
             let reason = HoldReason::from_u32(f.hold_reason).unwrap_or(HoldReason::None);
-            self.stop_with(StopCause::Trip(Trip::HalHolding(reason)));
+            let trip = if reason == HoldReason::CommandTimeout && self.refused_for_content {
+                Trip::StaleState
+            } else {
+                Trip::HalHolding(reason)
+            };
+            self.stop_with(StopCause::Trip(trip));
         }
         if usable {
+            self.refused_for_content = false;
             let f = input.frame.expect("usable implies a frame");
             self.last_state = *f;
             let mut obs =

@@ -200,3 +200,94 @@ fn a_noisy_servo_timing_never_fails_the_smoother_nor_makes_the_hal_clamp() {
     }
     assert!(late > 100 && duplicates > 100, "the timing faults happened: {late} late, {duplicates} duplicates");
 }
+
+/// One servo and one HAL on the simulated clock; from HAL tick `nan_from` on, joint 3 measures NaN (as the HAL's
+/// fault injection does). The servo ticks `offset_ns` after each HAL tick, except that it stalls for `stall_ms`
+/// starting 19 ms after the first NaN frame (when both sides' 20 ms limits are about to run out). Returns the cause
+/// the servo reports.
+fn nan_sensor_run(offset_ns: u64, stall_ms: u64, nan: bool) -> Option<StopCause> {
+    let root = root();
+    let cfg = DaemonConfig::load(&root.join("configs/marsd.toml")).unwrap();
+    let profile = Profile::load(&root.join("configs/fr3.toml")).unwrap();
+    let mut sim = SimBackend::new(&profile);
+    let mut hal = HalControl::start(&profile, &sim.read().unwrap()).unwrap();
+    let (mut ev, logger) = EventLogger::start(4096, Duration::from_millis(5), |_| {}).unwrap();
+    let mut servo = ServoTick::new(&cfg, &profile, 7).unwrap();
+    let nan_from = 500u64;
+    let stall = ((nan_from + 19) * MS + offset_ns)..((nan_from + 19 + stall_ms) * MS + offset_ns);
+    let mut to_servo: Vec<RobotState> = Vec::new();
+    let mut to_hal: Vec<JointCommand> = Vec::new();
+    let mut next_servo = MS + offset_ns;
+    for k in 1..2_000u64 {
+        let h = k * MS;
+        while next_servo < h {
+            let now = next_servo;
+            next_servo += MS;
+            if stall.contains(&now) {
+                continue;
+            }
+            let arrived = std::mem::take(&mut to_servo);
+            for f in &arrived {
+                servo.note_frame_timing(f);
+            }
+            let missed = if now == stall.end && stall_ms > 0 { stall_ms } else { 0 };
+            let input = TickInput {
+                now_ns: now,
+                missed,
+                frame: arrived.last(),
+                chunk: None,
+                request: None,
+                stop_requested: false,
+                hal_gone: false,
+            };
+            if let Some(cmd) = servo.tick(&input).command {
+                to_hal.push(cmd);
+            }
+            if servo.stop_cause().is_some() {
+                drop(ev);
+                logger.finish();
+                return servo.stop_cause();
+            }
+        }
+        hal.begin_tick(h);
+        hal.on_read(sim.read(), &mut ev);
+        for c in to_hal.drain(..) {
+            hal.on_command(&c, &mut ev);
+        }
+        let step = hal.step(20, &mut ev);
+        let setpoint = step.setpoint.to_vec();
+        let r = sim.apply(&setpoint);
+        hal.on_apply(r, &mut ev);
+        let mut frame = hal.state_frame(h);
+        if nan && k >= nan_from {
+            frame.position[3] = f64::NAN;
+        }
+        to_servo.push(frame);
+    }
+    drop(ev);
+    logger.finish();
+    servo.stop_cause()
+}
+
+/// A NaN sensor makes both sides' limits run out together: marsd has no usable frame for its allowed gap (20 ms),
+/// and the HAL, whose commands from marsd all answer the last usable frame, gets no new one for its command
+/// timeout (20 ms). Which one marsd notices first depends on the two processes' phase and on a stall of marsd at
+/// that moment; the cause it reports must not: it is the state marsd could not use (the HAL's hold follows from
+/// it). A stall of marsd without a bad sensor is reported as the HAL's command timeout, which it is.
+#[test]
+fn a_nan_sensor_is_reported_as_unusable_state_whatever_the_timing() {
+    use mars_ipc::HoldReason;
+    use mars_runtime::watchdog::Trip;
+    for offset_us in [50, 300, 700, 950] {
+        for stall_ms in [0, 2, 5, 25] {
+            let cause = nan_sensor_run(offset_us * 1000, stall_ms, true);
+            assert_eq!(cause, Some(StopCause::Trip(Trip::StaleState)), "offset {offset_us} µs, stall {stall_ms} ms");
+        }
+        let cause = nan_sensor_run(offset_us * 1000, 25, false);
+        assert_eq!(
+            cause,
+            Some(StopCause::Trip(Trip::HalHolding(HoldReason::CommandTimeout))),
+            "no NaN, offset {offset_us} µs, stall 25 ms"
+        );
+    }
+}
