@@ -12,6 +12,8 @@ pub enum Input {
     History,
     /// The explicit noise of [`crate::Engine::infer_with`].
     Noise,
+    /// A camera image ([`crate::ImageEncoder::encode`]).
+    Image,
 }
 
 impl std::fmt::Display for Input {
@@ -20,6 +22,7 @@ impl std::fmt::Display for Input {
             Input::Observation => "observation",
             Input::History => "history",
             Input::Noise => "noise",
+            Input::Image => "image",
         })
     }
 }

@@ -35,12 +35,14 @@
 mod budget;
 mod buffers;
 mod config;
+mod conv;
 mod dims;
 mod engine;
 mod error;
 mod kernels;
 mod matmul;
 mod observe;
+mod resnet;
 mod velocity;
 mod weights;
 
@@ -48,6 +50,7 @@ pub use budget::CostEstimate;
 pub use config::EngineConfig;
 pub use engine::{Engine, Output};
 pub use error::{EngineError, Input, LoadError};
+pub use resnet::ImageEncoder;
 
 /// An engine is built on one thread and moved to the real-time thread that owns it.
 const _: () = {

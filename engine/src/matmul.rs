@@ -154,49 +154,67 @@ mod panels {
         is_x86_feature_detected!("avx2") && is_x86_feature_detected!("fma")
     }
 
-    /// y += x·Wᵀ for `rows` tokens, W read from `l.panels`.
+    /// Rows of activations one pass over the weight panels works on: as many as fit in this many bytes, so
+    /// that they stay in the L2 cache while every panel reads them (a convolution's im2col matrix has hundreds
+    /// or thousands of rows; the DiT's 8 tokens are one block).
+    const ROW_BLOCK_BYTES: usize = 128 * 1024;
+
+    /// y += x·Wᵀ for `rows` tokens (or pixels), W read from `l.panels`.
     ///
     /// # Safety
     /// The CPU has AVX2 and FMA; `x` holds rows·in values, `y` rows·out, `l.panels` is `pack_panels` of `l`.
     pub unsafe fn product(x: &[f32], rows: usize, l: &Linear, y: &mut [f32]) {
         let (k, n) = (l.input, l.output);
-        // Tokens in near-equal groups of at most NR (8 → 4 + 4, not 6 + 2): a narrow group has too few
-        // independent accumulators to hide the FMA latency.
-        let groups = rows.div_ceil(NR);
-        let per_group = rows.div_ceil(groups);
-        for p in 0..n.div_ceil(MR) {
-            let m = MR.min(n - p * MR);
-            let lhs = unsafe { l.panels.as_ptr().add(p * MR * k) };
-            for j0 in (0..rows).step_by(per_group) {
-                let nb = per_group.min(rows - j0);
-                // The kernel for exactly `nb` columns: kernels read all their columns of the activations.
-                let ukr = uk::UKR[uk::MR_DIV_N - 1][nb - 1];
-                // dst(i, j) = y[j0 + j, p·MR + i]: row stride 1, column stride n. lhs: one zero-padded panel,
-                // MR values per k. rhs(kk, j) = x[j0 + j, kk]: row stride 1, column stride k. alpha_status 1:
-                // dst = acc + dst (dst holds the bias). Rows past `m` of the panel are padding and not stored.
-                unsafe {
-                    ukr(
-                        m,
-                        nb,
-                        k,
-                        y.as_mut_ptr().add(j0 * n + p * MR),
-                        lhs,
-                        x.as_ptr().add(j0 * k),
-                        n as isize,
-                        1,
-                        MR as isize,
-                        1,
-                        k as isize,
-                        1.0,
-                        1.0,
-                        1,
-                        false,
-                        false,
-                        false,
-                        lhs,
-                    )
-                };
+        let block = (ROW_BLOCK_BYTES / (4 * k)).max(NR);
+        for b0 in (0..rows).step_by(block) {
+            let brows = block.min(rows - b0);
+            // Rows in near-equal groups of at most NR (8 → 4 + 4, not 6 + 2): a narrow group has too few
+            // independent accumulators to hide the FMA latency.
+            let groups = brows.div_ceil(NR);
+            let per_group = brows.div_ceil(groups);
+            for p in 0..n.div_ceil(MR) {
+                unsafe { panel(x, b0, brows, per_group, p, l, y) };
             }
+        }
+    }
+
+    /// Rows b0..b0 + brows of y, outputs of panel `p`, in groups of `per_group` rows.
+    ///
+    /// # Safety
+    /// As [`product`].
+    unsafe fn panel(x: &[f32], b0: usize, brows: usize, per_group: usize, p: usize, l: &Linear, y: &mut [f32]) {
+        let (k, n) = (l.input, l.output);
+        let m = MR.min(n - p * MR);
+        let lhs = unsafe { l.panels.as_ptr().add(p * MR * k) };
+        for j0 in (b0..b0 + brows).step_by(per_group) {
+            let nb = per_group.min(b0 + brows - j0);
+            // The kernel for exactly `nb` columns: kernels read all their columns of the activations.
+            let ukr = uk::UKR[uk::MR_DIV_N - 1][nb - 1];
+            // dst(i, j) = y[j0 + j, p·MR + i]: row stride 1, column stride n. lhs: one zero-padded panel,
+            // MR values per k. rhs(kk, j) = x[j0 + j, kk]: row stride 1, column stride k. alpha_status 1:
+            // dst = acc + dst (dst holds the bias). Rows past `m` of the panel are padding and not stored.
+            unsafe {
+                ukr(
+                    m,
+                    nb,
+                    k,
+                    y.as_mut_ptr().add(j0 * n + p * MR),
+                    lhs,
+                    x.as_ptr().add(j0 * k),
+                    n as isize,
+                    1,
+                    MR as isize,
+                    1,
+                    k as isize,
+                    1.0,
+                    1.0,
+                    1,
+                    false,
+                    false,
+                    false,
+                    lhs,
+                )
+            };
         }
     }
 }
@@ -250,8 +268,18 @@ mod tests {
     #[test]
     fn every_backend_matches_a_naive_product() {
         // rows 1 (gemv), fewer/more than a microkernel's columns; outputs that are not multiples of a panel;
-        // k of 1, 2 and odd sizes.
-        let shapes = [(1, 2, 128), (1, 128, 3328), (8, 2, 128), (8, 128, 384), (3, 33, 7), (17, 40, 100), (40, 5, 1)];
+        // k of 1, 2 and odd sizes; convolution-sized products that the microkernel path splits into row blocks.
+        let shapes = [
+            (1, 2, 128),
+            (1, 128, 3328),
+            (8, 2, 128),
+            (8, 128, 384),
+            (3, 33, 7),
+            (17, 40, 100),
+            (40, 5, 1),
+            (700, 147, 20),
+            (90, 600, 40),
+        ];
         let mut backends = vec![MatMul::Rows, MatMul::Threaded(2)];
         if panels::available() {
             backends.push(MatMul::Microkernel);

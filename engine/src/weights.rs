@@ -61,14 +61,23 @@ pub struct Weights {
     pub freqs: Box<[f32]>,
 }
 
-struct Reader<'a> {
+/// Reads named tensors of one safetensors file, checked against the shapes the config makes.
+pub(crate) struct Reader<'a> {
     st: SafeTensors<'a>,
     path: &'a Path,
     mm: MatMul,
 }
 
-impl Reader<'_> {
-    fn tensor(&self, name: &str, shape: &[usize]) -> Result<Box<[f32]>, LoadError> {
+impl<'a> Reader<'a> {
+    pub(crate) fn new(st: SafeTensors<'a>, path: &'a Path, mm: MatMul) -> Self {
+        Self { st, path, mm }
+    }
+
+    pub(crate) fn mm(&self) -> MatMul {
+        self.mm
+    }
+
+    pub(crate) fn tensor(&self, name: &str, shape: &[usize]) -> Result<Box<[f32]>, LoadError> {
         let err = |problem: String| LoadError::Tensor { path: self.path.to_path_buf(), name: name.into(), problem };
         let view = self.st.tensor(name).map_err(|e| err(e.to_string()))?;
         if view.dtype() != Dtype::F32 {
@@ -96,7 +105,8 @@ impl Reader<'_> {
         Ok(self.panels(self.linear(prefix, input, output)?))
     }
 
-    fn panels(&self, mut l: Linear) -> Linear {
+    /// `l` with its weights also in panel layout, when the engine's products use it.
+    pub(crate) fn panels(&self, mut l: Linear) -> Linear {
         if self.mm.uses_panels() {
             l.panels = pack_panels(&l.weight, l.output, l.input);
         }

@@ -24,6 +24,19 @@ impl ImageEncoding {
         }
     }
 
+    /// The name configs and command lines use: `rgb8`, `bgr8`, `mono8` (as ROS's sensor_msgs/Image does).
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Rgb8 => "rgb8",
+            Self::Bgr8 => "bgr8",
+            Self::Mono8 => "mono8",
+        }
+    }
+
+    pub fn from_name(name: &str) -> Option<Self> {
+        [Self::Rgb8, Self::Bgr8, Self::Mono8].into_iter().find(|e| e.name() == name)
+    }
+
     pub fn bytes_per_pixel(self) -> usize {
         match self {
             Self::Rgb8 | Self::Bgr8 => 3,
@@ -72,5 +85,14 @@ mod tests {
         let h = ImageHeader { encoding: ImageEncoding::Mono8 as u32, ..h };
         assert_eq!(h.expected_len(), Some(640 * 480));
         assert_eq!(ImageHeader { encoding: 9, ..h }.expected_len(), None);
+    }
+
+    #[test]
+    fn encodings_round_trip_through_their_names() {
+        for e in [ImageEncoding::Rgb8, ImageEncoding::Bgr8, ImageEncoding::Mono8] {
+            assert_eq!(ImageEncoding::from_name(e.name()), Some(e));
+            assert_eq!(ImageEncoding::from_u32(e as u32), Some(e));
+        }
+        assert_eq!(ImageEncoding::from_name("RGB"), None);
     }
 }

@@ -32,6 +32,6 @@ pub use names::{NameError, RobotNamespace};
 pub use schema::{FrameHeader, SCHEMA_VERSION, SchemaMismatch};
 pub use state::{HoldReason, MAX_JOINTS, RobotState, fault, robot_mode, status};
 pub use wire::{
-    CommandReader, CommandWriter, FrameReceiveError, FrameSendError, ImageReader, ImageWriter, StateReader,
-    StateWriter, WireError,
+    CommandReader, CommandWriter, FrameReceiveError, FrameSendError, ImageFrame, ImageReader, ImageReceiveError,
+    ImageWriter, StateReader, StateWriter, WireError,
 };

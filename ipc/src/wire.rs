@@ -52,6 +52,25 @@ pub enum FrameReceiveError {
     Port(iceoryx2::port::ReceiveError),
 }
 
+/// Why an image could not be received: `Copy` and allocation-free, like [`FrameReceiveError`], so a camera
+/// reader can count and classify a bad frame without touching the heap.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+pub enum ImageReceiveError {
+    /// An image from a build (or a publisher in another language) with another schema version.
+    #[error("{0}")]
+    Schema(SchemaMismatch),
+    /// The payload's length is not what the header's width, height and encoding make (or the encoding is unknown,
+    /// `expected` = None): the pixels cannot be read safely.
+    #[error(
+        "the header says {width}×{height}, encoding {encoding}: {} bytes, but the payload has {found}",
+        expected.map_or("an unknown number of".to_string(), |e| e.to_string())
+    )]
+    Length { width: u32, height: u32, encoding: u32, expected: Option<usize>, found: usize },
+    /// iceoryx2 could not hand out a frame.
+    #[error("iceoryx2 receive failed: {0}")]
+    Port(iceoryx2::port::ReceiveError),
+}
+
 /// Why a frame could not be sent: `Copy` and allocation-free, like [`FrameReceiveError`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
 pub enum FrameSendError {
@@ -220,6 +239,12 @@ impl ImageWriter {
             expected: None,
             found: 0,
         })?;
+        self.send_raw(header, len, fill)
+    }
+
+    /// [`Self::send_with`] with a payload of `len` bytes whatever the header says: only for exercising the
+    /// readers' refusal path (a camera process with a bug, or in another language, can send such a frame).
+    pub fn send_raw(&self, header: ImageHeader, len: usize, fill: impl FnOnce(&mut [u8])) -> Result<usize, WireError> {
         let mut sample = self.publisher.loan_slice_uninit(len).map_err(|e| port_err(&self.name, e))?;
         *sample.user_header_mut() = header;
         for b in sample.payload_mut() {
@@ -259,18 +284,29 @@ impl ImageReader {
         Ok(Self { name, subscriber })
     }
 
-    /// The next image, or [`WireError::Schema`] / [`WireError::BadImage`] for a frame that must not be read.
-    pub fn receive(&self) -> Result<Option<ImageFrame>, WireError> {
-        let Some(sample) = self.subscriber.receive().map_err(|e| port_err(&self.name, e))? else {
+    /// The next image, or why the frame must not be read (that frame is consumed; the next call goes on with the
+    /// following one). Allocation-free, also on an error.
+    pub fn receive(&self) -> Result<Option<ImageFrame>, ImageReceiveError> {
+        let Some(sample) = self.subscriber.receive().map_err(ImageReceiveError::Port)? else {
             return Ok(None);
         };
-        let service = || self.name.as_str().to_owned();
-        check_schema_version(sample.user_header().schema_version)
-            .map_err(|mismatch| WireError::Schema { service: service(), mismatch })?;
-        let expected = sample.user_header().expected_len();
-        if expected != Some(sample.payload().len()) {
-            return Err(WireError::BadImage { service: service(), expected, found: sample.payload().len() });
+        let h = *sample.user_header();
+        check_schema_version(h.schema_version).map_err(ImageReceiveError::Schema)?;
+        let (expected, found) = (h.expected_len(), sample.payload().len());
+        if expected != Some(found) {
+            return Err(ImageReceiveError::Length {
+                width: h.width,
+                height: h.height,
+                encoding: h.encoding,
+                expected,
+                found,
+            });
         }
         Ok(Some(ImageFrame { sample }))
+    }
+
+    /// The service this reader subscribes to (for error messages outside the real-time path).
+    pub fn service(&self) -> &str {
+        self.name.as_str()
     }
 }

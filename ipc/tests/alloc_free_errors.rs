@@ -74,3 +74,36 @@ fn refusing_a_frame_of_another_schema_and_receiving_allocate_nothing() {
     assert_eq!((refused, read), (8, 8));
     assert_eq!(after - before, 0, "receive (with 8 schema refusals) allocated {} times", after - before);
 }
+
+#[test]
+fn refusing_images_and_receiving_them_allocate_nothing() {
+    let ns = unique_ns();
+    let (node, _) = create_node("ipc-alloc-test").unwrap();
+    let w = ImageWriter::new(&node, &ns, "top", 96 * 96 * 3).unwrap();
+    let r = ImageReader::new(&node, &ns, "top").unwrap();
+    let good = ImageHeader { width: 96, height: 96, encoding: ImageEncoding::Rgb8 as u32, ..Default::default() };
+    let other_schema = ImageHeader { schema_version: SCHEMA_VERSION + 1, ..good };
+    // Warm-up: iceoryx2 connects the ports lazily, on the first receive.
+    w.send_with(good, |_| ()).unwrap();
+    assert!(r.receive().unwrap().is_some());
+
+    // The service keeps 2 frames per subscriber: send and receive in pairs.
+    let (mut refused, mut read) = (0, 0);
+    let mut counted = 0;
+    for i in 0..8 {
+        match i % 3 {
+            0 => w.send_with(other_schema, |_| ()).unwrap(),
+            1 => w.send_raw(good, 100, |_| ()).unwrap(),
+            _ => w.send_with(good, |px| px.fill(1)).unwrap(),
+        };
+        let before = allocations();
+        match r.receive() {
+            Err(ImageReceiveError::Schema(_) | ImageReceiveError::Length { .. }) => refused += 1,
+            Ok(Some(f)) => read += usize::from(f.pixels()[0] == 1),
+            other => panic!("{:?}", other.map(|f| f.map(|f| *f.header()))),
+        }
+        counted += allocations() - before;
+    }
+    assert_eq!((refused, read), (6, 2));
+    assert_eq!(counted, 0, "receive (with 6 refusals) allocated {counted} times");
+}

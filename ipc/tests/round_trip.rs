@@ -94,7 +94,17 @@ fn an_image_whose_header_lies_about_its_size_is_refused() {
         ..Default::default()
     };
     w.send_with(other, |_| ()).unwrap();
-    assert!(matches!(r.receive(), Err(WireError::Schema { .. })));
+    let mismatch = SchemaMismatch { expected: SCHEMA_VERSION, found: SCHEMA_VERSION + 5 };
+    assert_eq!(r.receive().err(), Some(ImageReceiveError::Schema(mismatch)));
+    // A payload shorter than the header's size, as a buggy camera process could send it: refused, with both sizes.
+    let short = ImageHeader { width: 4, height: 4, encoding: ImageEncoding::Rgb8 as u32, ..Default::default() };
+    w.send_raw(short, 40, |_| ()).unwrap();
+    let e = r.receive().err().expect("a refusal");
+    assert_eq!(e, ImageReceiveError::Length { width: 4, height: 4, encoding: 1, expected: Some(48), found: 40 });
+    assert_eq!(e.to_string(), "the header says 4×4, encoding 1: 48 bytes, but the payload has 40");
+    // The reader goes on with the next frame.
+    w.send_with(short, |px| px.fill(7)).unwrap();
+    assert!(r.receive().unwrap().expect("the next image").pixels().iter().all(|b| *b == 7));
 }
 
 #[test]

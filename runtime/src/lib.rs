@@ -9,6 +9,8 @@
 //! [`bench`]).
 
 pub mod bench;
+pub mod camera;
+pub mod camera_watch;
 pub mod chunk;
 pub mod cli;
 pub mod config;

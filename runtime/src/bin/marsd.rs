@@ -24,6 +24,10 @@ enum Command {
     /// PREEMPT_RT, CPU governor, isolated cores), say what a run can expect and how to improve it, and write
     /// doctor.json.
     Doctor(mars_runtime::doctor::DoctorArgs),
+    /// Watch one camera's frames for a few seconds through the policy's checks (size, encoding, schema, capture
+    /// age on CLOCK_MONOTONIC, order): what arrived, what was refused and why, how old frames were, at what rate.
+    /// Exits 0 when usable frames came and none was refused, 2 otherwise.
+    Camera(mars_runtime::camera_watch::CameraArgs),
 }
 
 fn main() -> std::process::ExitCode {
@@ -34,6 +38,16 @@ fn main() -> std::process::ExitCode {
             Ok(report) => {
                 print!("{report}");
                 std::process::ExitCode::SUCCESS
+            }
+            Err(e) => {
+                eprintln!("error: {e:#}");
+                std::process::ExitCode::FAILURE
+            }
+        },
+        Some(Command::Camera(c)) => match mars_runtime::camera_watch::run(&c) {
+            Ok(report) => {
+                print!("{report}");
+                std::process::ExitCode::from(if report.healthy() { 0 } else { 2 })
             }
             Err(e) => {
                 eprintln!("error: {e:#}");
