@@ -3,7 +3,8 @@
 //! Prints one table per section: latency for K = 1, 3, 10 (medians, engine vs the candle forward path, ratio
 //! measured in this run), achieved FLOP/s against this machine's single-thread gemm peak measured in the
 //! same run, heap allocations per call, the deadline behaviour, and the MARS-vs-FM latency on the nav2d
-//! checkpoints replaying the demos' observations and histories (so K varies as in use).
+//! checkpoints replaying the demos' observations and histories (so K varies as in use); and the image encoder
+//! (ResNet-18) against candle and ONNX Runtime at each configured size (`support/image_encoder.rs`).
 
 use candle_core::{Device, Tensor};
 use mars_engine::{Engine, EngineConfig};
@@ -25,6 +26,9 @@ mod counting;
 
 #[global_allocator]
 static GLOBAL: counting::Counting = counting::Counting;
+
+#[path = "support/image_encoder.rs"]
+mod image_encoder;
 
 /// Runs `f`, returning its result and the allocations + reallocations it made on this thread.
 fn counted<R>(f: impl FnOnce() -> R) -> (R, u64) {
@@ -382,6 +386,7 @@ fn main() {
     let fm = root.join("runs/nav2d/fm");
     deadline_table(if fm.join(checkpoint::META_FILE).exists() { &fm } else { &dir });
     mars_vs_fm(&root);
+    image_encoder::encoder_table(peak, |f| counted(f).1);
     if temporary {
         let _ = std::fs::remove_dir_all(&dir);
     }

@@ -12,6 +12,8 @@ pub struct Buffers {
     pub obs: Box<[f32]>,
     /// Normalised history [C, D].
     pub hist: Box<[f32]>,
+    /// A vision encoder's MLP input [camera features ‖ state]; empty for a state encoder (it reads `obs`).
+    pub enc_in: Box<[f32]>,
     pub enc_hidden: Box<[f32]>,
     /// Observation embedding [E].
     pub emb: Box<[f32]>,
@@ -57,6 +59,7 @@ impl Buffers {
         Self {
             obs: zeros(d.obs),
             hist: zeros(cd),
+            enc_in: zeros(if d.vision.is_some() { d.enc_input } else { 0 }),
             enc_hidden: zeros(d.enc_hidden),
             emb: zeros(d.embed),
             sched_in: zeros(sched.filter(|s| s.uses_history).map_or(0, |s| s.input)),

@@ -2,6 +2,7 @@
 //! count of a call (for the benchmark's achieved-FLOP/s figure).
 
 use mars_policy::config::{EncoderConfig, ModelConfig, PolicyKind};
+use mars_policy::nn::resnet::ResNetConfig;
 
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Dims {
@@ -10,7 +11,11 @@ pub struct Dims {
     pub action: usize,
     /// C: actions per chunk = DiT tokens (= H, the history length).
     pub chunk: usize,
+    /// The encoder MLP's input: the observation (state encoder), or every camera's features and the state.
+    pub enc_input: usize,
     pub enc_hidden: usize,
+    /// The cameras of a vision encoder.
+    pub vision: Option<VisionDims>,
     /// E: observation embedding width.
     pub embed: usize,
     /// `None` for the baselines, whose w is a constant.
@@ -27,6 +32,24 @@ pub struct Dims {
     pub k_full_w: f32,
 }
 
+/// A vision encoder's layout: the observation is [state (`state` values), camera 0's image, camera 1's, …],
+/// each image H × W × 3 channels last; each is centre-cropped and encoded into `features` values.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct VisionDims {
+    pub cameras: usize,
+    pub image_hw: (usize, usize),
+    pub crop_hw: (usize, usize),
+    pub resnet: ResNetConfig,
+    pub state: usize,
+    pub features: usize,
+}
+
+impl VisionDims {
+    pub fn image_len(&self) -> usize {
+        self.image_hw.0 * self.image_hw.1 * 3
+    }
+}
+
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct SchedulerDims {
     /// E, plus C·D when the scheduler also sees the history.
@@ -38,12 +61,23 @@ pub struct SchedulerDims {
 impl Dims {
     /// The sizes of `cfg`, or why the engine cannot run it. `cfg` has passed `ModelConfig::validate`.
     pub fn new(cfg: &ModelConfig, kind: PolicyKind) -> Result<Self, String> {
-        // A new encoder type (e.g. images) added to mars-policy must be refused here, not mis-run: the match
-        // stays non-exhaustive on purpose.
+        // A new encoder type added to mars-policy must be refused here, not mis-run: the match stays
+        // non-exhaustive on purpose.
         #[allow(unreachable_patterns)]
-        let enc_hidden = match &cfg.encoder {
-            EncoderConfig::StateMlp { hidden } => *hidden,
-            other => return Err(format!("encoder {other:?} is not supported (only state-mlp)")),
+        let (enc_input, enc_hidden, vision) = match &cfg.encoder {
+            EncoderConfig::StateMlp { hidden } => (cfg.obs_dim, *hidden, None),
+            EncoderConfig::Vision(v) => {
+                let vd = VisionDims {
+                    cameras: v.cameras,
+                    image_hw: (v.image_height, v.image_width),
+                    crop_hw: (v.crop_height, v.crop_width),
+                    resnet: v.resnet,
+                    state: v.state_dim(cfg.obs_dim),
+                    features: v.resnet.out_dim(),
+                };
+                (vd.cameras * vd.features + vd.state, v.hidden, Some(vd))
+            }
+            other => return Err(format!("encoder {other:?} is not supported (state-mlp and vision are)")),
         };
         if cfg.source_std != 1.0 {
             // Only the Fig. S3 ablation trains with another source scale; nothing deploys it.
@@ -64,7 +98,9 @@ impl Dims {
             obs: cfg.obs_dim,
             action: cfg.action_dim,
             chunk: cfg.chunk_len,
+            enc_input,
             enc_hidden,
+            vision,
             embed: cfg.obs_embed_dim,
             scheduler,
             width: cfg.dit_width,
@@ -89,11 +125,13 @@ impl Dims {
 
     /// Floating-point operations of one call with `k` Euler steps: 2 per multiply-add of every matrix
     /// product (linear layers and attention). Element-wise work (norms, activations, softmax) is left out,
-    /// as FLOP/s figures usually do: it is a few percent here.
+    /// as FLOP/s figures usually do: it is a few percent here. Camera encoders are not counted here (see
+    /// `Engine::flops_per_call`).
     pub fn flops(&self, k: usize) -> u64 {
         let mm = |m: usize, n: usize, kk: usize| 2 * (m * n * kk) as u64;
         let (c, w) = (self.chunk, self.width);
-        let mut fixed = mm(1, self.enc_hidden, self.obs) + mm(1, self.embed, self.enc_hidden) + mm(1, w, self.embed);
+        let mut fixed =
+            mm(1, self.enc_hidden, self.enc_input) + mm(1, self.embed, self.enc_hidden) + mm(1, w, self.embed);
         if let Some(s) = self.scheduler {
             fixed += mm(1, s.hidden, s.input) + mm(1, self.action, s.hidden);
         }

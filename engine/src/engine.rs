@@ -4,6 +4,7 @@
 
 use crate::budget::{CostEstimate, Estimator, Plan};
 use crate::buffers::Buffers;
+use crate::cameras::Cameras;
 use crate::config::EngineConfig;
 use crate::dims::Dims;
 use crate::error::{EngineError, Input, LoadError};
@@ -25,6 +26,8 @@ pub struct Engine {
     meta: CheckpointMeta,
     dims: Dims,
     weights: Weights,
+    /// A vision policy's image encoders (their cost is part of every call's fixed cost in the estimate).
+    cameras: Option<Cameras>,
     buf: Buffers,
     rng: StdRng,
     estimator: Estimator,
@@ -112,8 +115,13 @@ impl Engine {
         let mm = MatMul::detect(cfg.threads, cfg.portable_kernels);
         let fixed_w = meta.kind.fixed_w(&meta.model);
         let weights = Weights::load(&dir.join(WEIGHTS_FILE), &dims, fixed_w, mm)?;
+        let cameras = match &dims.vision {
+            Some(v) => Some(Cameras::load(&dir.join(WEIGHTS_FILE), v, cfg.portable_kernels)?),
+            None => None,
+        };
         let mut engine = Self {
             meta,
+            cameras,
             buf: Buffers::new(&dims),
             dims,
             weights,
@@ -178,7 +186,7 @@ impl Engine {
         }
         let (wt, b, norm) = (&self.weights, &mut self.buf, &self.meta.normalizer);
 
-        let k_requested = observe(wt, &d, norm, obs, hist, b, mm);
+        let k_requested = observe(wt, &d, norm, obs, hist, self.cameras.as_mut(), b, mm);
         match noise {
             Noise::Draw => b.eps.iter_mut().for_each(|e| *e = self.rng.sample(StandardNormal)),
             Noise::Given(eps) => b.eps.copy_from_slice(eps),
@@ -277,6 +285,6 @@ impl Engine {
 
     /// Floating-point operations of a call with `k` steps (multiply-adds of all matrix products, ×2).
     pub fn flops_per_call(&self, k: usize) -> u64 {
-        self.dims.flops(k)
+        self.dims.flops(k) + 2 * self.cameras.as_ref().map_or(0, |c| c.macs() as u64)
     }
 }

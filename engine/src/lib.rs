@@ -34,6 +34,7 @@
 
 mod budget;
 mod buffers;
+mod cameras;
 mod config;
 mod conv;
 mod dims;

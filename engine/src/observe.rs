@@ -2,6 +2,7 @@
 //! the flow source a0 = (1 − w)⊙history + w⊙ε, and the observation's share of the DiT conditioning.
 
 use crate::buffers::Buffers;
+use crate::cameras::Cameras;
 use crate::dims::Dims;
 use crate::kernels::{sigmoid_in_place, silu_in_place};
 use crate::matmul::MatMul;
@@ -17,21 +18,31 @@ fn normalize_into(stats: &Stats, src: &[f32], dst: &mut [f32]) {
     }
 }
 
-/// Normalises `obs` and `hist` (checked by the caller) into `b.obs`, `b.hist`; computes the embedding `b.emb`,
-/// w into `b.w` (the scheduler's, or a baseline's constant) and `b.cond` = cond_in(emb). Returns K(w).
+/// Normalises `obs` and `hist` (checked by the caller) into `b.obs`, `b.hist`; encodes the cameras' images,
+/// if any; computes the embedding `b.emb`, w into `b.w` (the scheduler's, or a baseline's constant) and `b.cond`
+/// = cond_in(emb). Returns K(w).
+#[allow(clippy::too_many_arguments)] // the call's state, as the other stages take it
 pub fn observe(
     wt: &Weights,
     d: &Dims,
     norm: &Normalizer,
     obs: &[f32],
     hist: &[f32],
+    cameras: Option<&mut Cameras>,
     b: &mut Buffers,
     mm: MatMul,
 ) -> usize {
     normalize_into(&norm.obs, obs, &mut b.obs);
     normalize_into(&norm.action, hist, &mut b.hist);
 
-    mm.linear(&b.obs, 1, &wt.enc_fc1, &mut b.enc_hidden);
+    let enc_in: &[f32] = match cameras {
+        Some(c) => {
+            c.encode(&b.obs, &mut b.enc_in);
+            &b.enc_in
+        }
+        None => &b.obs,
+    };
+    mm.linear(enc_in, 1, &wt.enc_fc1, &mut b.enc_hidden);
     silu_in_place(&mut b.enc_hidden);
     mm.linear(&b.enc_hidden, 1, &wt.enc_fc2, &mut b.emb);
 

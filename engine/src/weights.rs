@@ -163,9 +163,10 @@ impl Weights {
         }
         ada.push(r.linear("velocity.final_ada", w, 2 * w)?);
         let half = d.freq / 2;
+        let enc = if d.vision.is_some() { "encoder.vision.mlp" } else { "encoder.state_mlp" };
         Ok(Self {
-            enc_fc1: r.linear("encoder.state_mlp.fc1", d.obs, d.enc_hidden)?,
-            enc_fc2: r.linear("encoder.state_mlp.fc2", d.enc_hidden, d.embed)?,
+            enc_fc1: r.linear(&format!("{enc}.fc1"), d.enc_input, d.enc_hidden)?,
+            enc_fc2: r.linear(&format!("{enc}.fc2"), d.enc_hidden, d.embed)?,
             modality,
             action_in: r.token_linear("velocity.action_in", d.action, w)?,
             pos: r.tensor("velocity.pos_embed", &[d.chunk, w])?,

@@ -1,7 +1,7 @@
 //! After load and one warm-up call, inference performs zero heap allocations: checked with a counting global
 //! allocator over 1000+ calls per model, through every path a call can take (each policy kind, budgets that
 //! cap K and that cannot fit one step, explicit noise, forced K, every kind of bad input, and a network that
-//! overflows).
+//! overflows), and a vision policy whose calls encode a camera image.
 //!
 //! The allocator (`counting/`) counts only on threads that switched counting on (a thread-local flag), so the
 //! test harness's own threads cannot disturb the count; and this binary holds this one test only.
@@ -13,6 +13,7 @@ use common::{inputs, normal, perturbed_checkpoint, trained_checkpoint};
 use counting::{Counting, Counts, count};
 use mars_engine::{Engine, EngineConfig, EngineError};
 use mars_policy::config::{PolicyConfig, PolicyKind};
+use mars_policy::nn::resnet::ResNetHead;
 use rand::SeedableRng;
 use rand::rngs::StdRng;
 use std::path::Path;
@@ -102,11 +103,17 @@ fn inference_never_allocates() {
     let shipped =
         PolicyConfig::load(Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../configs/policy.toml"))).unwrap();
     dirs.push(perturbed_checkpoint(&shipped, "alloc-shipped"));
+    // A vision policy: camera image + state through ResNet-18 (spatial softmax) and the MLP.
+    let mut vision = common::tiny_config(PolicyKind::Mars);
+    vision.model.obs_dim = 2 + 52 * 52 * 3;
+    vision.model.encoder = common::vision_encoder(52, 48, ResNetHead::SpatialSoftmax { keypoints: 8 });
+    dirs.push(common::perturbed_vision_checkpoint(&vision, 52, "alloc-vision"));
 
     let fast = EngineConfig::with_seed(1);
     let portable = EngineConfig { portable_kernels: true, ..fast };
     for (i, dir) in dirs.iter().enumerate() {
-        // The portable kernels (chosen on CPUs without AVX2 + FMA) on the last two, the largest models.
+        // The portable kernels (chosen on CPUs without AVX2 + FMA) on the last two: the largest model and the
+        // vision one.
         let configs: &[EngineConfig] = if i + 2 >= dirs.len() { &[fast, portable] } else { &[fast] };
         for &cfg in configs {
             let (calls, ks) = measure(dir, cfg);

@@ -180,3 +180,21 @@ fn committed_fr3_checkpoints_match_candle() {
         compare_on(&dir, EngineConfig::default(), Draw::InDistribution);
     }
 }
+
+/// A vision policy (camera image + state → ResNet-18 + MLP): the engine centre-crops and encodes the image as the
+/// candle encoder does at inference, for both heads and with each matrix backend.
+#[test]
+fn vision_policies_match_candle() {
+    use mars_policy::nn::resnet::ResNetHead;
+    for (i, (head, side, crop)) in
+        [(ResNetHead::SpatialSoftmax { keypoints: 8 }, 52, 48), (ResNetHead::AvgPool, 40, 32)].into_iter().enumerate()
+    {
+        let mut cfg = common::tiny_config(PolicyKind::Mars);
+        cfg.model.obs_dim = 2 + side * side * 3;
+        cfg.model.encoder = common::vision_encoder(side, crop, head);
+        let dir = common::perturbed_vision_checkpoint(&cfg, side, &format!("eq-vision-{i}"));
+        compare(&dir, EngineConfig::default());
+        compare(&dir, EngineConfig { portable_kernels: true, ..EngineConfig::default() });
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}

@@ -69,12 +69,91 @@ impl std::fmt::Display for PolicyKind {
     }
 }
 
-/// Observation encoder choice. Images (ResNet-18) will be another variant; the model only sees the trait.
+/// Observation encoder choice; the model only sees the `ObsEncoder` trait.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "type", rename_all = "kebab-case", deny_unknown_fields)]
 pub enum EncoderConfig {
     /// A state vector through an MLP.
     StateMlp { hidden: usize },
+    /// Camera images through ResNet-18 (one per camera), their features and the low-dimensional state through an
+    /// MLP. The observation vector is the state followed by each camera's image: height × width × 3 values in
+    /// [0, 1], channels last (row-major H, W, RGB; see `crate::vision`), left unnormalised.
+    Vision(VisionConfig),
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct VisionConfig {
+    pub cameras: usize,
+    /// The stored image size.
+    pub image_height: usize,
+    pub image_width: usize,
+    /// What the network sees: a random crop in training, the centre crop at inference (diffusion_policy crops 84
+    /// of 96). Equal to the image size: no crop.
+    pub crop_height: usize,
+    pub crop_width: usize,
+    pub resnet: crate::nn::resnet::ResNetConfig,
+    /// Hidden width of the MLP over [features of every camera, state].
+    pub hidden: usize,
+}
+
+impl VisionConfig {
+    /// Values of one camera's image in the observation.
+    pub fn image_len(&self) -> usize {
+        self.image_height * self.image_width * 3
+    }
+
+    /// Values of the low-dimensional state at the front of an observation of `obs_dim` values.
+    pub fn state_dim(&self, obs_dim: usize) -> usize {
+        obs_dim.saturating_sub(self.cameras * self.image_len())
+    }
+
+    fn validate(&self, obs_dim: usize) -> Result<(), ConfigError> {
+        if self.cameras == 0 || self.hidden == 0 || self.resnet.width == 0 {
+            return Err(invalid("model.encoder", "cameras, hidden and resnet.width must be at least 1"));
+        }
+        if self.crop_height < 32 || self.crop_width < 32 {
+            let size = format!("{}×{}: a ResNet-18 needs at least 32×32", self.crop_height, self.crop_width);
+            return Err(invalid("model.encoder.crop_height", size));
+        }
+        let map = |side: usize| (0..5).fold(side, |s, _| (s - 1) / 2 + 1);
+        if matches!(self.resnet.head, crate::nn::resnet::ResNetHead::SpatialSoftmax { .. })
+            && (map(self.crop_height) < 2 || map(self.crop_width) < 2)
+        {
+            let why = format!(
+                "{}×{} leaves a {}×{} feature map after ResNet-18's five halvings: a spatial softmax over a 1×1 \
+                 feature map says \"the centre\" whatever the image; crop more than 32 pixels a side, or use the \
+                 avg-pool head",
+                self.crop_height,
+                self.crop_width,
+                map(self.crop_height),
+                map(self.crop_width)
+            );
+            return Err(invalid("model.encoder.resnet.head", why));
+        }
+        if self.crop_height > self.image_height || self.crop_width > self.image_width {
+            return Err(invalid(
+                "model.encoder.crop_height",
+                format!(
+                    "crop {}×{} does not fit the {}×{} image",
+                    self.crop_height, self.crop_width, self.image_height, self.image_width
+                ),
+            ));
+        }
+        if obs_dim < self.cameras * self.image_len() {
+            return Err(invalid(
+                "model.obs_dim",
+                format!(
+                    "is {obs_dim}, fewer than the {} values of {} camera image(s) of {}×{}×3",
+                    self.cameras * self.image_len(),
+                    self.cameras,
+                    self.image_height,
+                    self.image_width
+                ),
+            ));
+        }
+        Ok(())
+    }
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -216,9 +295,10 @@ impl ModelConfig {
                 return Err(invalid(field, "must be at least 1"));
             }
         }
-        let EncoderConfig::StateMlp { hidden } = self.encoder;
-        if hidden == 0 {
-            return Err(invalid("model.encoder.hidden", "must be at least 1"));
+        match &self.encoder {
+            EncoderConfig::StateMlp { hidden: 0 } => return Err(invalid("model.encoder.hidden", "must be at least 1")),
+            EncoderConfig::StateMlp { .. } => {}
+            EncoderConfig::Vision(v) => v.validate(self.obs_dim)?,
         }
         if self.history_len != self.chunk_len {
             return Err(invalid(

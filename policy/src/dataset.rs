@@ -104,10 +104,15 @@ pub fn future_window(actions: &[Vec<f32>], t: usize, c: usize, out: &mut Vec<f32
 impl Dataset {
     pub fn from_demos(demos: &[Demo], cfg: &ModelConfig, m: usize) -> Result<Self, DatasetError> {
         validate(demos, cfg)?;
-        let normalizer = Normalizer {
+        let mut normalizer = Normalizer {
             obs: Stats::fit(demos.iter().flat_map(|d| d.observations.iter().map(|o| o.as_slice())), cfg.obs_dim),
             action: Stats::fit(demos.iter().flat_map(|d| d.actions.iter().map(|a| a.as_slice())), cfg.action_dim),
         };
+        // Camera images are the encoder's input as they are (values in [0, 1]): per-pixel statistics would make
+        // a pixel's meaning depend on where the block usually sits.
+        for d in crate::encoder::raw_dims(&cfg.encoder, cfg.obs_dim) {
+            (normalizer.obs.mean[d], normalizer.obs.std[d]) = (0.0, 1.0);
+        }
         let (mut obs, mut history, mut next) = (Vec::new(), Vec::new(), Vec::new());
         for d in demos {
             for t in 0..d.len() {

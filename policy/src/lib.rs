@@ -28,3 +28,4 @@ pub mod report;
 pub mod rollout;
 pub mod scheduler;
 pub mod train;
+pub mod vision;

@@ -53,6 +53,11 @@ impl MarsModel {
         self.encoder.forward(obs)
     }
 
+    /// [`Self::encode`] in training: the encoder may augment its input (random crops of camera images).
+    pub fn encode_train(&self, obs: &Tensor, rng: &mut rand::rngs::StdRng) -> Result<Tensor> {
+        self.encoder.forward_train(obs, rng)
+    }
+
     /// The modality weight w: [B, D]. Learned for MARS, a constant for the baselines.
     pub fn weights(&self, obs_emb: &Tensor, history: &Tensor) -> Result<Tensor> {
         match (&self.scheduler, self.kind.fixed_w(&self.cfg)) {

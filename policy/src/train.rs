@@ -87,7 +87,7 @@ pub fn batch_losses(
 ) -> candle_core::Result<LossTerms> {
     let dev = batch.obs.device();
     let (b, c, d) = batch.next.dims3()?;
-    let emb = model.encode(&batch.obs)?;
+    let emb = model.encode_train(&batch.obs, rng)?;
     let w = model.weights(&emb, &batch.history)?;
     let eps = randn(rng, &[b, c, d], dev)?.affine(f64::from(cfg.model.source_std), 0.0)?;
     let a0 = MarsModel::source(&batch.history, &w, &eps)?;

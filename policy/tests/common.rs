@@ -43,3 +43,44 @@ pub fn forked_demos(n: usize, steps: usize) -> Vec<Demo> {
         })
         .collect()
 }
+
+/// [`forked_demos`] seen by a camera: the observation is the 2-D position followed by a `side` × `side` RGB image
+/// (channels last, values in [0, 1]) of a grey table with an 8 × 8 marker that moves right with the position.
+/// The marker is red on the demos that fork up and blue on those that fork down, from the first step on: only
+/// the image tells which way a demo will go.
+pub fn forked_image_demos(n: usize, steps: usize, side: usize) -> Vec<Demo> {
+    let mut demos = forked_demos(n, steps);
+    for (i, d) in demos.iter_mut().enumerate() {
+        let colour = if i % 2 == 0 { [1.0, 0.1, 0.1] } else { [0.1, 0.1, 1.0] };
+        for (t, o) in d.observations.iter_mut().enumerate() {
+            let mut image = vec![0.5f32; side * side * 3];
+            let left = 2 + (t * (side - 12)) / steps.max(1);
+            for y in side / 2 - 4..side / 2 + 4 {
+                for x in left..left + 8 {
+                    image[(y * side + x) * 3..][..3].copy_from_slice(&colour);
+                }
+            }
+            o.extend_from_slice(&image);
+        }
+    }
+    demos
+}
+
+/// The vision encoder for [`forked_image_demos`]: one camera, a narrow ResNet-18 (width 8) over a `crop` × `crop`
+/// crop with `head`.
+pub fn vision_encoder(
+    side: usize,
+    crop: usize,
+    head: mars_policy::nn::resnet::ResNetHead,
+) -> mars_policy::config::EncoderConfig {
+    use mars_policy::nn::resnet::ResNetConfig;
+    mars_policy::config::EncoderConfig::Vision(mars_policy::config::VisionConfig {
+        cameras: 1,
+        image_height: side,
+        image_width: side,
+        crop_height: crop,
+        crop_width: crop,
+        resnet: ResNetConfig { width: 8, head },
+        hidden: 32,
+    })
+}

@@ -19,7 +19,8 @@ use rand::rngs::StdRng;
 use rand_distr::{Distribution, StandardNormal};
 use std::path::PathBuf;
 
-pub use policy_common::{forked_demos, tiny_config};
+#[allow(unused_imports)] // each test binary uses some of them
+pub use policy_common::{forked_demos, forked_image_demos, tiny_config, vision_encoder};
 
 /// Adds N(0, σ²) to every weight, in place (the model shares its variables with the `VarMap`).
 pub fn perturb(trained: &Trained, sigma: f64, seed: u64) {
@@ -57,6 +58,17 @@ pub fn trained_checkpoint(kind: PolicyKind, name: &str, tweak: impl FnOnce(&mut 
 pub fn perturbed_checkpoint(cfg: &PolicyConfig, name: &str) -> PathBuf {
     let (model, varmap) = init_model(cfg, &Device::Cpu).unwrap();
     let data = Dataset::from_demos(&forked_demos(8, 16), &cfg.model, 2).unwrap();
+    let trained = Trained { cfg: cfg.clone(), model, varmap, normalizer: data.normalizer, log: Vec::new() };
+    perturb(&trained, 0.05, 12);
+    let dir = temp_dir(name);
+    checkpoint::save(&dir, &trained).unwrap();
+    dir
+}
+
+/// [`perturbed_checkpoint`] for a vision config, normalised on image demos of `side` px.
+pub fn perturbed_vision_checkpoint(cfg: &PolicyConfig, side: usize, name: &str) -> PathBuf {
+    let (model, varmap) = init_model(cfg, &Device::Cpu).unwrap();
+    let data = Dataset::from_demos(&forked_image_demos(8, 16, side), &cfg.model, 2).unwrap();
     let trained = Trained { cfg: cfg.clone(), model, varmap, normalizer: data.normalizer, log: Vec::new() };
     perturb(&trained, 0.05, 12);
     let dir = temp_dir(name);
