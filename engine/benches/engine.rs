@@ -380,6 +380,12 @@ fn main() {
     let root = root.canonicalize().unwrap_or(root);
     println!("# mars-engine benchmark (RAYON_NUM_THREADS=1; engine: Parallelism::None, one thread)");
     let peak = gemm_peak();
+    // `cargo bench -p mars-engine -- encoder`: the image-encoder section only.
+    if std::env::args().any(|a| a == "encoder") {
+        println!("   gemm single-thread peak (512³ f32, Parallelism::None, best of 8): {:.1} GFLOP/s", peak / 1e9);
+        image_encoder::encoder_table(peak, |f| counted(f).1);
+        return;
+    }
     let (dir, label, temporary) = model_dir(&root);
     latency_table(&dir, &label, peak);
     // FM asks for K_max on every input, so the deadline's effect shows at every budget.

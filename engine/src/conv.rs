@@ -1,6 +1,7 @@
 //! 2-D convolution (no bias, zero padding, as candle's `conv2d_no_bias`) as im2col + the engine's linear layer:
 //! each output pixel's receptive field is copied into one row of a preallocated matrix, and the product with the
-//! kernel, flattened to [out, in·k·k] exactly as candle stores it, goes through the same allocation-free gemm path
+//! kernel, flattened to [out, k·k·in] (candle's [out, in, k, k] with the taps moved outside the channels, so each
+//! tap's channels are one contiguous copy from the channels-last input), goes through the same allocation-free gemm path
 //! as the DiT's token linears (gemm's FMA microkernels on pre-packed weights, in row blocks that stay in cache).
 //!
 //! Activations are channels-last, [pixels, channels] row-major (NHWC for one image): a pixel's channels are
@@ -19,7 +20,7 @@ pub struct Conv {
     pub pad: usize,
     pub in_hw: (usize, usize),
     pub out_hw: (usize, usize),
-    /// The kernel as a linear layer [cout, cin·k·k] with a zero bias.
+    /// The kernel as a linear layer [cout, k·k·cin] (taps outer, channels inner) with a zero bias.
     linear: Linear,
 }
 
@@ -43,6 +44,17 @@ impl Conv {
         let out_hw = (out_size(in_hw.0, kernel, stride, pad), out_size(in_hw.1, kernel, stride, pad));
         let input = cin * kernel * kernel;
         assert_eq!(weight.len(), cout * input, "conv weight length");
+        // [cout, cin, ky, kx] → [cout, ky, kx, cin]: an im2col row is then a copy of each kernel tap's channels,
+        // contiguous in the channels-last input.
+        let mut taps_last = vec![0.0; weight.len()];
+        for o in 0..cout {
+            for ci in 0..cin {
+                for t in 0..kernel * kernel {
+                    taps_last[o * input + t * cin + ci] = weight[(o * cin + ci) * kernel * kernel + t];
+                }
+            }
+        }
+        let weight = taps_last.into_boxed_slice();
         let panels = if mm.uses_panels() { pack_panels(&weight, cout, input) } else { Box::default() };
         let linear = Linear { weight, bias: vec![0.0; cout].into_boxed_slice(), input, output: cout, panels };
         Self { cin, cout, kernel, stride, pad, in_hw, out_hw, linear }
@@ -79,24 +91,28 @@ impl Conv {
         mm.linear(cols, rows, &self.linear, y);
     }
 
-    /// Row p of `cols` = the receptive field of output pixel p, ordered (channel, ky, kx) like the flattened
-    /// kernel; zeros where it hangs over the edge.
+    /// Row p of `cols` = the receptive field of output pixel p, ordered (ky, kx, channel) like the kernel as
+    /// stored here; zeros where it hangs over the edge. For one ky the k taps' channels are one contiguous run of
+    /// the input row: one copy per kernel row.
     fn im2col(&self, x: &[f32], cols: &mut [f32]) {
-        let (h, w) = self.in_hw;
-        let (k, c, s) = (self.kernel, self.cin, self.stride);
-        let row_len = self.linear.input;
-        for (p, row) in cols.chunks_exact_mut(row_len).enumerate() {
-            let (oy, ox) = (p / self.out_hw.1, p % self.out_hw.1);
-            for ky in 0..k {
-                let iy = (oy * s + ky) as isize - self.pad as isize;
-                for kx in 0..k {
-                    let ix = (ox * s + kx) as isize - self.pad as isize;
-                    let inside = iy >= 0 && ix >= 0 && (iy as usize) < h && (ix as usize) < w;
-                    let src = if inside { (iy as usize * w + ix as usize) * c } else { 0 };
-                    for ci in 0..c {
-                        row[(ci * k + ky) * k + kx] = if inside { x[src + ci] } else { 0.0 };
-                    }
+        let (h, w) = (self.in_hw.0 as isize, self.in_hw.1 as isize);
+        let (k, c, s, pad) = (self.kernel, self.cin, self.stride as isize, self.pad as isize);
+        for (p, row) in cols.chunks_exact_mut(self.linear.input).enumerate() {
+            let (oy, ox) = ((p / self.out_hw.1) as isize, (p % self.out_hw.1) as isize);
+            let ix0 = ox * s - pad;
+            // The taps of a kernel row that fall inside the image: lo..hi.
+            let lo = (-ix0).clamp(0, k as isize) as usize;
+            let hi = (w - ix0).clamp(0, k as isize) as usize;
+            for (ky, seg) in row.chunks_exact_mut(k * c).enumerate() {
+                let iy = oy * s + ky as isize - pad;
+                if iy < 0 || iy >= h || lo >= hi {
+                    seg.fill(0.0);
+                    continue;
                 }
+                seg[..lo * c].fill(0.0);
+                seg[hi * c..].fill(0.0);
+                let start = (iy * w + ix0 + lo as isize) as usize * c;
+                seg[lo * c..hi * c].copy_from_slice(&x[start..start + (hi - lo) * c]);
             }
         }
     }

@@ -158,6 +158,7 @@ mod panels {
     /// that they stay in the L2 cache while every panel reads them (a convolution's im2col matrix has hundreds
     /// or thousands of rows; the DiT's 8 tokens are one block).
     const ROW_BLOCK_BYTES: usize = 128 * 1024;
+    const MIN_ROW_BLOCK: usize = 8 * NR;
 
     /// y += x·Wᵀ for `rows` tokens (or pixels), W read from `l.panels`.
     ///
@@ -165,7 +166,9 @@ mod panels {
     /// The CPU has AVX2 and FMA; `x` holds rows·in values, `y` rows·out, `l.panels` is `pack_panels` of `l`.
     pub unsafe fn product(x: &[f32], rows: usize, l: &Linear, y: &mut [f32]) {
         let (k, n) = (l.input, l.output);
-        let block = (ROW_BLOCK_BYTES / (4 * k)).max(NR);
+        // Not fewer than MIN_ROW_BLOCK rows, though: every block streams all the weights once, and a deep layer's
+        // weights (MBs) cost more to stream than its few rows' activations to keep.
+        let block = (ROW_BLOCK_BYTES / (4 * k)).max(MIN_ROW_BLOCK);
         for b0 in (0..rows).step_by(block) {
             let brows = block.min(rows - b0);
             // Rows in near-equal groups of at most NR (8 → 4 + 4, not 6 + 2): a narrow group has too few

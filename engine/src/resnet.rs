@@ -29,25 +29,35 @@ struct GroupNorm {
 
 impl GroupNorm {
     /// Normalises `x` [pixels, C] in place over each group of C / groups contiguous channels and all pixels, then
-    /// scales and shifts per channel, in candle's op order ((x − mean) / √(var + ε) · γ + β); `relu` fuses a ReLU.
-    fn apply(&self, x: &mut [f32], channels: usize, relu: bool) {
+    /// scales and shifts per channel; `relu` fuses a ReLU. Per group: the mean, then the variance about it (two
+    /// passes, f64 sums, as candle's two-pass formula), then x·a + b per channel with a = γ / √(var + ε) and
+    /// b = β − mean·a. `scratch`: 2·C values.
+    fn apply(&self, x: &mut [f32], channels: usize, relu: bool, scratch: &mut [f32]) {
         let per = channels / self.groups;
         let n = (x.len() / channels * per) as f64;
+        let (a, b) = scratch[..2 * channels].split_at_mut(channels);
         for g in 0..self.groups {
             let span = g * per..(g + 1) * per;
-            let mean = x.chunks_exact(channels).flat_map(|px| &px[span.clone()]).map(|v| *v as f64).sum::<f64>() / n;
-            let var = x
-                .chunks_exact(channels)
-                .flat_map(|px| &px[span.clone()])
-                .map(|v| (*v as f64 - mean).powi(2))
-                .sum::<f64>()
-                / n;
-            let (mean, sd) = (mean as f32, (var + GN_EPS).sqrt() as f32);
-            for px in x.chunks_exact_mut(channels) {
-                for c in span.clone() {
-                    let v = (px[c] - mean) / sd * self.gamma[c] + self.beta[c];
-                    px[c] = if relu { v.max(0.0) } else { v };
-                }
+            let mut sum = 0.0f64;
+            for px in x.chunks_exact(channels) {
+                sum += px[span.clone()].iter().map(|v| *v as f64).sum::<f64>();
+            }
+            let mean = sum / n;
+            let mut sq = 0.0f64;
+            for px in x.chunks_exact(channels) {
+                sq += px[span.clone()].iter().map(|v| (*v as f64 - mean).powi(2)).sum::<f64>();
+            }
+            let inv = 1.0 / (sq / n + GN_EPS).sqrt();
+            for c in span {
+                let scale = self.gamma[c] as f64 * inv;
+                a[c] = scale as f32;
+                b[c] = (self.beta[c] as f64 - mean * scale) as f32;
+            }
+        }
+        for px in x.chunks_exact_mut(channels) {
+            for ((v, a), b) in px.iter_mut().zip(a.iter()).zip(b.iter()) {
+                let y = *v * a + b;
+                *v = if relu { y.max(0.0) } else { y };
             }
         }
     }
@@ -89,6 +99,8 @@ pub struct ImageEncoder {
     t2: Box<[f32]>,
     t3: Box<[f32]>,
     cols: Box<[f32]>,
+    /// GroupNorm's per-channel scale and shift.
+    norm_scratch: Box<[f32]>,
     out: Box<[f32]>,
 }
 
@@ -214,6 +226,7 @@ impl ImageEncoder {
             t2: buf(act),
             t3: buf(act),
             cols: buf(cols),
+            norm_scratch: buf(2 * 8 * w),
         })
     }
 
@@ -256,19 +269,19 @@ impl ImageEncoder {
         let s = &self.stem;
         s.forward(image, &mut self.cols, &mut self.t1, mm);
         let stem_len = s.out_pixels() * s.cout;
-        self.stem_norm.apply(&mut self.t1[..stem_len], s.cout, true);
+        self.stem_norm.apply(&mut self.t1[..stem_len], s.cout, true, &mut self.norm_scratch);
         max_pool_3x3_stride_2(&self.t1[..stem_len], s.out_hw, s.cout, self.pooled_hw, &mut self.x);
         for b in &self.blocks {
             let (c1, c2) = (&b.conv1, &b.conv2);
             let len = c1.out_pixels() * c1.cout;
             c1.forward(&self.x, &mut self.cols, &mut self.t1, mm);
-            b.norm1.apply(&mut self.t1[..len], c1.cout, true);
+            b.norm1.apply(&mut self.t1[..len], c1.cout, true, &mut self.norm_scratch);
             c2.forward(&self.t1, &mut self.cols, &mut self.t2, mm);
-            b.norm2.apply(&mut self.t2[..len], c2.cout, false);
+            b.norm2.apply(&mut self.t2[..len], c2.cout, false, &mut self.norm_scratch);
             let skip: &[f32] = match &b.down {
                 Some((c, n)) => {
                     c.forward(&self.x, &mut self.cols, &mut self.t3, mm);
-                    n.apply(&mut self.t3[..len], c.cout, false);
+                    n.apply(&mut self.t3[..len], c.cout, false, &mut self.norm_scratch);
                     &self.t3[..len]
                 }
                 None => &self.x[..len],
