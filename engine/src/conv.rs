@@ -32,7 +32,7 @@ pub fn out_size(n: usize, k: usize, stride: usize, pad: usize) -> usize {
 impl Conv {
     /// `weight`: [cout, cin, k, k] row-major (candle's layout); padding k / 2 (the ResNet's "same" padding).
     pub fn new(
-        weight: Box<[f32]>,
+        weight: &[f32],
         cin: usize,
         cout: usize,
         kernel: usize,
@@ -168,7 +168,7 @@ mod tests {
             let weight: Vec<f32> = (0..cout * cin * k * k).map(f).collect();
             let x: Vec<f32> = (0..hw.0 * hw.1 * cin).map(|i| f(i + 101)).collect();
             for &mm in &backends {
-                let conv = Conv::new(weight.clone().into_boxed_slice(), cin, cout, k, stride, hw, mm);
+                let conv = Conv::new(&weight, cin, cout, k, stride, hw, mm);
                 let want = direct(&x, &conv, &weight);
                 let mut cols = vec![f32::NAN; conv.cols_len()];
                 let mut y = vec![f32::NAN; conv.out_pixels() * cout];

@@ -145,7 +145,7 @@ impl ImageEncoder {
         let mm = r.mm();
         let conv = |name: &str, cin: usize, cout: usize, k: usize, stride: usize, hw: (usize, usize)| {
             let weight = r.tensor(&format!("{prefix}{name}.weight"), &[cout, cin, k, k])?;
-            Ok::<_, LoadError>(Conv::new(weight, cin, cout, k, stride, hw, mm))
+            Ok::<_, LoadError>(Conv::new(&weight, cin, cout, k, stride, hw, mm))
         };
         let norm = |name: &str, channels: usize| {
             Ok::<_, LoadError>(GroupNorm {
