@@ -9,6 +9,7 @@
 //! [`PushT::step`] takes one action — where the pusher should go — and runs the physics for one control period
 //! (the pusher follows at a bounded speed; the block slides with table friction as damping).
 
+pub mod episode;
 pub mod expert;
 pub mod render;
 
