@@ -6,7 +6,9 @@ use std::path::Path;
 
 use crate::dims::VisionDims;
 use crate::error::LoadError;
+use crate::matmul::MatMul;
 use crate::resnet::ImageEncoder;
+use crate::weights::with_reader;
 
 pub struct Cameras {
     v: VisionDims,
@@ -18,12 +20,14 @@ pub struct Cameras {
 impl Cameras {
     /// The encoders of `weights` (a checkpoint's safetensors) under `encoder.vision.camera<i>.`.
     pub fn load(weights: &Path, v: &VisionDims, portable: bool) -> Result<Self, LoadError> {
-        let encoders = (0..v.cameras)
-            .map(|i| {
-                let prefix = format!("encoder.vision.camera{i}.");
-                ImageEncoder::load(weights, &prefix, &v.resnet, v.crop_hw.0, v.crop_hw.1, portable)
-            })
-            .collect::<Result<_, _>>()?;
+        let encoders = with_reader(weights, MatMul::detect(1, portable), |r| {
+            (0..v.cameras)
+                .map(|i| {
+                    let prefix = format!("encoder.vision.camera{i}.");
+                    ImageEncoder::from_reader(r, &prefix, &v.resnet, v.crop_hw.0, v.crop_hw.1)
+                })
+                .collect::<Result<Vec<_>, _>>()
+        })?;
         let crop = vec![0.0; v.crop_hw.0 * v.crop_hw.1 * 3].into_boxed_slice();
         Ok(Self { v: *v, encoders, crop })
     }

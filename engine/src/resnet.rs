@@ -9,12 +9,11 @@
 use std::path::Path;
 
 use mars_policy::nn::resnet::{ResNetConfig, ResNetHead};
-use safetensors::SafeTensors;
 
 use crate::conv::{Conv, out_size};
 use crate::error::{EngineError, Input, LoadError};
 use crate::matmul::MatMul;
-use crate::weights::{Linear, Reader};
+use crate::weights::{Linear, Reader, with_reader};
 
 /// candle's GroupNorm ε in the policy's ResNet.
 const GN_EPS: f64 = 1e-5;
@@ -115,18 +114,7 @@ impl ImageEncoder {
         width: usize,
         portable: bool,
     ) -> Result<Self, LoadError> {
-        let bytes = std::fs::read(path).map_err(|e| LoadError::Tensor {
-            path: path.into(),
-            name: "*".into(),
-            problem: e.to_string(),
-        })?;
-        let st = SafeTensors::deserialize(&bytes).map_err(|e| LoadError::Tensor {
-            path: path.into(),
-            name: "*".into(),
-            problem: e.to_string(),
-        })?;
-        let mm = MatMul::detect(1, portable);
-        Self::from_reader(&Reader::new(st, path, mm), prefix, cfg, height, width)
+        with_reader(path, MatMul::detect(1, portable), |r| Self::from_reader(r, prefix, cfg, height, width))
     }
 
     pub(crate) fn from_reader(

@@ -68,11 +68,19 @@ pub(crate) struct Reader<'a> {
     mm: MatMul,
 }
 
-impl<'a> Reader<'a> {
-    pub(crate) fn new(st: SafeTensors<'a>, path: &'a Path, mm: MatMul) -> Self {
-        Self { st, path, mm }
-    }
+/// Reads the safetensors file `path` and hands `read` a [`Reader`] over it (the bytes live for the call).
+pub(crate) fn with_reader<T>(
+    path: &Path,
+    mm: MatMul,
+    read: impl FnOnce(&Reader) -> Result<T, LoadError>,
+) -> Result<T, LoadError> {
+    let err = |problem: String| LoadError::Tensor { path: path.into(), name: "*".into(), problem };
+    let bytes = std::fs::read(path).map_err(|e| err(e.to_string()))?;
+    let st = SafeTensors::deserialize(&bytes).map_err(|e| err(e.to_string()))?;
+    read(&Reader { st, path, mm })
+}
 
+impl<'a> Reader<'a> {
     pub(crate) fn mm(&self) -> MatMul {
         self.mm
     }
@@ -130,17 +138,10 @@ impl Weights {
     /// shapes are checked again here so that a mismatch can never reach a kernel. `fixed_w`:
     /// `PolicyKind::fixed_w` (`Some` for a baseline, which has no scheduler; `d.scheduler` follows it too).
     pub fn load(path: &Path, d: &Dims, fixed_w: Option<f32>, mm: MatMul) -> Result<Self, LoadError> {
-        let bytes = std::fs::read(path).map_err(|e| LoadError::Tensor {
-            path: path.into(),
-            name: "*".into(),
-            problem: e.to_string(),
-        })?;
-        let st = SafeTensors::deserialize(&bytes).map_err(|e| LoadError::Tensor {
-            path: path.into(),
-            name: "*".into(),
-            problem: e.to_string(),
-        })?;
-        let r = Reader { st, path, mm };
+        with_reader(path, mm, |r| Self::read(r, d, fixed_w))
+    }
+
+    fn read(r: &Reader, d: &Dims, fixed_w: Option<f32>) -> Result<Self, LoadError> {
         let w = d.width;
         let modality = match (d.scheduler, fixed_w) {
             (Some(s), None) => Modality::Scheduler {

@@ -29,6 +29,9 @@ fn the_routes_part_where_s_next_is_high_and_not_where_it_is_low() {
         v.iter().sum::<f32>() / v.len() as f32
     };
     let (parting, pushing) = (y_spread(0..2), y_spread(22..26));
-    eprintln!("mean S_next(y): {parting:.3} where the routes part (steps 0–1), {pushing:.3} in the push (22–25)");
+    eprintln!(
+        "mean S_next(y): {parting:.3} where the routes part (steps 0–1), {pushing:.3} in the push (22–25): {:.1}×",
+        parting / pushing
+    );
     assert!(parting > 3.0 * pushing, "S_next(y): {parting} at the start vs {pushing} in the push");
 }
