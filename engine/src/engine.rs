@@ -55,6 +55,9 @@ pub struct Output<'a> {
     pub over_budget: bool,
     /// The estimated cost of this call when K was chosen.
     pub estimated: Duration,
+    /// Time spent encoding the observation (normalisation, the cameras' ResNets if any, the encoder MLP and the
+    /// scheduler's w), before the ODE.
+    pub encode: Duration,
     /// D, the length of each action in `chunk`.
     pub action_dim: usize,
 }
@@ -187,6 +190,7 @@ impl Engine {
         let (wt, b, norm) = (&self.weights, &mut self.buf, &self.meta.normalizer);
 
         let k_requested = observe(wt, &d, norm, obs, hist, self.cameras.as_mut(), b, mm);
+        let encode = start.elapsed();
         match noise {
             Noise::Draw => b.eps.iter_mut().for_each(|e| *e = self.rng.sample(StandardNormal)),
             Noise::Given(eps) => b.eps.copy_from_slice(eps),
@@ -239,6 +243,7 @@ impl Engine {
             capped: matches!(steps, Steps::Budget(_)) && k < k_requested,
             over_budget: plan.over_budget,
             estimated: estimate.call(k),
+            encode,
             action_dim: d.action,
         })
     }

@@ -6,7 +6,7 @@
 //!
 //! - [`clock`]: CLOCK_MONOTONIC nanoseconds, the timestamps of every frame (comparable across processes).
 //! - [`schema`]: the schema version every frame carries in its user header, and the refusal of mismatches.
-//! - [`state`], [`command`], [`image`]: the `#[repr(C)]` zero-copy payloads.
+//! - [`state`], [`command`], [`image`], [`scene`]: the `#[repr(C)]` zero-copy payloads.
 //! - [`names`]: the per-robot service namespace.
 //! - [`wire`]: typed publishers/subscribers for state, command and camera frames.
 //! - [`liveness`]: heartbeats over iceoryx2 events and a WaitSet watch that tells when the other side died.
@@ -20,6 +20,7 @@ pub mod image;
 pub mod liveness;
 pub mod names;
 pub mod node;
+pub mod scene;
 pub mod schema;
 pub mod state;
 pub mod wire;
@@ -29,9 +30,11 @@ pub use heartbeat_thread::{HeartbeatReport, HeartbeatThread};
 pub use image::{ImageEncoding, ImageHeader};
 pub use liveness::{ControllerLiveness, HalLiveness, Heartbeat, Peer, PeerWatch, Side};
 pub use names::{NameError, RobotNamespace};
+pub use scene::{SceneAction, ScenePhase, SceneRequest, SceneState};
 pub use schema::{FrameHeader, SCHEMA_VERSION, SchemaMismatch};
 pub use state::{HoldReason, MAX_JOINTS, RobotState, fault, robot_mode, status};
 pub use wire::{
     CommandReader, CommandWriter, FrameReceiveError, FrameSendError, ImageFrame, ImageReader, ImageReceiveError,
-    ImageWriter, StateReader, StateWriter, WireError,
+    ImageWriter, SceneRequestReader, SceneRequestWriter, SceneStateReader, SceneStateWriter, StateReader, StateWriter,
+    WireError,
 };

@@ -1,5 +1,5 @@
 //! Service names under a per-robot namespace: `mars/<robot>/state`, `mars/<robot>/command`,
-//! `mars/<robot>/camera/<camera>`.
+//! `mars/<robot>/camera/<camera>`, `mars/<robot>/scene/{state,request}`.
 //!
 //! One namespace per robot lets two arms (or a sim and a test) run side by side on one machine; tests use a
 //! robot id with their pid and a counter so they never meet each other's services.
@@ -60,6 +60,16 @@ impl RobotNamespace {
         service_name(format!("mars/{}/command", self.robot))
     }
 
+    /// Where the scene's referee publishes [`crate::SceneState`].
+    pub fn scene_state(&self) -> Result<ServiceName, NameError> {
+        service_name(format!("mars/{}/scene/state", self.robot))
+    }
+
+    /// Where the controller asks the scene for resets ([`crate::SceneRequest`]).
+    pub fn scene_request(&self) -> Result<ServiceName, NameError> {
+        service_name(format!("mars/{}/scene/request", self.robot))
+    }
+
     /// Where a camera of this robot publishes images.
     pub fn camera(&self, camera: &str) -> Result<ServiceName, NameError> {
         check_id("camera", camera)?;
@@ -81,6 +91,8 @@ mod tests {
         assert_eq!(ns.state().unwrap().as_str(), "mars/fr3/state");
         assert_eq!(ns.command().unwrap().as_str(), "mars/fr3/command");
         assert_eq!(ns.camera("wrist").unwrap().as_str(), "mars/fr3/camera/wrist");
+        assert_eq!(ns.scene_state().unwrap().as_str(), "mars/fr3/scene/state");
+        assert_eq!(ns.scene_request().unwrap().as_str(), "mars/fr3/scene/request");
     }
 
     #[test]

@@ -1,4 +1,4 @@
-//! Typed ports for the three kinds of frame.
+//! Typed ports for the kinds of frame: state, command, camera images, and the scene's state and requests.
 //!
 //! Both sides open every service through the functions here, so the quality-of-service settings they pass to
 //! iceoryx2 are identical by construction (iceoryx2 refuses to open a service with incompatible settings).
@@ -13,6 +13,7 @@ use iceoryx2::sample::Sample;
 use crate::command::JointCommand;
 use crate::image::ImageHeader;
 use crate::names::{NameError, RobotNamespace};
+use crate::scene::{SceneRequest, SceneState};
 use crate::schema::{FrameHeader, SchemaMismatch, check_schema_version};
 use crate::state::RobotState;
 
@@ -187,6 +188,8 @@ macro_rules! frame_ports {
 
 frame_ports!(StateWriter, StateReader, RobotState, state);
 frame_ports!(CommandWriter, CommandReader, JointCommand, command);
+frame_ports!(SceneStateWriter, SceneStateReader, SceneState, scene_state);
+frame_ports!(SceneRequestWriter, SceneRequestReader, SceneRequest, scene_request);
 
 fn image_service(
     node: &Node<ipc::Service>,

@@ -76,9 +76,21 @@ pub fn train(
     cfg.train.seed = seed.unwrap_or(cfg.train.seed);
     cfg.validate()?;
     let set = load_demos(demos)?;
+    train_on(&cfg, &set.demos, out, snapshot_every)
+}
+
+/// `mars train` on demos already in memory (a task that makes its own, e.g. Push-T's with camera images): trains
+/// with a progress bar, saves the checkpoint to `out` (and snapshots every N epochs) and prints the summary line.
+pub fn train_on(
+    cfg: &PolicyConfig,
+    demos: &[Demo],
+    out: &Path,
+    snapshot_every: Option<usize>,
+) -> anyhow::Result<Trained> {
+    let kind = cfg.kind;
     let started = Instant::now();
     let snapshots = snapshot_every.map(|every| crate::train::Snapshots { every, dir: out.join("snapshots") });
-    let trained = crate::train::train_with_snapshots(&cfg, &set.demos, progress_bar(kind), snapshots.as_ref())?;
+    let trained = crate::train::train_with_snapshots(cfg, demos, progress_bar(kind), snapshots.as_ref())?;
     checkpoint::save(out, &trained)?;
     let last = trained.log.last().context("training ran no epoch")?;
     println!(

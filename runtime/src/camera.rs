@@ -235,6 +235,16 @@ impl Camera {
         }
     }
 
+    /// The newest well-formed frame waiting, read for display only (an episode's last view in the report): not
+    /// judged and not counted, and the policy never acts on it. The frames before it are consumed.
+    pub fn newest_for_display(&mut self) -> Option<ImageFrame> {
+        let mut newest = None;
+        while let Ok(Some(f)) = self.reader.receive() {
+            newest = Some(f);
+        }
+        newest
+    }
+
     /// The service this camera is read from.
     pub fn service(&self) -> &str {
         self.reader.service()

@@ -28,6 +28,8 @@ pub struct TimedChunk {
     pub actions: [[f64; MAX_ACTION]; MAX_CHUNK],
     /// When inference finished (for the "late chunk" accounting).
     pub ready_ns: u64,
+    /// Capture time of the camera frame the chunk was computed from (0: no camera).
+    pub capture_ns: u64,
 }
 
 impl Default for TimedChunk {
@@ -40,6 +42,7 @@ impl Default for TimedChunk {
             len: 0,
             actions: [[0.0; MAX_ACTION]; MAX_CHUNK],
             ready_ns: 0,
+            capture_ns: 0,
         }
     }
 }

@@ -14,7 +14,7 @@ use crate::daemon::{self, exit};
 #[derive(clap::Args, Debug, Clone)]
 pub struct MarsdArgs {
     /// Daemon configuration (TOML).
-    #[arg(long, default_value = "configs/marsd.toml")]
+    #[arg(long, default_value = DEFAULT_CONFIG)]
     pub config: PathBuf,
     /// Override `robot` (the iceoryx2 namespace; must match the HAL's --robot).
     #[arg(long)]
@@ -96,7 +96,22 @@ pub struct DemoArgs {
     /// franka-sim's virtual environment (made by `.ci/franka-sim-venv`, which the demo runs first).
     #[arg(long, default_value = ".venv-sim")]
     pub franka_sim_venv: PathBuf,
+    /// The task: Pick Cup (configs/marsd.toml) or Push-T with its camera and scene (configs/marsd_push_t.toml);
+    /// an explicit --config decides instead.
+    #[arg(long, value_enum, default_value_t = DemoTask::PickCup)]
+    pub task: DemoTask,
 }
+
+#[derive(clap::ValueEnum, Debug, Clone, Copy, PartialEq, Eq)]
+pub enum DemoTask {
+    PickCup,
+    PushT,
+}
+
+/// marsd's configuration when `--config` is not given.
+pub const DEFAULT_CONFIG: &str = "configs/marsd.toml";
+/// The same for `--task push-t`.
+pub const PUSH_T_CONFIG: &str = "configs/marsd_push_t.toml";
 
 #[derive(clap::ValueEnum, Debug, Clone, Copy, PartialEq, Eq)]
 pub enum DemoRobot {
@@ -121,9 +136,16 @@ impl Drop for Reaped {
 
 /// The HIL demo: the mock FR3 HAL and `marsd` as two processes (both from this executable), N episodes, the
 /// report. Returns marsd's exit status.
-pub fn demo(args: DemoArgs) -> anyhow::Result<u8> {
+pub fn demo(mut args: DemoArgs) -> anyhow::Result<u8> {
     let exe = std::env::current_exe().context("locating this executable")?;
+    if args.task == DemoTask::PushT && args.marsd.config == Path::new(DEFAULT_CONFIG) {
+        args.marsd.config = PUSH_T_CONFIG.into();
+    }
     let cfg = crate::config::DaemonConfig::load(&args.marsd.config)?;
+    // A camera task has a scene (the world, the camera, the referee) as a process of its own.
+    let profile = mars_hal::profile::Profile::load(&cfg.profile)?;
+    let task =
+        crate::task::HilTask::load(&cfg.task, &profile).with_context(|| format!("task {}", cfg.task.display()))?;
     // One real-time rig at a time on this machine (a second demo, the benchmark or the HIL tests would take this
     // rig's cores): wait for the one running, if any.
     let _rig = crate::rt::rig_lock::rt_rig_lock().context("taking the real-time rig lock")?;
@@ -162,6 +184,14 @@ pub fn demo(args: DemoArgs) -> anyhow::Result<u8> {
         hal.args(["--backend", "fci", "--robot-ip", "127.0.0.1", "--realtime", "ignore", "--late-commands", "applied"]);
     }
     let mut hal = Reaped(hal.spawn().context("starting the HAL process")?);
+    let mut scene = match &task {
+        crate::task::HilTask::PushT(_) => {
+            let mut scene = Command::new(&exe);
+            scene.args(["scene", "--task"]).arg(&cfg.task).arg("--profile").arg(&cfg.profile).args(["--robot", &robot]);
+            Some(Reaped(scene.spawn().context("starting the scene process")?))
+        }
+        crate::task::HilTask::PickCup(_) => None,
+    };
     let watch = crate::stall_watch::StallWatch::start(&robot)?;
     let mut marsd = Command::new(&exe);
     marsd.arg("marsd").arg("--config").arg(&args.marsd.config).args(["--robot", &robot]);
@@ -217,13 +247,18 @@ pub fn demo(args: DemoArgs) -> anyhow::Result<u8> {
     if status.code() == Some(i32::from(exit::TRIPPED)) {
         explain_trip(&out, trip_line.as_deref(), &watched);
     }
-    // marsd has ended its session with a hold command; stop the HAL the way systemd would.
-    // SAFETY: plain kill(2) on our own child's pid.
-    unsafe { libc::kill(hal.0.id() as libc::pid_t, libc::SIGTERM) };
-    let deadline = Instant::now() + Duration::from_secs(5);
-    while Instant::now() < deadline && matches!(hal.0.try_wait(), Ok(None)) {
-        std::thread::sleep(Duration::from_millis(20));
+    // marsd has ended its session with a hold command; stop the scene and the HAL the way systemd would.
+    for child in scene.iter().chain([&hal]) {
+        // SAFETY: plain kill(2) on our own child's pid.
+        unsafe { libc::kill(child.0.id() as libc::pid_t, libc::SIGTERM) };
     }
+    let deadline = Instant::now() + Duration::from_secs(5);
+    for child in scene.iter_mut().chain([&mut hal]) {
+        while Instant::now() < deadline && matches!(child.0.try_wait(), Ok(None)) {
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+    drop(scene);
     drop(hal);
     Ok(status.code().map_or(exit::FAILURE, |c| c as u8))
 }

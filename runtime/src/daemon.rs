@@ -24,10 +24,11 @@ use crate::latency::{Channel, Collector};
 use crate::policy_loop::{PolicyChannels, PolicyLoop};
 use crate::report::Summary;
 use crate::rt::RtStatus;
+use crate::scene_link::SceneLink;
 use crate::servo::ServoTick;
 use crate::servo_loop::{ServoChannels, ServoLoopConfig, ServoReport, ServoWire, run_servo};
 use crate::shared::{Observed, Status};
-use crate::task::pick_cup::PickCup;
+use crate::task::HilTask;
 
 /// Exit statuses, so a supervisor (or a test) can tell outcomes apart.
 pub mod exit {
@@ -47,7 +48,7 @@ pub mod exit {
 pub struct Prepared {
     pub cfg: DaemonConfig,
     pub profile: Profile,
-    pub task: PickCup,
+    pub task: HilTask,
     pub engine: Engine,
 }
 
@@ -55,7 +56,7 @@ pub struct Prepared {
 pub fn prepare(cfg: DaemonConfig) -> anyhow::Result<Prepared> {
     let profile = Profile::load(&cfg.profile)?;
     profile.validate()?;
-    let task = PickCup::load(&cfg.task, &profile).with_context(|| format!("task {}", cfg.task.display()))?;
+    let task = HilTask::load(&cfg.task, &profile).with_context(|| format!("task {}", cfg.task.display()))?;
     let engine_cfg = EngineConfig {
         seed: cfg.seed,
         injected_step_delay: Duration::from_secs_f64(cfg.faults.engine_step_delay_ms * 1e-3),
@@ -78,7 +79,7 @@ pub fn prepare(cfg: DaemonConfig) -> anyhow::Result<Prepared> {
         engine.chunk_len(),
         engine.action_dim()
     );
-    let rate = task.cfg.policy_rate_hz;
+    let rate = task.policy_rate_hz();
     anyhow::ensure!(
         (cfg.policy.rate_hz - rate).abs() < 1e-9,
         "policy.rate_hz = {} but the task's demos were recorded at {rate} Hz",
@@ -95,15 +96,17 @@ pub struct Outcome {
 /// Runs the loops to the end and writes the report into `cfg.out`.
 pub fn run(p: Prepared) -> anyhow::Result<Outcome> {
     let Prepared { cfg, profile, task, engine } = p;
-    let mode_names: Vec<String> = task.cfg.grasps.iter().map(|g| g.name.clone()).collect();
+    let mode_names = task.mode_names();
+    // The report draws with the task's geometry (Push-T's camera view); the task itself moves to the policy thread.
+    let task_view = task.clone();
     std::fs::create_dir_all(&cfg.out).with_context(|| format!("creating {}", cfg.out.display()))?;
     let collector = Collector::start(&cfg.out, Duration::from_millis(50))?;
-    let servo_rec = collector.recorder(
-        "servo",
-        &[Channel::WakeJitter, Channel::TickCompute, Channel::StateAge, Channel::StateToCommand],
+    let servo_rec = collector.recorder("servo", &servo_channels(&task), 8);
+    let policy_rec = collector.recorder(
+        "policy",
+        &[Channel::Inference, Channel::KRequested, Channel::KUsed, Channel::Encode, Channel::CameraAge],
         8,
     );
-    let policy_rec = collector.recorder("policy", &[Channel::Inference, Channel::KRequested, Channel::KUsed], 8);
 
     let status = Arc::new(Status::default());
     // Policy thread → servo thread (see `shared`).
@@ -111,7 +114,11 @@ pub fn run(p: Prepared) -> anyhow::Result<Outcome> {
     let (chunk_in, chunk_out) = triple_buffer::triple_buffer(&TimedChunk::default());
     let (obs_in, obs_out) = triple_buffer::triple_buffer(&Observed::default());
     let session = session_id();
-    let tick = ServoTick::new(&cfg, &profile, session)?;
+    let tick = match &task {
+        HilTask::PickCup(_) => ServoTick::new(&cfg, &profile, session)?,
+        // Push-T acts on the table: the servo turns its (x, y) into joints.
+        HilTask::PushT(t) => ServoTick::new(&cfg, &profile, session)?.with_effector(t.effector()),
+    };
     let loop_cfg = ServoLoopConfig {
         period: Duration::from_secs_f64(profile.period_s()),
         interval: Duration::from_secs_f64(cfg.histograms.interval_s),
@@ -170,13 +177,34 @@ pub fn run(p: Prepared) -> anyhow::Result<Outcome> {
     let policy_ch =
         PolicyChannels { chunks: chunk_in, observed: obs_out, requests: requests_in, status: status.clone() };
     let (policy_core, policy_prio) = (cfg.policy.core, cfg.policy.priority);
+    // Push-T's camera and scene are opened on the policy thread (iceoryx2 ports stay on their thread); a failure
+    // to open them stops marsd before anything moved, like a bad configuration.
+    let (scene_tx, scene_rx) = std::sync::mpsc::channel::<anyhow::Result<()>>();
+    let policy_status = status.clone();
     let policy = std::thread::Builder::new()
         .name("marsd-policy".into())
         .spawn(move || {
+            let scene = match &task {
+                HilTask::PushT(t) => match SceneLink::open(&policy_cfg.robot, t) {
+                    Ok(s) => Some(s),
+                    Err(e) => {
+                        let _ = scene_tx.send(Err(e));
+                        policy_status.stop_requested.store(true, Ordering::Release);
+                        return None;
+                    }
+                },
+                HilTask::PickCup(_) => None,
+            };
+            let _ = scene_tx.send(Ok(()));
             let rt = crate::rt::setup_realtime("policy", policy_core, Some(policy_prio), false);
-            (PolicyLoop { engine, task, ch: policy_ch, rec: policy_rec }.run(&policy_cfg), rt)
+            Some((PolicyLoop { engine, task, ch: policy_ch, rec: policy_rec, scene }.run(&policy_cfg), rt))
         })
         .context("spawning the policy thread")?;
+    if let Err(e) = scene_rx.recv().unwrap_or(Ok(())) {
+        let _ = servo.join();
+        let _ = policy.join();
+        return Err(e.context("opening the task's camera and scene"));
+    }
 
     let no_hal = supervise(&status, &term, &servo, Duration::from_secs_f64(cfg.handshake_timeout_s));
     let servo_joined = servo.join();
@@ -185,7 +213,10 @@ pub fn run(p: Prepared) -> anyhow::Result<Outcome> {
     let (servo_report, servo_rt) = servo_joined
         .map_err(|_| anyhow::anyhow!("the servo thread panicked"))?
         .context("the servo thread could not open the wire")?;
-    let (policy_report, policy_rt) = policy.join().map_err(|_| anyhow::anyhow!("the policy thread panicked"))?;
+    let (policy_report, policy_rt) = policy
+        .join()
+        .map_err(|_| anyhow::anyhow!("the policy thread panicked"))?
+        .context("the policy thread could not open the task's camera and scene")?;
     let totals = collector.finish();
 
     if let Some(v) = servo_report.first_violation {
@@ -193,7 +224,7 @@ pub fn run(p: Prepared) -> anyhow::Result<Outcome> {
     }
     let run = crate::report::RunFacts { realtime: vec![servo_rt, policy_rt], heartbeat };
     let summary = Summary::new(&cfg, &mode_names, &servo_report, &policy_report, totals, run);
-    let written = summary.write(&cfg.out, &policy_report)?;
+    let written = summary.write(&cfg.out, &policy_report, &task_view)?;
     println!("{summary}");
     println!("  wrote {}", written.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(", "));
     let exit = if no_hal {
@@ -264,6 +295,15 @@ fn supervise(
         }
     }
     no_hal
+}
+
+/// The servo thread's histograms: Push-T adds its camera frames' capture → first command.
+fn servo_channels(task: &HilTask) -> Vec<Channel> {
+    let mut c = vec![Channel::WakeJitter, Channel::TickCompute, Channel::StateAge, Channel::StateToCommand];
+    if matches!(task, HilTask::PushT(_)) {
+        c.push(Channel::CaptureToCommand);
+    }
+    c
 }
 
 /// A session id no other controller run uses: the HAL never resumes a session that stopped.

@@ -50,10 +50,16 @@ pub enum Channel {
     KRequested,
     /// ODE steps actually run (after the deadline cap).
     KUsed,
+    /// A camera frame's capture → the policy reading it as its input (Push-T).
+    CameraAge,
+    /// Encoding one observation in the engine (the cameras' ResNets, the encoder, w), before the ODE.
+    Encode,
+    /// A camera frame's capture → the first servo command that follows the chunk computed from it.
+    CaptureToCommand,
 }
 
 impl Channel {
-    pub const COUNT: usize = 7;
+    pub const COUNT: usize = 10;
     pub const ALL: [Channel; Channel::COUNT] = [
         Channel::WakeJitter,
         Channel::TickCompute,
@@ -62,6 +68,9 @@ impl Channel {
         Channel::Inference,
         Channel::KRequested,
         Channel::KUsed,
+        Channel::CameraAge,
+        Channel::Encode,
+        Channel::CaptureToCommand,
     ];
 
     /// The tag of its histograms in the interval log.
@@ -74,6 +83,9 @@ impl Channel {
             Channel::Inference => "inference",
             Channel::KRequested => "k_requested",
             Channel::KUsed => "k_used",
+            Channel::CameraAge => "camera_age",
+            Channel::Encode => "encode",
+            Channel::CaptureToCommand => "capture_to_command",
         }
     }
 

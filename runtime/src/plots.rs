@@ -25,10 +25,24 @@ type Area<'a> = DrawingArea<BitMapBackend<'a>, Shift>;
 pub struct EpisodeTrace {
     /// The grasp mode the episode ended in, if known.
     pub mode: Option<usize>,
+    pub success: bool,
     /// Joint positions (rad), one per policy call.
     pub q: Vec<[f64; 7]>,
     /// ‖w‖∞ of the chunk each call produced (same length as `q`).
     pub w_inf: Vec<f32>,
+    /// A camera task's first frame the policy used and the newest frame kept (the scene as the episode ended;
+    /// RGB8; empty without a camera).
+    pub first_frame: Vec<u8>,
+    pub last_frame: Vec<u8>,
+}
+
+impl EpisodeTrace {
+    /// Keeps `rgb` as the episode's first frame, or else as its newest (the buffers are reused across episodes).
+    pub fn keep_frame(&mut self, rgb: &[u8]) {
+        let slot = if self.first_frame.is_empty() { &mut self.first_frame } else { &mut self.last_frame };
+        slot.clear();
+        slot.extend_from_slice(rgb);
+    }
 }
 
 fn to_png(path: &Path, size: (u32, u32), draw: impl FnOnce(&Area) -> anyhow::Result<()>) -> anyhow::Result<()> {
@@ -321,4 +335,61 @@ fn draw_colorbar(area: &Area) -> anyhow::Result<()> {
         }))
         .map_err(err)?;
     Ok(())
+}
+
+/// Push-T's camera strip: one row per episode (the last `rows` kept), the first frame the policy saw and the
+/// scene as the episode ended, both scaled up, with the flange's path over the second, each policy step a dot coloured by ‖w‖∞ of
+/// the chunk then executing (`w_color`, as in the episodes plot), the start black. `xy` maps a trace's joints to
+/// the table, `pixel` a table point to the camera's (column, row); `size` is the camera's side in pixels.
+pub fn plot_camera_strip(
+    traces: &[EpisodeTrace],
+    mode_names: &[String],
+    size: u32,
+    xy: impl Fn(&[f64; 7]) -> [f64; 2],
+    pixel: impl Fn([f64; 2]) -> [f32; 2],
+    path: &Path,
+    rows: usize,
+) -> anyhow::Result<()> {
+    let shown: Vec<&EpisodeTrace> = traces.iter().filter(|t| !t.first_frame.is_empty()).collect();
+    let shown = &shown[shown.len().saturating_sub(rows)..];
+    ensure!(!shown.is_empty(), "no episode kept a camera frame");
+    let scale = (256 / size).max(1);
+    let side = size * scale;
+    let (label_w, gap) = (150u32, 8u32);
+    let width = label_w + 2 * side + 3 * gap;
+    let height = shown.len() as u32 * (side + gap) + gap;
+    to_png(path, (width, height), |root| {
+        for (row, t) in shown.iter().enumerate() {
+            let top = gap + row as u32 * (side + gap);
+            let mode = t.mode.and_then(|m| mode_names.get(m)).map_or("no mode", |s| s.as_str());
+            let outcome = if t.success { "success" } else { "failure" };
+            for (i, line) in [mode, outcome].iter().enumerate() {
+                let at = (8, top as i32 + 8 + 22 * i as i32);
+                root.draw(&Text::new(line.to_string(), at, (FONT, 18).into_font())).map_err(err)?;
+            }
+            let last = if t.last_frame.is_empty() { &t.first_frame } else { &t.last_frame };
+            for (col, frame) in [&t.first_frame, last].into_iter().enumerate() {
+                let left = label_w + gap + col as u32 * (side + gap);
+                for (i, px) in frame.chunks_exact(3).enumerate() {
+                    let (u, v) = (i as u32 % size, i as u32 / size);
+                    let c = RGBColor(px[0], px[1], px[2]);
+                    for dy in 0..scale {
+                        for dx in 0..scale {
+                            let at = ((left + u * scale + dx) as i32, (top + v * scale + dy) as i32);
+                            root.draw_pixel(at, &c).map_err(err)?;
+                        }
+                    }
+                }
+                if col == 1 {
+                    for (i, q) in t.q.iter().enumerate() {
+                        let [pu, pv] = pixel(xy(q));
+                        let at = (left as i32 + (pu * scale as f32) as i32, top as i32 + (pv * scale as f32) as i32);
+                        let color = if i == 0 { BLACK } else { w_color(t.w_inf.get(i).copied().unwrap_or(f32::NAN)) };
+                        root.draw(&Circle::new(at, 3, color.filled())).map_err(err)?;
+                    }
+                }
+            }
+        }
+        Ok(())
+    })
 }

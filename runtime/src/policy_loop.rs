@@ -13,8 +13,8 @@ use std::sync::atomic::Ordering;
 use std::time::Duration;
 
 use mars_engine::Engine;
-use mars_ipc::MAX_JOINTS;
 use mars_ipc::clock::monotonic_ns;
+use mars_ipc::{MAX_JOINTS, SceneAction, ScenePhase};
 use serde::Serialize;
 
 use crate::chunk::TimedChunk;
@@ -22,8 +22,10 @@ use crate::config::DaemonConfig;
 use crate::latency::{Channel, Recorder};
 use crate::plots::EpisodeTrace;
 use crate::rt::Ticker;
+use crate::scene_link::SceneLink;
 use crate::shared::{Observed, Phase, Request, Status};
-use crate::task::pick_cup::{DoneReason, PickCup, Progress};
+use crate::task::pick_cup::{DoneReason, EpisodeMonitor, Progress};
+use crate::task::{HilTask, PushTHil};
 use crate::traces::{TRACE_CAPACITY, TraceRing};
 use crate::watchdog::{Streak, Trip};
 
@@ -58,6 +60,20 @@ pub struct PolicyReport {
     /// Calls that could not fit even K = 1; their chunks were dropped.
     pub over_budget: u64,
     pub engine_errors: u64,
+    /// Push-T: the camera's frames as the policy judged them (used, superseded, refused by reason), and the
+    /// chunks skipped because no usable frame was there.
+    pub camera: Option<CameraReport>,
+}
+
+/// The camera as the policy loop saw it.
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct CameraReport {
+    pub service: String,
+    pub counts: crate::camera::CameraCounts,
+    /// Inferences skipped for want of a usable frame (the previous chunk kept).
+    pub no_frame: u64,
+    /// The first refusal, in words.
+    pub first_refusal: Option<String>,
 }
 
 pub struct PolicyChannels {
@@ -74,19 +90,31 @@ struct ChunkFaults {
     late: Streak,
     /// Calls that could not fit even one ODE step.
     over: Streak,
+    /// Inferences with no usable camera frame.
+    no_frame: Streak,
+}
+
+/// How an episode's end is judged.
+enum Judge {
+    /// Pick Cup: the measured arm reached a grasp, then the retreat.
+    Arm(EpisodeMonitor),
+    /// Push-T: the scene's referee saw the block home (its frames), or time ran out.
+    Scene { timeout_s: f64, silent_limit_ns: u64 },
 }
 
 pub struct PolicyLoop {
     pub engine: Engine,
-    pub task: PickCup,
+    pub task: HilTask,
     pub ch: PolicyChannels,
     pub rec: Recorder,
+    /// Push-T: the camera and the scene (opened on this thread).
+    pub scene: Option<SceneLink>,
 }
 
 impl PolicyLoop {
     pub fn run(mut self, cfg: &DaemonConfig) -> PolicyReport {
         let mut report = PolicyReport {
-            episodes: crate::tally::EpisodeTally::new(self.task.cfg.grasps.len(), cfg.traces_kept),
+            episodes: crate::tally::EpisodeTally::new(self.task.mode_names().len(), cfg.traces_kept),
             ..Default::default()
         };
         let episodes = if cfg.episodes == 0 { u64::MAX } else { cfg.episodes as u64 };
@@ -96,20 +124,23 @@ impl PolicyLoop {
         let mut faults = ChunkFaults {
             late: Streak::new(cfg.watchdog.max_consecutive_late_chunks),
             over: Streak::new(cfg.watchdog.max_consecutive_over_budget),
+            no_frame: Streak::new(cfg.watchdog.max_consecutive_late_chunks),
         };
         let mut traces = TraceRing::new(cfg.traces_kept);
         for episode in 1..=episodes {
-            let pose_v = self.task.start_pose(cfg.seed.wrapping_add(episode));
+            let seed = cfg.seed.wrapping_add(episode);
+            let Some((pose_v, gripper, rest)) = self.set_up(episode, seed) else { break };
             let mut pose = [0.0; MAX_JOINTS];
             pose[..pose_v.len()].copy_from_slice(&pose_v);
-            let gripper = self.task.cfg.gripper_open;
             if !self.request(Request::MoveTo { episode, pose, gripper }) {
                 break;
             }
             if !self.wait_for(|s| s.phase() == Phase::Ready && s.episode.load(Ordering::Acquire) == episode) {
                 break;
             }
-            let rest = self.task.rest_action(&pose_v);
+            if !self.start_scene(episode) {
+                break;
+            }
             match self.episode(cfg, episode, &rest, &mut faults, &mut traces, &mut report) {
                 Some(result) => report.episodes.add(result),
                 None => break,
@@ -118,7 +149,76 @@ impl PolicyLoop {
         self.request(Request::Finish);
         report.traces_dropped = traces.dropped();
         report.traces = traces.into_vec();
+        if let Some(s) = &self.scene {
+            let c = report.camera.get_or_insert_with(CameraReport::default);
+            c.service = s.camera.service().to_owned();
+            c.counts = s.camera.check.counts;
+        }
         report
+    }
+
+    /// The episode's start: the joint pose to move to, the gripper width, and the action history's padding.
+    /// Push-T first has the scene reset the block (`None`: it did not answer, tripped; or the loop must stop).
+    fn set_up(&mut self, episode: u64, seed: u64) -> Option<(Vec<f64>, f64, Vec<f32>)> {
+        match &self.task {
+            HilTask::PickCup(t) => {
+                let pose = t.start_pose(seed);
+                let rest = t.rest_action(&pose);
+                Some((pose, t.cfg.gripper_open, rest))
+            }
+            HilTask::PushT(t) => {
+                let (pose, rest, timeout) = (t.start_pose.clone(), t.rest_action(), t.cfg.scene_timeout_s);
+                self.ask_scene(SceneAction::Reset, episode, seed, ScenePhase::Reset, timeout)?;
+                // The pusher is the flange: the gripper stays as it is.
+                Some((pose, self.ch.observed.read().gripper, rest))
+            }
+        }
+    }
+
+    /// Push-T: at the start pose, the scene puts the pusher down and the episode begins. True for other tasks.
+    fn start_scene(&mut self, episode: u64) -> bool {
+        match &self.task {
+            HilTask::PushT(t) => {
+                let timeout = t.cfg.scene_timeout_s;
+                self.ask_scene(SceneAction::Run, episode, 0, ScenePhase::Running, timeout).is_some()
+            }
+            HilTask::PickCup(_) => true,
+        }
+    }
+
+    /// Sends `action` to the scene until it reports `phase` for `episode` (a request sent before the scene's
+    /// subscriber connected is lost, so it is repeated every 100 ms); trips [`Trip::SceneLost`] after `timeout_s`.
+    fn ask_scene(
+        &mut self,
+        action: SceneAction,
+        episode: u64,
+        seed: u64,
+        phase: ScenePhase,
+        timeout_s: f64,
+    ) -> Option<()> {
+        let deadline = monotonic_ns() + (timeout_s * 1e9) as u64;
+        let mut next_ask = 0;
+        loop {
+            let scene = self.scene.as_mut().expect("a Push-T task has its scene opened");
+            let now = monotonic_ns();
+            if now >= next_ask {
+                scene.request(action, episode, seed);
+                next_ask = now + 100_000_000;
+            }
+            if scene.is(episode, phase) {
+                return Some(());
+            }
+            if now >= deadline {
+                tracing::error!("the scene did not answer {action:?} for episode {episode} within {timeout_s} s");
+                self.request(Request::Trip(Trip::SceneLost));
+                return None;
+            }
+            if self.must_stop() {
+                return None;
+            }
+            self.ch.status.policy_beats.fetch_add(1, Ordering::Relaxed);
+            std::thread::sleep(Duration::from_millis(1));
+        }
     }
 
     /// Runs one episode from the start pose; `None` if the loop must stop (signal or trip).
@@ -137,7 +237,13 @@ impl PolicyLoop {
         let margin_ns = (cfg.policy.handoff_margin_ms * 1e6) as u64;
         let mut obs = vec![0.0f32; self.engine.obs_dim()];
         let mut history: Vec<f32> = rest.iter().copied().cycle().take(c * d).collect();
-        let mut monitor = self.task.monitor();
+        let mut judge = match &self.task {
+            HilTask::PickCup(t) => Judge::Arm(t.monitor()),
+            HilTask::PushT(t) => {
+                Judge::Scene { timeout_s: t.cfg.timeout_s, silent_limit_ns: (t.cfg.scene_timeout_s * 1e9) as u64 }
+            }
+        };
+        let n = self.engine_joints();
         let mut trace = traces.start();
         let (mut chunks, mut k_sum, mut ep_late, mut w_inf) = (0u64, 0u64, 0u64, 0.0f32);
         let t0 = monotonic_ns();
@@ -151,8 +257,28 @@ impl PolicyLoop {
             }
             let now = wake.now_ns();
             let o = *self.ch.observed.read();
-            let n = self.task.joints();
-            let progress = monitor.update(&o.position[..n], o.gripper, (now - t0) as f64 * 1e-9);
+            let t_s = (now - t0) as f64 * 1e-9;
+            let progress = match &mut judge {
+                Judge::Arm(m) => m.update(&o.position[..n], o.gripper, t_s),
+                Judge::Scene { timeout_s, silent_limit_ns } => {
+                    let scene = self.scene.as_mut().expect("a Push-T task has its scene opened");
+                    let s = *scene.poll();
+                    if scene.silent_ns(monotonic_ns()) > *silent_limit_ns || s.stale_robot != 0 {
+                        tracing::error!("the scene's referee went silent or lost the robot's state mid-episode");
+                        self.request(Request::Trip(Trip::SceneLost));
+                        return None;
+                    }
+                    let mine = s.episode == episode;
+                    let mode = if mine { s.mode() } else { None };
+                    if mine && s.success != 0 {
+                        Progress::Done { success: true, mode, reason: DoneReason::GoalReached }
+                    } else if t_s >= *timeout_s {
+                        Progress::Done { success: false, mode, reason: DoneReason::Timeout }
+                    } else {
+                        Progress::Running
+                    }
+                }
+            };
             if trace.q.len() < TRACE_CAPACITY {
                 let mut q7 = [0.0; 7];
                 q7[..n.min(7)].copy_from_slice(&o.position[..n.min(7)]);
@@ -161,6 +287,11 @@ impl PolicyLoop {
             }
             if let Progress::Done { success, mode, reason } = progress {
                 trace.mode = mode;
+                trace.success = success;
+                // The scene as the episode ended, for the camera strip (the policy's last view can be 0.8 s older).
+                if let Some(frame) = self.scene.as_mut().and_then(|s| s.camera.newest_for_display()) {
+                    trace.keep_frame(frame.pixels());
+                }
                 traces.push(trace);
                 return Some(EpisodeResult {
                     episode,
@@ -178,8 +309,21 @@ impl PolicyLoop {
             }
             // Inference for chunk k / C.
             let need_ns = t0 + lead_ns + k * period_ns;
+            let capture_ns = match self.observe(&o, &mut obs, &mut trace, report) {
+                Ok(c) => {
+                    faults.no_frame.good();
+                    c
+                }
+                Err(()) => {
+                    // No usable image: keep executing the previous chunk, as for a call over budget.
+                    if faults.no_frame.bad() {
+                        self.request(Request::Trip(Trip::NoCameraFrame));
+                        return None;
+                    }
+                    continue;
+                }
+            };
             let budget = Duration::from_nanos((need_ns - margin_ns).saturating_sub(monotonic_ns()));
-            self.task.observation(&o.position[..n], o.gripper, &mut obs);
             let started = monotonic_ns();
             let result = self.engine.infer(&obs, &history, budget);
             let ready = monotonic_ns();
@@ -193,6 +337,7 @@ impl PolicyLoop {
                     return None;
                 }
             };
+            self.rec.record(Channel::Encode, out.encode.as_nanos() as u64);
             self.rec.record(Channel::KRequested, out.k_requested as u64);
             self.rec.record(Channel::KUsed, out.k_used as u64);
             if out.capped {
@@ -217,6 +362,7 @@ impl PolicyLoop {
             dst.first_due_ns = need_ns + period_ns;
             dst.len = c;
             dst.ready_ns = ready;
+            dst.capture_ns = capture_ns;
             for (i, a) in out.actions().enumerate() {
                 for (j, v) in a.iter().enumerate() {
                     dst.actions[i][j] = *v as f64;
@@ -238,6 +384,54 @@ impl PolicyLoop {
             }
         }
         unreachable!("the episode loop only ends by returning")
+    }
+
+    /// The robot's joint count.
+    fn engine_joints(&self) -> usize {
+        match &self.task {
+            HilTask::PickCup(t) => t.joints(),
+            HilTask::PushT(t) => t.start_pose.len(),
+        }
+    }
+
+    /// Writes the policy's observation for state `o` into `obs`: the measured arm, or for Push-T the flange's
+    /// (x, y) and the newest usable camera frame (its capture time is returned; 0 for a task without a camera).
+    /// `Err` when the camera has no usable frame (counted, and its refusal's reason logged the first time).
+    fn observe(
+        &mut self,
+        o: &Observed,
+        obs: &mut [f32],
+        trace: &mut crate::plots::EpisodeTrace,
+        report: &mut PolicyReport,
+    ) -> Result<u64, ()> {
+        match &self.task {
+            HilTask::PickCup(t) => {
+                t.observation(&o.position[..t.joints()], o.gripper, obs);
+                Ok(0)
+            }
+            HilTask::PushT(t) => {
+                let now = monotonic_ns();
+                let scene = self.scene.as_mut().expect("a Push-T task has its scene opened");
+                let polled = scene.camera.poll(now);
+                let cam = report.camera.get_or_insert_with(CameraReport::default);
+                if let Some(r) = polled.refusal
+                    && cam.first_refusal.is_none()
+                {
+                    tracing::warn!("camera {}: a frame refused because {r}", scene.camera.service());
+                    cam.first_refusal = Some(r.to_string());
+                }
+                let Some(frame) = polled.frame else {
+                    cam.no_frame += 1;
+                    return Err(());
+                };
+                let capture = frame.header().timestamp_ns;
+                PushTHil::observe_effector(t, &o.position[..7], obs);
+                mars_policy::vision::pixels_to_observation(frame.pixels(), &mut obs[2..]);
+                self.rec.record(Channel::CameraAge, monotonic_ns().saturating_sub(capture));
+                trace.keep_frame(frame.pixels());
+                Ok(capture)
+            }
+        }
     }
 
     fn must_stop(&self) -> bool {

@@ -131,6 +131,10 @@ pub struct Summary {
     pub episode_results: Vec<EpisodeResult>,
     /// Episode traces dropped from the plot (only the last `traces_kept` are kept).
     pub traces_dropped: u64,
+    /// A camera task: its frames as the policy judged them.
+    pub camera: Option<crate::policy_loop::CameraReport>,
+    /// A task acting on the table: references the servo's IK clamped or could not reach.
+    pub effector: Option<crate::effector::EffectorCounts>,
 }
 
 impl Summary {
@@ -203,11 +207,13 @@ impl Summary {
             latency,
             episode_results: t.recent.iter().cloned().collect(),
             traces_dropped: p.traces_dropped,
+            camera: p.camera.clone(),
+            effector: s.effector,
         }
     }
 
     /// Writes `summary.json`, `latency.txt` and the PNG plots into `dir`; returns the paths written.
-    pub fn write(&self, dir: &Path, p: &PolicyReport) -> anyhow::Result<Vec<PathBuf>> {
+    pub fn write(&self, dir: &Path, p: &PolicyReport, task: &crate::task::HilTask) -> anyhow::Result<Vec<PathBuf>> {
         let mut written = Vec::new();
         let mode_names: Vec<String> = self.modes.iter().map(|(name, _)| name.clone()).collect();
         let json = dir.join("summary.json");
@@ -225,6 +231,19 @@ impl Summary {
             // Joints 0 and 6 are where the two grasps differ most.
             ("episodes.png", Box::new(|path| crate::plots::plot_episodes(&p.traces, &mode_names, 0, 6, path))),
         ];
+        let mut plots = Vec::from(plots);
+        if let crate::task::HilTask::PushT(t) = task {
+            // The camera's view with the flange's path: the two routes show as two ways around the block.
+            let size = t.cfg.camera.size;
+            let (effector, camera) = (t.effector(), mars_tasks::push_t::render::Camera::push_t(size));
+            let mode_names = mode_names.clone();
+            let draw: Draw = Box::new(move |path| {
+                let xy = |q: &[f64; 7]| effector.xy(q);
+                let pixel = |p: [f64; 2]| camera.pixel(p[0] as f32, p[1] as f32);
+                crate::plots::plot_camera_strip(&p.traces, &mode_names, size, xy, pixel, path, 6)
+            });
+            plots.push(("camera_strip.png", draw));
+        }
         for (name, draw) in plots {
             let path = dir.join(name);
             match draw(&path) {
@@ -314,6 +333,30 @@ impl std::fmt::Display for Summary {
                 self.servo_ticks_counted, n.system, n.pooled, self.servo_samples_sent
             )?,
             None => writeln!(f, "  servo thread heap allocations: not measured (counting allocator not installed)")?,
+        }
+        if let Some(c) = &self.camera {
+            let n = &c.counts;
+            writeln!(
+                f,
+                "  camera {}: {} frames used, {} superseded, {} refused (size {}, encoding {}, stale {}, other {}), {} inferences with no usable frame{}",
+                c.service,
+                n.used,
+                n.superseded,
+                n.refused(),
+                n.size,
+                n.encoding,
+                n.stale,
+                n.refused() - n.size - n.encoding - n.stale,
+                c.no_frame,
+                c.first_refusal.as_deref().map(|r| format!("; first refusal: {r}")).unwrap_or_default()
+            )?;
+        }
+        if let Some(e) = &self.effector {
+            writeln!(
+                f,
+                "  end-effector references: {} outside the workspace (clamped), {} not reached by IK (closest used), {} not finite",
+                e.outside_workspace, e.unreachable, e.not_finite
+            )?;
         }
         let fr = &self.frames;
         writeln!(

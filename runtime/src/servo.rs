@@ -10,6 +10,7 @@ use mars_ipc::{CommandMode, HoldReason, JointCommand, MAX_JOINTS, RobotState, st
 
 use crate::chunk::{MAX_ACTION, Schedule, TimedChunk};
 use crate::config::DaemonConfig;
+use crate::effector::PlanarEffector;
 use crate::frame::FrameCheck;
 use crate::limits::LimitCheck;
 use crate::shared::{Observed, Phase, Request};
@@ -52,6 +53,8 @@ pub struct TickOutput {
     pub command: Option<JointCommand>,
     /// The newest usable state, when this tick accepted one.
     pub observed: Option<Observed>,
+    /// The capture time of the camera frame behind the chunk this tick adopted (its first command is this tick's).
+    pub adopted_capture_ns: Option<u64>,
 }
 
 /// Counters for the report.
@@ -150,6 +153,9 @@ pub struct ServoTick {
     /// A frame was refused for its content since the last usable one: marsd has nothing new to answer, so every
     /// command it sends answers an old frame and the HAL's command timeout runs out too.
     refused_for_content: bool,
+    /// A policy acting on the table: its (x, y) references become joint targets here. `None`: the actions are
+    /// joint targets and the gripper.
+    effector: Option<PlanarEffector>,
     /// The HAL's counters at the handshake: the HAL counts since it started.
     hal_counts_at_start: HalCounts,
     /// Whether each command reached the HAL before its next tick.
@@ -194,11 +200,23 @@ impl ServoTick {
             last_state: RobotState::default(),
             followed: false,
             refused_for_content: false,
+            effector: None,
             hal_counts_at_start: HalCounts::default(),
             timeliness: CommandTimeliness::default(),
             first_violation: None,
             counters: ServoCounters::default(),
         })
+    }
+
+    /// Actions are planar end-effector references (x, y) for `effector` instead of joint targets.
+    pub fn with_effector(mut self, effector: PlanarEffector) -> Self {
+        self.schedule = Schedule::new(2);
+        self.effector = Some(effector);
+        self
+    }
+
+    pub fn effector(&self) -> Option<&PlanarEffector> {
+        self.effector.as_ref()
     }
 
     pub fn phase(&self) -> Phase {
@@ -351,6 +369,7 @@ impl ServoTick {
         {
             // Everything below is evaluated at the next tick's time, the time the command is for.
             let a = self.schedule.adopt(&self.pending, now + self.dt_ns);
+            out.adopted_capture_ns = (self.pending.capture_ns != 0).then_some(self.pending.capture_ns);
             self.counters.chunks_adopted += 1;
             self.counters.actions_dropped += a.dropped as u64;
             self.phase = Phase::Running;
@@ -368,8 +387,17 @@ impl ServoTick {
                 let r = self.smoother.track(&self.pose[..self.n], &target_v[..self.n]).copied();
                 if r.is_ok() && self.settled() {
                     let mut hold = [0.0; MAX_ACTION];
-                    hold[..self.n].copy_from_slice(&self.pose[..self.n]);
-                    hold[self.n] = self.gripper;
+                    match &mut self.effector {
+                        None => {
+                            hold[..self.n].copy_from_slice(&self.pose[..self.n]);
+                            hold[self.n] = self.gripper;
+                        }
+                        Some(e) => {
+                            // The policy's first reference is where the flange is: IK continues from this pose.
+                            e.seed(&self.pose[..self.n]);
+                            hold[..2].copy_from_slice(&e.xy(&self.pose[..self.n]));
+                        }
+                    }
                     self.schedule.hold(now, &hold);
                     self.phase = Phase::Ready;
                 }
@@ -380,15 +408,22 @@ impl ServoTick {
                 if r.exhausted && self.phase == Phase::Running {
                     self.counters.starved_ticks += 1;
                 }
+                let (mut q_ref, mut v_ref) = (r.position, r.velocity);
+                if let Some(e) = &mut self.effector {
+                    // (x, y) on the table → joints; the gripper keeps its target.
+                    let (xy, v) = ([r.position[0], r.position[1]], [r.velocity[0], r.velocity[1]]);
+                    e.joints(xy, v, &mut q_ref[..self.n], &mut v_ref[..self.n]);
+                    q_ref[self.n] = self.gripper;
+                }
                 for j in 0..self.n {
-                    target[j] = r.position[j].clamp(self.q_lo[j], self.q_hi[j]);
-                    if target[j] != r.position[j] {
+                    target[j] = q_ref[j].clamp(self.q_lo[j], self.q_hi[j]);
+                    if target[j] != q_ref[j] {
                         self.counters.clamped_targets += 1;
                     } else {
-                        target_v[j] = r.velocity[j];
+                        target_v[j] = v_ref[j];
                     }
                 }
-                let g = r.position[self.n];
+                let g = q_ref[self.n];
                 self.gripper = if g.is_finite() { g.clamp(self.g_lo, self.g_hi) } else { self.gripper };
                 self.smoother.track(&target[..self.n], &target_v[..self.n]).copied()
             }

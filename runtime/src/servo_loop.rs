@@ -99,6 +99,8 @@ pub struct ServoReport {
     /// The HAL's own counters since the handshake (from its state frames).
     pub hal: HalCounts,
     pub first_violation: Option<crate::limits::Violation>,
+    /// A task acting on the table: what the servo's IK did with the policy's (x, y) references.
+    pub effector: Option<crate::effector::EffectorCounts>,
     /// Heap allocations on the servo thread from tick [`ALLOC_WARMUP_TICKS`] to the end (`None`: the process
     /// does not run the counting allocator). See [`crate::alloc_count`].
     pub allocations_after_warmup: Option<crate::alloc_count::Counts>,
@@ -210,6 +212,9 @@ pub fn run_servo(
             if sent.is_ok() && newest.is_some() {
                 rec.record(Channel::StateToCommand, monotonic_ns().saturating_sub(t0));
             }
+            if let (true, Some(capture)) = (sent.is_ok(), out.adopted_capture_ns) {
+                rec.record(Channel::CaptureToCommand, monotonic_ns().saturating_sub(capture));
+            }
         }
         if let Some(obs) = out.observed {
             ch.observed.write(obs);
@@ -270,5 +275,6 @@ pub fn run_servo(
         send_errors: sends.errors(),
         hal: tick.hal_counts(),
         first_violation: tick.first_violation,
+        effector: tick.effector().map(|e| e.counts),
     }
 }

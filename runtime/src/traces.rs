@@ -28,14 +28,20 @@ impl TraceRing {
         match self.spare.take() {
             Some(mut t) => {
                 t.mode = None;
+                t.success = false;
                 t.q.clear();
                 t.w_inf.clear();
+                t.first_frame.clear();
+                t.last_frame.clear();
                 t
             }
             None => EpisodeTrace {
                 mode: None,
+                success: false,
                 q: Vec::with_capacity(TRACE_CAPACITY),
                 w_inf: Vec::with_capacity(TRACE_CAPACITY),
+                first_frame: Vec::new(),
+                last_frame: Vec::new(),
             },
         }
     }

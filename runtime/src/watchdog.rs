@@ -29,6 +29,11 @@ pub enum Trip {
     Smoothing,
     /// Sending commands to the HAL failed too many times in a row (`watchdog.max_consecutive_send_errors`).
     SendErrors,
+    /// No usable camera frame (fresh, of the size and encoding the policy expects) for the policy's inputs, at
+    /// as many chunks in a row as `max_consecutive_late_chunks`.
+    NoCameraFrame,
+    /// The task's scene (the referee, and the world it resets) did not answer within the task's limit.
+    SceneLost,
 }
 
 impl Trip {
@@ -43,6 +48,8 @@ impl Trip {
             Self::LimitViolation => 7,
             Self::Smoothing => 8,
             Self::SendErrors => 9,
+            Self::NoCameraFrame => 10,
+            Self::SceneLost => 11,
             Self::HalHolding(r) => 100 + r as u32,
         }
     }
@@ -58,6 +65,8 @@ impl Trip {
             7 => Self::LimitViolation,
             8 => Self::Smoothing,
             9 => Self::SendErrors,
+            10 => Self::NoCameraFrame,
+            11 => Self::SceneLost,
             c if c >= 100 => Self::HalHolding(HoldReason::from_u32(c - 100)?),
             _ => return None,
         })
@@ -77,6 +86,8 @@ impl std::fmt::Display for Trip {
             Self::LimitViolation => write!(f, "a command failed the final limit check and was not sent"),
             Self::Smoothing => write!(f, "the jerk-limited smoother refused its input"),
             Self::SendErrors => write!(f, "sending commands to the HAL failed too many times in a row"),
+            Self::NoCameraFrame => write!(f, "no usable camera frame for the policy's input too many times in a row"),
+            Self::SceneLost => write!(f, "the task's scene did not answer (reset, start or referee frames)"),
         }
     }
 }

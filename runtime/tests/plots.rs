@@ -59,7 +59,7 @@ fn two_branches() -> Vec<EpisodeTrace> {
                 })
                 .collect();
             let w_inf = (0..n).map(|t| t as f32 / n as f32).collect();
-            EpisodeTrace { mode: Some(mode), q, w_inf }
+            EpisodeTrace { mode: Some(mode), q, w_inf, ..Default::default() }
         })
         .collect()
 }
@@ -86,7 +86,7 @@ fn empty_inputs_still_render_and_bad_joints_error() {
     plot_latency(&none, &dir.join("latency.png")).unwrap();
     plot_k(&none, &dir.join("k.png")).unwrap();
     plot_episodes(&[], &[], 0, 1, &dir.join("episodes.png")).unwrap();
-    let short = EpisodeTrace { mode: None, q: vec![[0.1; 7]], w_inf: vec![] };
+    let short = EpisodeTrace { mode: None, q: vec![[0.1; 7]], w_inf: vec![], ..Default::default() };
     plot_episodes(&[short], &[], 2, 3, &dir.join("one_point.png")).unwrap();
     assert!(plot_episodes(&[], &[], 0, 7, &dir.join("bad.png")).is_err());
     if !keep {

@@ -96,3 +96,23 @@ fn write_strip(cfg: &PushTConfig, dir: &str) {
         enc.write_header().unwrap().write_image_data(&strip).unwrap();
     }
 }
+
+/// A demo's action is where the pusher got to in its period (a robot log's setpoint), not the expert's waypoint:
+/// the next observation starts there, and no action is farther than the pusher can go in one period — so the HIL
+/// servo, which interpolates actions one period apart, moves the arm as the demo's pusher moved.
+#[test]
+fn demo_actions_are_the_positions_the_pusher_reached() {
+    use mars_tasks::push_t::episode::{Observe, expert_demos};
+    let cfg = PushTConfig::default();
+    let reach = cfg.pusher_speed * cfg.control_period * 1.0001;
+    for d in expert_demos(&cfg, 6, 3, Observe::State) {
+        for t in 0..d.len() {
+            let (p, a) = (&d.observations[t][..2], &d.actions[t]);
+            let step = ((a[0] - p[0]).powi(2) + (a[1] - p[1]).powi(2)).sqrt();
+            assert!(step <= reach, "step {t}: action {a:?} is {step} m from the pusher at {p:?}");
+            if let Some(next) = d.observations.get(t + 1) {
+                assert_eq!(&next[..2], &a[..], "step {t}: the next observation's pusher is the action");
+            }
+        }
+    }
+}

@@ -203,6 +203,7 @@ fn run_policy(args: &BenchArgs, name: &str, robot: &str) -> PolicyRun {
         hal_stall_ms: None,
         backend: crate::cli::DemoRobot::Mock,
         franka_sim_venv: ".venv-sim".into(),
+        task: crate::cli::DemoTask::PickCup,
     };
     let probe = LoadProbe::start();
     let teed = tee_stderr(|| crate::cli::demo(demo));

@@ -58,6 +58,51 @@ enum Command {
         #[command(flatten)]
         args: mars_hal::cli::HalArgs,
     },
+    /// The Push-T scene (the demo starts it with `--task push-t`): the T block's physics with the pusher where
+    /// the robot's flange is, the top-down camera published on mars/<robot>/camera/<name>, the episode's referee.
+    Scene {
+        #[command(flatten)]
+        args: mars_runtime::scene::SceneArgs,
+    },
+    /// Train a Push-T vision policy: expert demos made in process from their seed (half by each route), then the
+    /// trainer `mars train` runs, then a checkpoint marsd and the engine load.
+    PushTTrain {
+        #[arg(long, value_enum)]
+        policy: mars_policy::config::PolicyKind,
+        #[arg(long, default_value = "configs/push_t_policy.toml")]
+        config: PathBuf,
+        #[arg(long, default_value = "configs/push_t.toml")]
+        task: PathBuf,
+        #[arg(long, default_value = "configs/fr3.toml")]
+        profile: PathBuf,
+        #[arg(long, default_value_t = 40)]
+        demos: usize,
+        #[arg(long, default_value_t = mars_runtime::task::push_t_cli::DEMO_SEED)]
+        seed: u64,
+        /// Override the config's `train.epochs`.
+        #[arg(long)]
+        epochs: Option<usize>,
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// Roll Push-T checkpoints out in process (the scene's world, the camera the policy sees there): success,
+    /// successes by route, γ, mean K, call latency; one markdown row per checkpoint.
+    PushTEval {
+        /// Checkpoint directories (e.g. …/mars …/fm …/a2a).
+        #[arg(long, num_args = 1.., required = true)]
+        checkpoint: Vec<PathBuf>,
+        #[arg(long, default_value = "configs/push_t.toml")]
+        task: PathBuf,
+        #[arg(long, default_value = "configs/fr3.toml")]
+        profile: PathBuf,
+        #[arg(long, default_value_t = 50)]
+        episodes: usize,
+        #[arg(long, default_value_t = 1000)]
+        seed: u64,
+        /// Actions executed per chunk (default: the whole chunk, as marsd does).
+        #[arg(long)]
+        exec_horizon: Option<usize>,
+    },
     /// Record balanced, verified expert demos on the sim plant (train on them with `mars train --demos`).
     Demos {
         #[command(flatten)]
@@ -113,6 +158,21 @@ fn main() -> std::process::ExitCode {
             let code = mars_hal::cli::report_and_exit_code(mars_hal::cli::run_hal(args));
             return std::process::ExitCode::from(code as u8);
         }
+        Command::PushTTrain { policy, config, task, profile, demos, seed, epochs, out } => {
+            mars_runtime::task::push_t_cli::train(&config, &task, &profile, policy, demos, seed, epochs, &out)
+        }
+        Command::PushTEval { checkpoint, task, profile, episodes, seed, exec_horizon } => (|| {
+            println!(
+                "| policy | success | by route (upper, lower) | γ | mean K | call p50 / p99 ms (candle) | final error (mean) |"
+            );
+            println!("|---|---:|---:|---:|---:|---:|---:|");
+            for c in &checkpoint {
+                let e = mars_runtime::task::push_t_cli::eval(c, &task, &profile, episodes, seed, exec_horizon)?;
+                println!("{e}");
+            }
+            Ok(())
+        })(),
+        Command::Scene { args } => mars_runtime::scene::run(&args).map(|_| ()),
         Command::Demos { task, n, seed, out } => cli::demos(&task.task, &task.profile, n, seed, &out),
         Command::Curve { args, task, in_process } => curve(&args, &task, in_process),
         Command::EvalSim { checkpoint, task, episodes, seed, out } => {

@@ -1,13 +1,95 @@
-//! The FR3 hardware-in-the-loop task: Pick Cup in joint space (grasp by the rim or by the handle).
+//! The FR3 hardware-in-the-loop tasks: Pick Cup in joint space (grasp by the rim or by the handle) and Push-T on
+//! the table (around the block by the upper or the lower route), behind one [`HilTask`] marsd runs.
 //!
-//! [`pick_cup`] defines it (TOML, start poses, observations, the [`pick_cup::EpisodeMonitor`]); [`expert`]
+//! [`pick_cup`] defines Pick Cup (TOML, start poses, observations, the [`pick_cup::EpisodeMonitor`]); [`expert`]
 //! records balanced demos on the sim plant; [`eval`] rolls a checkpoint out in-process; [`sim_arm`] is the
-//! plant behind the servo both use; [`cli`] is what `mars-hil demos` / `eval-sim` run.
+//! plant behind the servo both use; [`cli`] is what `mars-hil demos` / `eval-sim` run. [`push_t`] is Push-T as
+//! marsd sees it (the world is the scene process, `crate::scene`).
 
 pub mod cli;
 pub mod eval;
 pub mod expert;
 pub mod pick_cup;
+pub mod push_t;
+pub mod push_t_cli;
 pub mod sim_arm;
 
+use std::path::Path;
+
+use mars_hal::profile::Profile;
+
 pub use pick_cup::{DoneReason, EpisodeMonitor, PickCup, Progress, TaskError};
+pub use push_t::PushTHil;
+
+/// A task marsd can run, chosen by the task file's `kind` (none: Pick Cup).
+#[derive(Debug, Clone)]
+// One per marsd run, built at start: the variants' sizes do not matter.
+#[allow(clippy::large_enum_variant)]
+pub enum HilTask {
+    PickCup(PickCup),
+    PushT(PushTHil),
+}
+
+impl HilTask {
+    /// Reads the task file and validates it against `profile`; its `kind` key says which task it is.
+    pub fn load(path: &Path, profile: &Profile) -> Result<Self, TaskError> {
+        let origin = path.display().to_string();
+        let text = std::fs::read_to_string(path).map_err(|error| TaskError::Read { path: origin.clone(), error })?;
+        let kind = text
+            .parse::<toml::Table>()
+            .map_err(|e| TaskError::Parse { path: origin.clone(), error: Box::new(e) })?
+            .get("kind")
+            .map(|k| k.as_str().map(str::to_owned));
+        match kind {
+            None => PickCup::parse(&text, &origin, profile).map(Self::PickCup),
+            Some(Some(k)) if k == "push_t" => PushTHil::parse(&text, &origin, profile).map(Self::PushT),
+            Some(k) => Err(TaskError::Invalid {
+                path: origin,
+                field: "kind".into(),
+                problem: format!("is {k:?}: \"push_t\", or no `kind` for a Pick Cup task"),
+            }),
+        }
+    }
+
+    pub fn name(&self) -> &str {
+        match self {
+            Self::PickCup(t) => &t.cfg.name,
+            Self::PushT(t) => &t.cfg.name,
+        }
+    }
+
+    pub fn obs_dim(&self) -> usize {
+        match self {
+            Self::PickCup(t) => t.obs_dim(),
+            Self::PushT(t) => t.obs_dim(),
+        }
+    }
+
+    pub fn action_dim(&self) -> usize {
+        match self {
+            Self::PickCup(t) => t.action_dim(),
+            Self::PushT(t) => t.action_dim(),
+        }
+    }
+
+    pub fn policy_rate_hz(&self) -> f64 {
+        match self {
+            Self::PickCup(t) => t.cfg.policy_rate_hz,
+            Self::PushT(t) => t.cfg.policy_rate_hz,
+        }
+    }
+
+    /// The modes' names, in the order the task numbers them.
+    pub fn mode_names(&self) -> Vec<String> {
+        match self {
+            Self::PickCup(t) => t.cfg.grasps.iter().map(|g| g.name.clone()).collect(),
+            Self::PushT(t) => t.mode_names(),
+        }
+    }
+}
+
+/// A path in the repository (tests run from the crate's directory).
+#[cfg(test)]
+pub(crate) fn repo_path(rel: &str) -> std::path::PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join(rel)
+}

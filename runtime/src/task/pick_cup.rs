@@ -262,6 +262,8 @@ pub enum DoneReason {
     Timeout,
     /// A measured joint or the gripper was NaN or infinite.
     InvalidState,
+    /// Push-T: the scene's referee saw the block home.
+    GoalReached,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

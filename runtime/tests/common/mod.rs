@@ -134,7 +134,7 @@ pub struct Proc {
 }
 
 impl Proc {
-    fn spawn(mut cmd: Command, name: &str, logs: &Path) -> Self {
+    pub fn spawn(mut cmd: Command, name: &str, logs: &Path) -> Self {
         let stdout = logs.join(format!("{name}.stdout"));
         let stderr = logs.join(format!("{name}.stderr"));
         cmd.current_dir(root())

@@ -65,7 +65,8 @@ impl Observer {
 }
 
 /// `n` expert demos from seeds `seed`, `seed + 1`, …: each a random route (seeded), so half go each way on
-/// average; `mode` = the route's index. Only successful demos are kept (the expert fails rarely).
+/// average; `mode` = the route's index; each action is the pusher's position at the end of its period. Only
+/// successful demos are kept (the expert fails rarely).
 pub fn expert_demos(cfg: &PushTConfig, n: usize, seed: u64, observe: Observe) -> Vec<Demo> {
     let mut rng = rand::rngs::StdRng::seed_from_u64(seed ^ 0x5eed);
     let mut observer = Observer::new(observe);
@@ -81,9 +82,11 @@ pub fn expert_demos(cfg: &PushTConfig, n: usize, seed: u64, observe: Observe) ->
         while !world.done() {
             let s = world.state();
             observations.push(observer.observe(cfg, &s));
-            let a = expert.act(&s);
-            actions.push(a.to_vec());
-            world.step(a);
+            world.step(expert.act(&s));
+            // The action a robot's log keeps: the setpoint the pusher reached in the period (the expert's target
+            // is a waypoint it heads for at a bounded speed). Positions one period apart are what the HIL servo
+            // interpolates and the arm follows, so a policy's action means the same in process and on the arm.
+            actions.push(world.state().pusher.to_vec());
         }
         if world.success() {
             demos.push(Demo { observations, actions, rest_action: start.pusher.to_vec(), mode: Some(route.index()) });

@@ -18,6 +18,7 @@ use serde::{Deserialize, Serialize};
 
 /// The task's geometry and timing.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct PushTConfig {
     /// The T's bar: length across the stem and thickness (m).
     pub bar: [f32; 2],
@@ -74,6 +75,8 @@ pub struct PushT {
     block: RigidBodyHandle,
     pusher: RigidBodyHandle,
     steps: usize,
+    /// Physics substeps run by [`PushT::follow`].
+    substeps: usize,
 }
 
 /// θ in (−π, π].
@@ -120,7 +123,7 @@ impl PushT {
             .translation(Vector::new(cfg.pusher_start[0], cfg.pusher_start[1]))
             .can_sleep(false);
         let (pusher, _) = world.insert(pusher_body, ColliderBuilder::ball(cfg.pusher_radius).friction(0.5));
-        Self { cfg: cfg.clone(), world, block, pusher, steps: 0 }
+        Self { cfg: cfg.clone(), world, block, pusher, steps: 0, substeps: 0 }
     }
 
     pub fn config(&self) -> &PushTConfig {
@@ -147,6 +150,31 @@ impl PushT {
             self.world.step();
         }
         self.steps += 1;
+    }
+
+    /// One physics substep (`control_period / substeps`) with the pusher carried to `pusher` (x, y): the HIL
+    /// scene, where the pusher is wherever the arm's flange is, not a point moving at the task's speed.
+    /// Counts a control period every `substeps` calls.
+    pub fn follow(&mut self, pusher: [f32; 2]) {
+        self.world.bodies[self.pusher].set_next_kinematic_translation(Vector::new(pusher[0], pusher[1]));
+        self.world.step();
+        self.substeps += 1;
+        if self.substeps.is_multiple_of(self.cfg.substeps) {
+            self.steps += 1;
+        }
+    }
+
+    /// Puts the pusher at `pusher` at once, touching nothing on the way (a pusher lifted off the table and set
+    /// down again, as between two episodes of the HIL scene).
+    pub fn place_pusher(&mut self, pusher: [f32; 2]) {
+        let body = &mut self.world.bodies[self.pusher];
+        body.set_translation(Vector::new(pusher[0], pusher[1]), true);
+        body.set_next_kinematic_translation(Vector::new(pusher[0], pusher[1]));
+    }
+
+    /// The physics substep (s).
+    pub fn substep_s(&self) -> f32 {
+        self.world.integration_parameters.dt
     }
 
     pub fn steps(&self) -> usize {

@@ -28,6 +28,12 @@ impl Camera {
         self.pixmap.width()
     }
 
+    /// Where table point (x, y) lies in the image: (column, row) in pixels, fractional (for drawing on frames).
+    pub fn pixel(&self, x: f32, y: f32) -> [f32; 2] {
+        let k = self.size() as f32 / self.span;
+        [(x - self.origin[0]) * k, (self.origin[1] + self.span - y) * k]
+    }
+
     /// The table → pixel transform, composed with a block pose (x, y, θ) for shapes in its frame.
     fn pose(&self, p: [f32; 3]) -> Transform {
         let k = self.size() as f32 / self.span;
