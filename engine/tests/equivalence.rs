@@ -10,7 +10,7 @@ use mars_policy::checkpoint;
 use mars_policy::config::PolicyKind;
 use mars_policy::inference::MarsPolicy;
 use mars_policy::model::MarsModel;
-use mars_policy::rollout::ChunkPolicy;
+use mars_tasks::rollout::ChunkPolicy;
 use rand::SeedableRng;
 use rand::rngs::StdRng;
 use std::path::Path;

@@ -3,15 +3,15 @@
 use crate::checkpoint;
 use crate::config::{PolicyConfig, PolicyKind};
 use crate::dataset::history_window;
-use crate::demo::{Demo, DemoSet};
 use crate::inference::MarsPolicy;
-use crate::nav2d::eval::{EvalReport, evaluate};
-use crate::nav2d::expert::generate_demos;
-use crate::nav2d::layout::{Layout, Rect};
 use crate::plots;
 use crate::train::{Trained, progress_bar};
 use anyhow::Context;
 use candle_core::{Device, Tensor};
+use mars_tasks::demo::{Demo, DemoSet};
+use mars_tasks::nav2d::eval::{EvalReport, evaluate};
+use mars_tasks::nav2d::expert::generate_demos;
+use mars_tasks::nav2d::layout::{Layout, Rect};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 

@@ -3,11 +3,11 @@
 //! for the whole training run.
 
 use crate::config::ModelConfig;
-use crate::demo::Demo;
 use crate::knn;
 use crate::losses;
 use crate::normalize::{Normalizer, Stats};
 use candle_core::{Device, Tensor};
+use mars_tasks::demo::Demo;
 
 #[derive(Debug, thiserror::Error)]
 pub enum DatasetError {

@@ -5,13 +5,13 @@
 //! This is the evidence behind "why does MARS keep (or lose) a mode".
 
 use crate::dataset::Dataset;
-use crate::demo::Demo;
 use crate::inference::MarsPolicy;
 use crate::losses;
 use crate::model::MarsModel;
-use crate::nav2d::layout::{Layout, Rect};
 use crate::train::randn;
 use candle_core::{Device, Tensor};
+use mars_tasks::demo::Demo;
+use mars_tasks::nav2d::layout::{Layout, Rect};
 use rand::SeedableRng;
 use rand::rngs::StdRng;
 
@@ -159,7 +159,7 @@ pub fn fork_choices(
     draws: usize,
     seed: u64,
 ) -> anyhow::Result<ForkChoices> {
-    use crate::rollout::ChunkPolicy;
+    use mars_tasks::rollout::ChunkPolicy;
     let gate = layout.named_rect("entry_gate").ok_or_else(|| anyhow::anyhow!("layout has no `entry_gate` region"))?;
     let n = layout.n_passages();
     let (h, c) = (policy.history_len(), policy.chunk_len());

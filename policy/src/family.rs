@@ -127,7 +127,7 @@ pub fn aggregate(layout: &str, demo_counts: &[usize], runs: &[Vec<Row>], targets
     LayoutResult {
         layout: layout.into(),
         n_passages: demo_counts.len(),
-        demo_gamma: crate::nav2d::eval::modal_balance(demo_counts),
+        demo_gamma: mars_tasks::nav2d::eval::modal_balance(demo_counts),
         demo_proportions,
         policies,
         verdicts,
@@ -181,7 +181,7 @@ pub fn run(out: &Path, config: &Path, layouts_dir: &Path, o: &FamilyOptions) -> 
     let files = layout_files(layouts_dir)?;
     let mut results = Vec::new();
     for file in &files {
-        let layout = crate::nav2d::layout::Layout::load(file)?;
+        let layout = mars_tasks::nav2d::layout::Layout::load(file)?;
         let mut runs = Vec::new();
         let mut demo_counts = vec![0usize; layout.n_passages()];
         for seed in 0..o.seeds {
@@ -265,13 +265,13 @@ pub fn render(results: &[LayoutResult], o: &FamilyOptions, layouts_dir: &Path) -
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::nav2d::eval::EvalReport;
+    use mars_tasks::nav2d::eval::EvalReport;
 
     fn row(kind: PolicyKind, counts: Vec<usize>, n: usize, k: f32) -> Row {
         let mut report = EvalReport::from_episodes(counts.len(), Vec::new());
         report.successes = counts.iter().sum();
         report.n = n;
-        report.modal_balance = crate::nav2d::eval::modal_balance(&counts);
+        report.modal_balance = mars_tasks::nav2d::eval::modal_balance(&counts);
         report.passage_counts = counts;
         report.mean_k = k;
         Row { kind, epochs: 1, train_s: Some(1.0), report, w_regions: Vec::new() }

@@ -6,9 +6,9 @@
 use crate::checkpoint::{self, CheckpointMeta};
 use crate::model::MarsModel;
 use crate::normalize::Normalizer;
-use crate::rollout::{ChunkPolicy, Prediction};
 use crate::train::{Trained, randn};
 use candle_core::{Device, Tensor};
+use mars_tasks::rollout::{ChunkPolicy, Prediction};
 use rand::SeedableRng;
 use rand::rngs::StdRng;
 use std::path::Path;

@@ -14,10 +14,10 @@ use plotters::coord::{CoordTranslate, Shift};
 use plotters::prelude::*;
 use plotters::style::register_font;
 
-use crate::demo::Demo;
-use crate::nav2d::env::clip_norm;
-use crate::nav2d::eval::{Episode, Termination};
-use crate::nav2d::layout::Layout;
+use mars_tasks::demo::Demo;
+use mars_tasks::nav2d::env::clip_norm;
+use mars_tasks::nav2d::eval::{Episode, Termination};
+use mars_tasks::nav2d::layout::Layout;
 
 /// Pixel size of the world-map plots (demos, rollouts): roughly the world's 3:2 plus a colour bar.
 pub const MAP_SIZE: (u32, u32) = (1000, 640);
@@ -445,8 +445,8 @@ fn draw_curve_panel(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::nav2d::eval::StepRecord;
-    use crate::nav2d::expert::generate_demos;
+    use mars_tasks::nav2d::eval::StepRecord;
+    use mars_tasks::nav2d::expert::generate_demos;
 
     /// Draws into memory and returns the RGB pixels, so the test can look at them without an image decoder.
     fn render(size: (u32, u32), draw: impl FnOnce(&Area) -> anyhow::Result<()>) -> Vec<u8> {

@@ -2,8 +2,8 @@
 
 use crate::cli::BenchmarkOptions;
 use crate::config::PolicyKind;
-use crate::nav2d::eval::EvalReport;
-use crate::nav2d::layout::Layout;
+use mars_tasks::nav2d::eval::EvalReport;
+use mars_tasks::nav2d::layout::Layout;
 use std::fmt::Write;
 
 pub struct Row {

@@ -2,13 +2,13 @@
 
 use crate::config::{PolicyConfig, PolicyKind};
 use crate::dataset::{Dataset, DatasetTensors};
-use crate::demo::Demo;
 use crate::losses;
 use crate::model::MarsModel;
 use crate::nn::seeded_init::SeededInit;
 use crate::normalize::Normalizer;
 use candle_core::{Device, Tensor, Var};
 use candle_nn::{AdamW, Optimizer, ParamsAdamW, VarMap};
+use mars_tasks::demo::Demo;
 use rand::rngs::StdRng;
 use rand::seq::SliceRandom;
 use rand::{Rng, SeedableRng};

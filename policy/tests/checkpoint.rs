@@ -6,8 +6,8 @@ use candle_core::{Device, Tensor};
 use mars_policy::checkpoint::{self, META_FILE, WEIGHTS_FILE};
 use mars_policy::config::PolicyKind;
 use mars_policy::inference::MarsPolicy;
-use mars_policy::rollout::ChunkPolicy;
 use mars_policy::train::train;
+use mars_tasks::rollout::ChunkPolicy;
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 

@@ -3,7 +3,7 @@
 #![allow(dead_code)]
 
 use mars_policy::config::{PolicyConfig, PolicyKind};
-use mars_policy::demo::Demo;
+use mars_tasks::demo::Demo;
 
 /// The shipped config, shrunk so a test trains in seconds on 2 cores.
 pub fn tiny_config(kind: PolicyKind) -> PolicyConfig {

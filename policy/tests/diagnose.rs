@@ -6,9 +6,9 @@ use candle_core::Device;
 use mars_policy::config::PolicyKind;
 use mars_policy::diagnose::diagnose;
 use mars_policy::inference::MarsPolicy;
-use mars_policy::nav2d::expert::generate_demos;
-use mars_policy::nav2d::layout::Layout;
 use mars_policy::train::init_model;
+use mars_tasks::nav2d::expert::generate_demos;
+use mars_tasks::nav2d::layout::Layout;
 
 #[test]
 fn neighbours_cross_passages_at_the_fork_and_not_inside_a_passage() {

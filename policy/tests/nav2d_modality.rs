@@ -6,9 +6,9 @@ mod common;
 use mars_policy::cli::mean_w_in_region;
 use mars_policy::config::PolicyKind;
 use mars_policy::inference::MarsPolicy;
-use mars_policy::nav2d::expert::generate_demos;
-use mars_policy::nav2d::layout::Layout;
 use mars_policy::train::train;
+use mars_tasks::nav2d::expert::generate_demos;
+use mars_tasks::nav2d::layout::Layout;
 
 #[test]
 fn trained_mars_w_is_higher_at_the_junction_than_in_the_exit_gate() {

@@ -12,9 +12,9 @@ use mars_policy::config::{ConfigError, EncoderConfig, PolicyKind};
 use mars_policy::dataset::{Dataset, history_window};
 use mars_policy::inference::MarsPolicy;
 use mars_policy::nn::resnet::ResNetHead;
-use mars_policy::rollout::ChunkPolicy;
 use mars_policy::train::train;
 use mars_policy::train::{Batch, batch_losses, init_model};
+use mars_tasks::rollout::ChunkPolicy;
 use rand::SeedableRng;
 use rand::rngs::StdRng;
 

@@ -425,8 +425,7 @@ impl PolicyLoop {
                     return Err(());
                 };
                 let capture = frame.header().timestamp_ns;
-                PushTHil::observe_effector(t, &o.position[..7], obs);
-                mars_policy::vision::pixels_to_observation(frame.pixels(), &mut obs[2..]);
+                PushTHil::observation(t, &o.position[..7], frame.pixels(), obs);
                 self.rec.record(Channel::CameraAge, monotonic_ns().saturating_sub(capture));
                 trace.keep_frame(frame.pixels());
                 Ok(capture)

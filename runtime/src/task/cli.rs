@@ -4,7 +4,7 @@ use std::path::Path;
 
 use anyhow::Context;
 use mars_hal::profile::Profile;
-use mars_policy::demo::{Demo, DemoSet};
+use mars_tasks::demo::{Demo, DemoSet};
 
 use super::eval::{EvalReport, evaluate};
 use super::expert::generate_demos;

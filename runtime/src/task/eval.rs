@@ -8,7 +8,7 @@ use anyhow::ensure;
 use mars_engine::{Engine, EngineConfig};
 use mars_hal::profile::Profile;
 use mars_ipc::MAX_JOINTS;
-use mars_policy::nav2d::modal_balance;
+use mars_tasks::nav2d::modal_balance;
 use serde::{Deserialize, Serialize};
 
 use super::pick_cup::{DoneReason, PickCup, Progress, max_abs_diff};

@@ -4,7 +4,7 @@
 
 use anyhow::bail;
 use mars_hal::profile::Profile;
-use mars_policy::demo::Demo;
+use mars_tasks::demo::Demo;
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
 

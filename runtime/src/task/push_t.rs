@@ -152,12 +152,14 @@ impl PushTHil {
         self.cfg.world.pusher_start.to_vec()
     }
 
-    /// Writes the flange's (x, y) for measured joints `q` into `out[..2]` (the pixels follow, written by the
-    /// caller from a camera frame).
-    pub fn observe_effector(&self, q: &[f64], out: &mut [f32]) {
+    /// The policy's observation for measured joints `q` and a camera frame's RGB8 pixels: the flange's (x, y) on
+    /// the table, then each byte / 255 — what `mars_tasks::push_t::episode::Observer` makes of the same scene in
+    /// training (tested). Allocation-free.
+    pub fn observation(&self, q: &[f64], rgb: &[u8], out: &mut [f32]) {
         let [x, y] = self.effector.xy(q);
         out[0] = x as f32;
         out[1] = y as f32;
+        mars_policy::vision::pixels_to_observation(rgb, &mut out[2..]);
     }
 }
 
@@ -228,6 +230,30 @@ mod tests {
         let [x, y] = t.cfg.world.pusher_start.map(f64::from);
         assert!((xy[0] - x).abs() < 1e-4 && (xy[1] - y).abs() < 1e-4, "{xy:?}");
         assert_eq!(t.obs_dim(), 2 + (t.cfg.camera.size * t.cfg.camera.size * 3) as usize);
+    }
+
+    /// marsd's observation of a scene (the flange from the measured joints, the camera's bytes) is the one the
+    /// policy was trained on (the in-process world's pusher and render).
+    #[test]
+    fn marsd_observes_a_scene_as_training_did() {
+        use mars_tasks::push_t::PushT;
+        use mars_tasks::push_t::episode::Observer;
+        use mars_tasks::push_t::render::Camera;
+        let t = PushTHil::load(&crate::task::repo_path("configs/push_t.toml"), &profile()).unwrap();
+        let world = PushT::new(&t.cfg.world, 3);
+        let mut state = world.state();
+        state.pusher = [0.27, 0.06];
+        let trained = Observer::new(t.observe()).observe(&t.cfg.world, &state);
+        let size = t.cfg.camera.size;
+        let mut rgb = vec![0u8; (size * size * 3) as usize];
+        Camera::push_t(size).render(&t.cfg.world, &state, &mut rgb);
+        let pusher = state.pusher.map(f64::from);
+        let q = t.effector().solve_from(pusher, &t.start_pose).unwrap();
+        let mut ours = vec![0.0f32; t.obs_dim()];
+        t.observation(q.as_slice(), &rgb, &mut ours);
+        assert_eq!(ours.len(), trained.len());
+        assert!((ours[0] - trained[0]).abs() < 1e-4 && (ours[1] - trained[1]).abs() < 1e-4, "{:?}", &ours[..2]);
+        assert_eq!(ours[2..], trained[2..], "the image values");
     }
 
     #[test]

@@ -82,7 +82,12 @@ impl Drop for TempDir {
 /// The shipped daemon config with `key = value` lines replaced (`edits`: (key, new value as TOML)); `extra` is
 /// inserted before the first section. Each edited key must occur exactly once in the file.
 pub fn config_text(edits: &[(&str, &str)], extra: &str) -> String {
-    let text = std::fs::read_to_string(root().join("configs/marsd.toml")).unwrap();
+    config_text_of("configs/marsd.toml", edits, extra)
+}
+
+/// [`config_text`] of another shipped daemon config (`file`, relative to the repository).
+pub fn config_text_of(file: &str, edits: &[(&str, &str)], extra: &str) -> String {
+    let text = std::fs::read_to_string(root().join(file)).unwrap();
     let mut lines: Vec<String> = text.lines().map(str::to_owned).collect();
     for (key, value) in edits {
         let hits: Vec<usize> = (0..lines.len())
@@ -91,7 +96,7 @@ pub fn config_text(edits: &[(&str, &str)], extra: &str) -> String {
                 l.strip_prefix(key).is_some_and(|rest| rest.trim_start().starts_with('='))
             })
             .collect();
-        assert_eq!(hits.len(), 1, "key {key} must occur once in configs/marsd.toml");
+        assert_eq!(hits.len(), 1, "key {key} must occur once in {file}");
         lines[hits[0]] = format!("{key} = {value}");
     }
     if !extra.is_empty() {

@@ -3,8 +3,8 @@
 
 use std::time::{Duration, Instant};
 
-use mars_policy::demo::Demo;
-use mars_policy::rollout::ChunkPolicy;
+use crate::demo::Demo;
+use crate::rollout::ChunkPolicy;
 use rand::{Rng, SeedableRng};
 
 use super::expert::{Expert, Route, route_taken};
@@ -174,7 +174,7 @@ pub fn score(episodes: &[Episode]) -> Score {
         episodes: episodes.len(),
         successes: episodes.iter().filter(|e| e.success).count(),
         by_route,
-        gamma: mars_policy::nav2d::eval::modal_balance(&by_route),
+        gamma: crate::nav2d::eval::modal_balance(&by_route),
         mean_k: calls.iter().sum::<usize>() as f32 / calls.len().max(1) as f32,
     }
 }
