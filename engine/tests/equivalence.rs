@@ -25,6 +25,9 @@ enum Draw {
     Raw,
     /// Around the checkpoint's own data: mean + 0.5·std·N(0, 1) per feature (what the robot would feed it).
     InDistribution,
+    /// Push-T's observation of a seeded scene (the flange somewhere around the block, the camera's rendered
+    /// image), the history around the data's mean: what marsd feeds the Push-T checkpoint.
+    PushTScene,
 }
 
 /// Compares the engine with `model.encode → weights → source → integrate` for K = 1..=K_max on a few random
@@ -44,10 +47,20 @@ fn compare_on(dir: &Path, cfg: EngineConfig, draw: Draw) -> f32 {
     let mut ks_requested = Vec::new();
     for _ in 0..4 {
         let (mut obs, mut hist) = inputs(&mut rng, m.obs_dim, c * d);
-        if let Draw::InDistribution = draw {
+        if let Draw::InDistribution | Draw::PushTScene = draw {
             let (o, a) = (&meta.normalizer.obs, &meta.normalizer.action);
             obs.iter_mut().enumerate().for_each(|(i, v)| *v = o.mean[i] + *v * o.std[i]);
             hist.iter_mut().enumerate().for_each(|(i, v)| *v = a.mean[i % d] + *v * a.std[i % d]);
+        }
+        if let Draw::PushTScene = draw {
+            use mars_tasks::push_t::episode::{Observe, Observer};
+            use mars_tasks::push_t::{PushT, PushTConfig};
+            use rand::Rng;
+            let cfg = PushTConfig::default();
+            let mut s = PushT::new(&cfg, rng.random_range(0..1000)).state();
+            s.pusher = [s.block[0] + rng.random_range(-0.06..0.16), s.block[1] + rng.random_range(-0.1..0.1)];
+            let size = ((m.obs_dim - 2) as f64 / 3.0).sqrt().round() as u32;
+            obs = Observer::new(Observe::Camera { size }).observe(&cfg, &s);
         }
         let eps = normal(&mut rng, c * d);
         let (mut obs_n, mut hist_n) = (obs.clone(), hist.clone());
@@ -179,6 +192,15 @@ fn committed_fr3_checkpoints_match_candle() {
         assert!(dir.join("model.safetensors").is_file(), "{} is missing", dir.display());
         compare_on(&dir, EngineConfig::default(), Draw::InDistribution);
     }
+}
+
+/// The vision checkpoint marsd runs for Push-T (`assets/checkpoints/fr3_push_t/mars`: a 64 × 64 camera through
+/// ResNet-18, the flange's x, y), on rendered scenes: the engine agrees with candle for K = 1..K_max.
+#[test]
+fn committed_push_t_checkpoint_matches_candle() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/checkpoints/fr3_push_t/mars");
+    assert!(dir.join("model.safetensors").is_file(), "{} is missing", dir.display());
+    compare_on(&dir, EngineConfig::default(), Draw::PushTScene);
 }
 
 /// A vision policy (camera image + state → ResNet-18 + MLP): the engine centre-crops and encodes the image as the

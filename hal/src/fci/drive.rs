@@ -211,7 +211,13 @@ fn control(
             }
             // The robot's q_d is the setpoint it applied last cycle: ours, unless it extrapolated over a command it
             // did not get or over states we never saw (see `setpoint_sync`).
-            let resync = robot_setpoints.observe(&state.q_d, &state.dq_d, &state.ddq_d, missed);
+            let resync = robot_setpoints.observe(
+                &state.q_d,
+                &state.dq_d,
+                &state.ddq_d,
+                state.control_command_success_rate,
+                missed,
+            );
             if let Some(r) = resync {
                 hal.control.resync_setpoint(&r.q, &r.v, &r.a);
                 report.resyncs += 1;

@@ -18,12 +18,17 @@
 //!   cycles too, and the robot's velocity there is the interval's mean: our next command, differenced over one
 //!   cycle against it, read as 1.5× our acceleration (measured: 9.5 rad/s² planned, 14.25 judged, a reflex). The
 //!   model does the same arithmetic, so the filter continues from the history the robot will judge against.
+//!   That our command came late shows in the next state (the robot's next guess instead of it), or, at a constant
+//!   acceleration, where that guess is our command to float32's last bit, only in the success rate falling.
 
 use super::state::JOINTS;
 
 /// A reported setpoint this far (rad) from our last command means the robot applied another one: above float32
 /// rounding (at most 2.4e-7 rad below 4.6 rad), below the jerk·dt³ (4.5e-6 rad at 4500 rad/s³) that matters.
 pub const RESYNC_RAD: f64 = 5e-7;
+
+/// The same for a reported velocity (rad/s): above float32 rounding (at most 2.4e-7 rad/s below 8 rad/s).
+const RESYNC_RAD_S: f64 = 5e-7;
 
 /// The FCI cycle (s).
 const DT: f64 = 1e-3;
@@ -93,13 +98,15 @@ pub struct RobotSetpoints {
     /// our first command after them, over which the robot differences that command when it replaces the robot's
     /// guesses of the gap (that command came late, or our last one before the gap did: both rewind the guesses).
     before_gap: Option<(History, u64)>,
+    /// The robot's success rate in the last state: it falls only when a cycle went without our command in time.
+    success_rate: Option<f64>,
     /// How the last resync was made.
     pub last_from: Option<ResyncFrom>,
 }
 
 impl RobotSetpoints {
     pub fn new(late_commands_applied: bool) -> Self {
-        Self { history: None, sent: None, late_commands_applied, before_gap: None, last_from: None }
+        Self { history: None, sent: None, late_commands_applied, before_gap: None, success_rate: None, last_from: None }
     }
 
     /// Our command for this cycle.
@@ -107,16 +114,19 @@ impl RobotSetpoints {
         self.sent = Some(command);
     }
 
-    /// One state: `q_d`, `dq_d`, `ddq_d` (the setpoint applied last cycle and the robot's derivatives of it) and
-    /// how many states came between it and the last one we saw. Returns where to continue from when the robot
-    /// applied something else than our last command.
+    /// One state: `q_d`, `dq_d`, `ddq_d` (the setpoint applied last cycle and the robot's derivatives of it), its
+    /// `control_command_success_rate`, and how many states came between it and the last one we saw. Returns where
+    /// to continue from when the robot applied something else than our last command.
     pub fn observe(
         &mut self,
         q_d: &[f64; JOINTS],
         dq_d: &[f64; JOINTS],
         ddq_d: &[f64; JOINTS],
+        success_rate: f64,
         missed_states: u64,
     ) -> Option<History> {
+        // Our last command missed its cycle (the robot counted it lost), if the rate fell since the last state.
+        let missed_its_cycle = self.success_rate.replace(success_rate).is_some_and(|r| success_rate < r);
         let reported = History { q: *q_d, v: *dq_d, a: *ddq_d };
         let (Some(h), Some(s)) = (self.history, self.sent.take()) else {
             // The motion's first state (the robot's history is what it reports), or one we did not answer.
@@ -129,12 +139,19 @@ impl RobotSetpoints {
         if missed_states == 0 {
             if let Some((mut b, cycles)) = before_gap {
                 // Our first command after unseen states: recorded one cycle after the robot's guesses of the gap, or
-                // replacing them, differenced over the whole interval from our last command before them. Which one
-                // the robot's reported velocity tells (its published derivatives are its history's): the two differ
-                // by half a cycle of acceleration, far above float32 rounding whenever it matters.
+                // replacing them, differenced over the whole interval from our last command before them.
                 b.record(&s, cycles);
-                let replaced = !within(&s, q_d) || distance(&b.v, dq_d) < distance(&ours.v, dq_d);
-                if replaced {
+                // Replacing them if it came late: the state then shows the robot's next guess instead of it. Where
+                // that guess is our command (a constant acceleration, such as the filter's brake at its limit: the
+                // same law), in q_d, dq_d and ddq_d alike, only the cycle counted lost tells.
+                let guess = h.extrapolated(1);
+                let late = !within(&s, q_d)
+                    || missed_its_cycle
+                    || (!within_velocity(&ours.v, dq_d) && within_velocity(&guess.v, dq_d));
+                // Replacing them on time too if our last command before them came late and rewound them; the
+                // reported velocity tells (its published derivatives are its history's): the two differ by half a
+                // cycle of acceleration, far above float32 rounding whenever it matters.
+                if late || distance(&b.v, dq_d) < distance(&ours.v, dq_d) {
                     return Some(self.continue_from(b, ResyncFrom::LateOverCycles(cycles)));
                 }
             }
@@ -201,11 +218,18 @@ fn within(ours: &[f64; JOINTS], reported: &[f64; JOINTS]) -> bool {
     distance(ours, reported) <= RESYNC_RAD
 }
 
+/// Whether the robot's reported velocity is this history's, up to its rounding.
+fn within_velocity(ours: &[f64; JOINTS], reported: &[f64; JOINTS]) -> bool {
+    distance(ours, reported) <= RESYNC_RAD_S
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
 
     const ZERO: [f64; JOINTS] = [0.0; JOINTS];
+    /// The success rate of a robot that got every command in time.
+    const ALL_IN_TIME: f64 = 1.0;
 
     /// A joint-1 trajectory with jerk 4500 rad/s³ from rest: the command of cycle k.
     fn traj(k: u64) -> [f64; JOINTS] {
@@ -215,24 +239,45 @@ mod tests {
         q
     }
 
+    /// Joint 1 at a constant −9.5 rad/s², the filter's brake at its limit: the filter's setpoint law (`v += a·dt`,
+    /// then `q += v·dt`) is the robot's extrapolation, so command k is the start extrapolated k cycles.
+    fn ramp(k: u64) -> [f64; JOINTS] {
+        let mut start = History { q: [0.5; JOINTS], v: ZERO, a: ZERO };
+        start.a[0] = -9.5;
+        start.extrapolated(k).q
+    }
+
     /// Commands 0..n sent and applied in time, each reported back rounded to float32.
     fn applied_until(n: u64, late_applied: bool) -> RobotSetpoints {
+        applied_along(traj, n, late_applied)
+    }
+
+    fn applied_along(c: fn(u64) -> [f64; JOINTS], n: u64, late_applied: bool) -> RobotSetpoints {
         let mut s = RobotSetpoints::new(late_applied);
-        s.observe(&traj(0), &ZERO, &ZERO, 0);
+        s.observe(&c(0), &ZERO, &ZERO, ALL_IN_TIME, 0);
         for k in 1..n {
-            s.sent(traj(k));
-            assert_eq!(s.observe(&traj(k).map(|q| q as f32 as f64), &ZERO, &ZERO, 0), None, "cycle {k}");
+            s.sent(c(k));
+            assert_eq!(s.observe(&c(k).map(|q| q as f32 as f64), &ZERO, &ZERO, ALL_IN_TIME, 0), None, "cycle {k}");
         }
         s
     }
 
     /// The robot's history after commands 0..=k applied in time.
     fn history_at(k: u64) -> History {
-        let mut h = History { q: traj(0), v: ZERO, a: ZERO };
+        history_along(traj, k)
+    }
+
+    fn history_along(c: fn(u64) -> [f64; JOINTS], k: u64) -> History {
+        let mut h = History { q: c(0), v: ZERO, a: ZERO };
         for i in 1..=k {
-            h.record(&traj(i), 1);
+            h.record(&c(i), 1);
         }
         h
+    }
+
+    /// What the robot publishes of a history (`q_d`, `dq_d`, `ddq_d`): float32.
+    fn report(h: &History) -> [[f64; JOINTS]; 3] {
+        [h.q, h.v, h.a].map(|x| x.map(|x| x as f32 as f64))
     }
 
     #[test]
@@ -247,7 +292,8 @@ mod tests {
         let mut s = applied_until(10, false);
         s.sent(traj(10));
         let e = history_at(9).extrapolated(1);
-        let r = s.observe(&e.q.map(|q| q as f32 as f64), &[9.0; JOINTS], &[9.0; JOINTS], 0).expect("a resync");
+        let r =
+            s.observe(&e.q.map(|q| q as f32 as f64), &[9.0; JOINTS], &[9.0; JOINTS], ALL_IN_TIME, 0).expect("a resync");
         assert_eq!(r, e, "exact, not differenced from the rounded report nor the robot's dq_d/ddq_d");
         assert_eq!(s.last_from, Some(ResyncFrom::LostThenExtrapolated(1)));
     }
@@ -258,7 +304,7 @@ mod tests {
             let mut s = applied_until(10, late_applied);
             s.sent(traj(10));
             let e = history_at(10).extrapolated(1);
-            let r = s.observe(&e.q.map(|q| q as f32 as f64), &ZERO, &ZERO, 1).expect("a resync");
+            let r = s.observe(&e.q.map(|q| q as f32 as f64), &ZERO, &ZERO, ALL_IN_TIME, 1).expect("a resync");
             assert_eq!(r, e);
             assert_eq!(s.last_from, Some(ResyncFrom::OursThenExtrapolated(1)));
         }
@@ -269,7 +315,7 @@ mod tests {
         let mut s = applied_until(10, false);
         s.sent(traj(10));
         let e = history_at(9).extrapolated(2);
-        assert_eq!(s.observe(&e.q, &ZERO, &ZERO, 1), Some(e));
+        assert_eq!(s.observe(&e.q, &ZERO, &ZERO, ALL_IN_TIME, 1), Some(e));
         assert_eq!(s.last_from, Some(ResyncFrom::LostThenExtrapolated(2)));
     }
 
@@ -278,7 +324,7 @@ mod tests {
         let mut s = applied_until(5, false);
         s.sent(traj(5));
         let (dq, ddq) = ([0.1; JOINTS], [0.2; JOINTS]);
-        let r = s.observe(&traj(30), &dq, &ddq, 20).expect("a resync");
+        let r = s.observe(&traj(30), &dq, &ddq, ALL_IN_TIME, 20).expect("a resync");
         assert_eq!((r.q, r.v, r.a), (traj(30), dq, ddq));
         assert_eq!(s.last_from, Some(ResyncFrom::RobotReport));
     }
@@ -287,13 +333,13 @@ mod tests {
     fn an_unseen_state_at_rest_needs_no_resync() {
         let mut s = RobotSetpoints::new(false);
         let rest = [0.3; JOINTS];
-        s.observe(&rest, &ZERO, &ZERO, 0);
+        s.observe(&rest, &ZERO, &ZERO, ALL_IN_TIME, 0);
         for _ in 0..5 {
             s.sent(rest);
-            assert_eq!(s.observe(&rest, &ZERO, &ZERO, 0), None);
+            assert_eq!(s.observe(&rest, &ZERO, &ZERO, ALL_IN_TIME, 0), None);
         }
         s.sent(rest);
-        assert_eq!(s.observe(&rest, &ZERO, &ZERO, 1), None);
+        assert_eq!(s.observe(&rest, &ZERO, &ZERO, ALL_IN_TIME, 1), None);
     }
 
     #[test]
@@ -301,9 +347,9 @@ mod tests {
         let mut s = applied_until(10, true);
         // franka-sim reports its guess, then replaces it with our late command: nothing to continue from.
         s.sent(traj(10));
-        assert_eq!(s.observe(&history_at(9).extrapolated(1).q, &ZERO, &ZERO, 0), None);
+        assert_eq!(s.observe(&history_at(9).extrapolated(1).q, &ZERO, &ZERO, ALL_IN_TIME, 0), None);
         s.sent(traj(11));
-        assert_eq!(s.observe(&traj(11), &ZERO, &ZERO, 0), None);
+        assert_eq!(s.observe(&traj(11), &ZERO, &ZERO, ALL_IN_TIME, 0), None);
         assert_eq!(s.history, Some(history_at(11)));
     }
 
@@ -313,12 +359,12 @@ mod tests {
         let mut s = applied_until(10, true);
         s.sent(traj(9 + 1));
         let gap = history_at(10).extrapolated(1);
-        s.observe(&gap.q, &ZERO, &ZERO, 1).expect("the resync over the unseen state");
+        s.observe(&gap.q, &ZERO, &ZERO, ALL_IN_TIME, 1).expect("the resync over the unseen state");
         // We continue from the gap's history and send c1; the robot has not read it when it publishes the next state
         // (q_d shows its second guess), and will record it over two cycles from our command 10.
         let c1 = traj(12);
         s.sent(c1);
-        let r = s.observe(&gap.extrapolated(1).q, &ZERO, &ZERO, 0).expect("a resync");
+        let r = s.observe(&gap.extrapolated(1).q, &ZERO, &ZERO, ALL_IN_TIME, 0).expect("a resync");
         let mut robot = history_at(10);
         robot.record(&c1, 2);
         assert_eq!(r, robot);
@@ -336,16 +382,18 @@ mod tests {
         s.sent(traj(10));
         let guesses = history_at(9).extrapolated(2);
         let gap = history_at(10).extrapolated(1);
-        assert_eq!(s.observe(&guesses.q, &ZERO, &ZERO, 1), Some(gap));
+        assert_eq!(s.observe(&guesses.q, &ZERO, &ZERO, ALL_IN_TIME, 1), Some(gap));
         let c1 = traj(12);
         s.sent(c1);
         let mut robot = history_at(10);
         robot.record(&c1, 2);
-        let r = s.observe(&c1, &robot.v.map(|v| v as f32 as f64), &ZERO, 0).expect("a resync although c1 was on time");
+        let r = s
+            .observe(&c1, &robot.v.map(|v| v as f32 as f64), &ZERO, ALL_IN_TIME, 0)
+            .expect("a resync although c1 was on time");
         assert_eq!(r, robot);
         // And on from there as usual.
         s.sent(traj(13));
-        assert_eq!(s.observe(&traj(13), &ZERO, &ZERO, 0), None);
+        assert_eq!(s.observe(&traj(13), &ZERO, &ZERO, ALL_IN_TIME, 0), None);
     }
 
     #[test]
@@ -353,12 +401,70 @@ mod tests {
         let mut s = applied_until(10, true);
         s.sent(traj(10));
         let gap = history_at(10).extrapolated(1);
-        s.observe(&gap.q, &ZERO, &ZERO, 1).expect("the resync over the unseen state");
+        s.observe(&gap.q, &ZERO, &ZERO, ALL_IN_TIME, 1).expect("the resync over the unseen state");
         let c1 = traj(12);
         s.sent(c1);
         let mut robot = gap;
         robot.record(&c1, 1);
-        assert_eq!(s.observe(&c1, &robot.v.map(|v| v as f32 as f64), &ZERO, 0), None);
+        assert_eq!(s.observe(&c1, &robot.v.map(|v| v as f32 as f64), &ZERO, ALL_IN_TIME, 0), None);
         assert_eq!(s.history, Some(robot));
+    }
+
+    /// Along `ramp`: command 10 applied, state 11 unseen (franka-sim guessed its cycle), state 12 seen and answered
+    /// by the filter, continuing from the resync at its limit, `jerk` rad/s³ off it. The success rate in state 12.
+    fn after_an_unseen_state_along_the_ramp(jerk: f64, rate: f64) -> (RobotSetpoints, [f64; JOINTS]) {
+        let mut s = applied_along(ramp, 10, true);
+        s.sent(ramp(10));
+        let [q, v, a] = report(&history_along(ramp, 10).extrapolated(1));
+        let mut r = s.observe(&q, &v, &a, rate, 1).expect("the resync over the unseen state");
+        r.a[0] = -9.5 + jerk * DT;
+        let c1 = r.extrapolated(1).q;
+        s.sent(c1);
+        (s, c1)
+    }
+
+    /// The reflex measured under hypervisor steal (franka-sim judged 14.25 rad/s² where the filter braked at 9.5):
+    /// our first command after an unseen state came late. franka-sim publishes its next guess instead, and records
+    /// our command over both cycles once it arrives. At a constant acceleration that guess *is* our command, in
+    /// `q_d`, `dq_d` and `ddq_d` alike: only the success rate (the cycle counted lost) tells the two apart.
+    #[test]
+    fn applied_a_late_command_after_an_unseen_state_at_constant_acceleration_shows_in_the_success_rate() {
+        let before = history_along(ramp, 10);
+        let guess = before.extrapolated(2);
+        for late in [true, false] {
+            let (mut s, c1) = after_an_unseen_state_along_the_ramp(0.0, 0.99);
+            let mut ours = before.extrapolated(1);
+            ours.record(&c1, 1);
+            assert_eq!(report(&guess), report(&ours), "the same state either way");
+            let [q, v, a] = report(&guess);
+            let r = s.observe(&q, &v, &a, if late { 0.98 } else { 0.99 }, 0);
+            let mut robot = before;
+            robot.record(&c1, 2);
+            if !late {
+                assert_eq!((r, s.history), (None, Some(ours)), "on time: recorded one cycle after the guess");
+                continue;
+            }
+            assert_eq!(r, Some(robot));
+            assert_eq!(s.last_from, Some(ResyncFrom::LateOverCycles(2)));
+            // The filter's next command, braking on from there, is judged at its own acceleration (not 1.5× it).
+            let mut next = robot;
+            next.a[0] = -9.5;
+            robot.record(&next.extrapolated(1).q, 1);
+            assert!((robot.a[0] + 9.5).abs() < 1e-3, "{}", robot.a[0]);
+        }
+    }
+
+    /// Late too, with some jerk (below what `q_d` resolves): the state then shows the guess's velocity, not ours,
+    /// even where the success rate does not fall (an old lost cycle left its window as this one came in).
+    #[test]
+    fn applied_a_late_command_after_an_unseen_state_shows_in_the_guess_of_its_velocity() {
+        let (mut s, c1) = after_an_unseen_state_along_the_ramp(50.0, 0.99);
+        let before = history_along(ramp, 10);
+        let [q, v, a] = report(&before.extrapolated(2));
+        let r = s.observe(&q, &v, &a, 0.99, 0).expect("a resync");
+        let mut robot = before;
+        robot.record(&c1, 2);
+        assert_eq!(r, robot);
+        assert_eq!(s.last_from, Some(ResyncFrom::LateOverCycles(2)));
     }
 }
