@@ -31,6 +31,8 @@ pub const START_MAX_SPEED: f64 = 0.05;
 /// After a fatal error, this many failed `apply` calls in a row mean nothing can be commanded any more: the
 /// process exits without waiting for rest (the robot's own reflex brakes it; e.g. the FR3's on lost packets).
 const FATAL_APPLY_FAILURES: u64 = 100;
+/// Clamped commands logged with their reason; the rest are only counted.
+const CLAMPS_LOGGED: u64 = 10;
 
 /// Why the HAL refused to start: nothing was commanded.
 #[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
@@ -286,6 +288,13 @@ impl HalControl {
             Err(refusal) => return ev.send(LoopEvent::Refused { seq: cmd.seq, refusal }),
             Ok(t) => t,
         };
+        // The first clamps are logged with the limit they met (a controller that needs clamping has a bug worth
+        // a line); the rest only counted, so a broken controller cannot flood the log.
+        if let Some(reason) = admitted.clamp_reason
+            && self.filter.clamped <= CLAMPS_LOGGED
+        {
+            ev.send(LoopEvent::Clamped { seq: cmd.seq, reason, answered: cmd.state_seq, newest: self.frames });
+        }
         if cmd.session == 0 {
             self.filter.rejected += 1;
             ev.send(LoopEvent::ReservedSession { seq: cmd.seq });
@@ -720,7 +729,7 @@ mod tests {
     #[test]
     fn late_and_out_of_limit_commands_are_counted_apart() {
         let p = fr3();
-        let (mut t, _logger, _) = Ticks::new(HalControl::start(&p, &at(&START, 0.03)).unwrap());
+        let (mut t, logger, seen) = Ticks::new(HalControl::start(&p, &at(&START, 0.03)).unwrap());
         t.tick(Ok(at(&START, 0.03)), &[], Ok(()));
         t.tick(Ok(at(&START, 0.03)), &[], Ok(()));
         let mut jump = START;
@@ -733,6 +742,13 @@ mod tests {
         let on_time = t.command(1, &[0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0][..], 0.03);
         let st = t.tick(Ok(at(&START, 0.03)), &[on_time], Ok(()));
         assert_eq!((st.late_commands, st.clamped_commands), (1, 1));
+        logger.finish();
+        // The clamp is logged with the limit it met; the late step is not a clamp.
+        let seen = seen.lock().unwrap();
+        let clamps: Vec<String> =
+            seen.iter().filter(|e| matches!(e, LoopEvent::Clamped { .. })).map(|e| e.to_string()).collect();
+        assert_eq!(clamps.len(), 1, "{seen:?}");
+        assert!(clamps[0].contains("exceeds the limit"), "{}", clamps[0]);
     }
 
     /// The controller ticked twice between two frames: two commands answer the same frame, the second one a tick

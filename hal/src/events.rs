@@ -26,6 +26,15 @@ pub enum LoopEvent {
     ReservedSession {
         seq: u64,
     },
+    /// A command followed after clamping (the clamp policy): the limit it met. Only the first few are reported;
+    /// all are counted.
+    Clamped {
+        seq: u64,
+        reason: Refusal,
+        /// The frame the command answered, and the newest frame the HAL had built.
+        answered: u64,
+        newest: u64,
+    },
     /// Only the first wrong-schema frame is reported; the rest are counted in the exit report.
     WrongSchema(SchemaMismatch),
     ControllerLost(Peer),
@@ -58,6 +67,12 @@ impl std::fmt::Display for LoopEvent {
         match self {
             LoopEvent::Refused { seq, refusal } => write!(f, "refused command {seq}: {refusal}"),
             LoopEvent::ReservedSession { seq } => write!(f, "refused command {seq}: session id 0 is reserved"),
+            LoopEvent::Clamped { seq, reason, answered, newest } => {
+                write!(
+                    f,
+                    "clamped command {seq} (answering frame {answered}, the newest {newest}) to the limits: {reason}"
+                )
+            }
             LoopEvent::WrongSchema(m) => write!(f, "refusing commands: {m}"),
             LoopEvent::ControllerLost(peer) => {
                 write!(f, "the controller's process is gone ({peer:?}): braking to rest and holding")

@@ -29,6 +29,7 @@ pub fn to_json(r: &Report) -> Value {
             "addr": rb.addr,
             "cycles": rb.cycles,
             "lost_states": rb.lost_states,
+            "bunched_states": rb.bunched_states,
             "resyncs": rb.resyncs,
             "min_success_rate": rb.min_success_rate,
             "last_success_rate": rb.last_success_rate,

@@ -62,6 +62,8 @@ pub struct Target {
     pub gripper_speed: f64,
     /// Whether anything had to be clamped because it was out of limits (counted in `clamped`).
     pub clamped: bool,
+    /// The first limit it was clamped to, as a refusal would have said it (the HAL logs it).
+    pub clamp_reason: Option<Refusal>,
     /// The step from the applied setpoint exceeds a rate limit, and that is timing: the caller said so, or the
     /// step the controller meant is within the limits (not counted as clamped; `step` smooths it).
     pub late_step: bool,
@@ -273,16 +275,23 @@ impl SafetyFilter {
             gripper: cmd.gripper,
             gripper_speed: cmd.gripper_speed,
             clamped: false,
+            clamp_reason: None,
             late_step: false,
         };
+        // Under the clamp policy, the same reason a refusal would give is kept (the first one) and the value clamped.
+        fn clamp(t: &mut Target, reason: Refusal) {
+            t.clamped = true;
+            t.clamp_reason.get_or_insert(reason);
+        }
         for i in 0..n {
             let (lo, hi) = (self.q_min[i], self.q_max[i]);
             let q = cmd.position[i];
             if q < lo || q > hi {
+                let reason = Refusal::Position { joint: i, value: q, min: lo, max: hi };
                 if reject {
-                    return Err(Refusal::Position { joint: i, value: q, min: lo, max: hi });
+                    return Err(reason);
                 }
-                t.clamped = true;
+                clamp(&mut t, reason);
             }
             t.position[i] = q.clamp(lo, hi);
             // The controller's stated intent must itself be possible.
@@ -290,17 +299,19 @@ impl SafetyFilter {
             let intent_v = cmd.velocity[i];
             let v_limit = if intent_v >= 0.0 { v_hi } else { v_lo };
             if intent_v > v_hi + EPS * v_hi.abs() || intent_v < v_lo - EPS * v_lo.abs() {
+                let reason = Refusal::Rate { joint: i, quantity: "velocity", value: intent_v, limit: v_limit };
                 if reject {
-                    return Err(Refusal::Rate { joint: i, quantity: "velocity", value: intent_v, limit: v_limit });
+                    return Err(reason);
                 }
-                t.clamped = true;
+                clamp(&mut t, reason);
             }
             if cmd.acceleration[i].abs() > self.a_max[i] * (1.0 + EPS) {
+                let (value, limit) = (cmd.acceleration[i], self.a_max[i]);
+                let reason = Refusal::Rate { joint: i, quantity: "acceleration", value, limit };
                 if reject {
-                    let (value, limit) = (cmd.acceleration[i], self.a_max[i]);
-                    return Err(Refusal::Rate { joint: i, quantity: "acceleration", value, limit });
+                    return Err(reason);
                 }
-                t.clamped = true;
+                clamp(&mut t, reason);
             }
             // The step from the applied setpoint, differentiated like libfranka does, must be within limits, or
             // else one of the steps the controller meant (see the module doc) must.
@@ -310,24 +321,26 @@ impl SafetyFilter {
                 } else {
                     self.intended_step_excess(i, cmd, t.position[i]).unwrap_or(Some(excess))
                 };
-                if let Some((quantity, value, limit)) = content
-                    && reject
-                {
-                    return Err(Refusal::Rate { joint: i, quantity, value, limit });
-                } else if content.is_none() {
+                match content {
                     // Timing, not content: smoothed by `step`, counted by the caller.
-                    t.late_step = true;
-                } else {
-                    // Clamped by `step`, which never exceeds the limits on the way to the target.
-                    t.clamped = true;
+                    None => t.late_step = true,
+                    Some((quantity, value, limit)) => {
+                        let reason = Refusal::Rate { joint: i, quantity, value, limit };
+                        if reject {
+                            return Err(reason);
+                        }
+                        // Clamped by `step`, which never exceeds the limits on the way to the target.
+                        clamp(&mut t, reason);
+                    }
                 }
             }
         }
         if cmd.gripper < self.g_min || cmd.gripper > self.g_max {
+            let reason = Refusal::Gripper { value: cmd.gripper, min: self.g_min, max: self.g_max };
             if reject {
-                return Err(Refusal::Gripper { value: cmd.gripper, min: self.g_min, max: self.g_max });
+                return Err(reason);
             }
-            t.clamped = true;
+            clamp(&mut t, reason);
             t.gripper = cmd.gripper.clamp(self.g_min, self.g_max);
         }
         Ok(t)

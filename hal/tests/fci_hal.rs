@@ -184,6 +184,38 @@ fn excursion(start: [f64; 7], amp: f64, n: u64) -> impl FnMut(u64) -> [f64; 7] {
     }
 }
 
+/// The robot's control command success rate (over its last 100 cycles) in the newest of `frames` is ≥ 0.95 —
+/// unless the frames show that states reached the HAL late: a rate of r means (1 − r)·100 commands missing in
+/// those 100 cycles, and the HAL cannot answer in time a state it never got (`robot_cycles` beyond 1) or got only
+/// as the next one came (its frame published less than half a period after the one before: franka-sim catching
+/// up after a stall of its own, or the machine holding the HAL up), so those must account for that many. The same
+/// rule as runtime/tests/franka_sim.rs.
+fn assert_success_rate(frames: &[RobotState]) {
+    let last = frames.last().expect("a frame");
+    let (mut cycles, mut late) = (0u64, 0u64);
+    for pair in frames.windows(2).rev() {
+        if cycles >= 100 {
+            break;
+        }
+        let c = u64::from(pair[1].robot_cycles.max(1));
+        cycles += c;
+        late += c - 1;
+        if pair[1].timestamp_ns.saturating_sub(pair[0].timestamp_ns) < 500_000 {
+            late += 1;
+        }
+    }
+    let rate = last.robot_success_rate;
+    let missing = ((1.0 - rate) * 100.0).round() as u64;
+    assert!(
+        rate >= 0.95 || late >= missing,
+        "the robot's control command success rate fell to {rate} ({missing} of 100 commands missing) while all but \
+         {late} of the states of those cycles reached the HAL in time"
+    );
+    if rate < 0.95 {
+        eprintln!("the success rate fell to {rate}: {late} of the last 100 robot states reached the HAL late or never");
+    }
+}
+
 fn q7(s: &RobotState) -> [f64; 7] {
     s.position[..7].try_into().unwrap()
 }
@@ -229,7 +261,8 @@ fn the_hal_drives_franka_sim_from_its_measured_pose_and_brakes_on_command_loss_w
     assert!(mid.position[0] - start[0] > 0.25, "joint 1 followed the excursion: {} from {}", mid.position[0], start[0]);
     assert_eq!(last.fault, 0, "{last:?}");
     assert_eq!((last.robot_errors, last.robot_reflex_errors), (0, 0));
-    assert!(last.robot_success_rate >= 0.95, "the robot's control command success rate: {}", last.robot_success_rate);
+    // `last` is the newest frame: the rate it carries, judged with the frames before it.
+    assert_success_rate(&rig.frames);
     // Commands stop mid-excursion: the HAL brakes to rest within the limits, and the robot raises no reflex.
     let q_mid = excursion(start, 0.3, 3000)(750);
     rig.stream(1, 750, excursion(start, 0.3, 3000));
@@ -336,7 +369,8 @@ fn a_stalled_hal_trips_the_communication_reflex_which_it_reports_and_holds_until
     let from = rig.frames.len();
     let last = rig.stream(3, 2000, excursion(here, 0.2, 2000));
     assert_eq!((last.fault, last.session), (0, 3), "{last:?}");
-    assert!(last.robot_success_rate >= 0.95, "{}", last.robot_success_rate);
+    // `last` is the newest frame: the rate it carries, judged with the frames before it.
+    assert_success_rate(&rig.frames);
     assert_within_fr3_limits(&rig.frames[from..]);
     rig.signal(libc::SIGTERM);
     let (code, out, _) = rig.exit(Duration::from_secs(10));

@@ -41,9 +41,12 @@ pub struct DeadlineMisses {
     /// The same, as the HAL counted it (a command whose `state_seq` was not its newest frame), since the
     /// handshake.
     pub hal_late_commands: u64,
-    /// Second commands answering one HAL frame (the servo ticked twice between two frames), which the HAL did not
-    /// follow: as the HAL counted them.
+    /// Second commands answering one HAL frame, which the HAL did not follow: as the HAL counted them (0 from a
+    /// servo that answers each frame once).
     pub hal_duplicate_commands: u64,
+    /// Servo ticks that found no new state frame (it woke twice in one HAL period, or the robot's clock runs
+    /// slower than marsd's) and so sent no command: one command per frame.
+    pub frameless_ticks: u64,
 }
 
 /// Out-of-limit commands, wherever they were caught. Late commands are timing, not content: they are in
@@ -180,6 +183,7 @@ impl Summary {
                 late_commands: s.counters.late_commands,
                 hal_late_commands: s.hal.late,
                 hal_duplicate_commands: s.hal.duplicate,
+                frameless_ticks: s.counters.frameless_ticks,
             },
             limit_violations: LimitViolations {
                 final_check: s.counters.limit_violations,
@@ -287,7 +291,7 @@ impl std::fmt::Display for Summary {
         let l = &self.limit_violations;
         writeln!(
             f,
-            "  of {} commands: {} out of limits (final check {}, HAL rejected {}, HAL clamped {}); {} late for the HAL's tick (HAL's count {}), {} second answers to one frame; re-synchronised {}",
+            "  of {} commands: {} out of limits (final check {}, HAL rejected {}, HAL clamped {}); {} late for the HAL's tick (HAL's count {}), {} second answers to one frame, {} ticks with no new frame (nothing sent); re-synchronised {}",
             self.commands_sent,
             l.total(),
             l.final_check,
@@ -296,6 +300,7 @@ impl std::fmt::Display for Summary {
             d.late_commands,
             d.hal_late_commands,
             d.hal_duplicate_commands,
+            d.frameless_ticks,
             l.resyncs
         )?;
         let h = &self.hal_last_resorts;

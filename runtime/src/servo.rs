@@ -77,6 +77,8 @@ pub struct ServoCounters {
     /// Times the HAL had not applied the last command exactly (it arrived late, so the HAL smoothed the gap)
     /// and the trajectory continued from the HAL's applied setpoint.
     pub resyncs: u64,
+    /// Ticks that found no new state frame and so sent no command (one command per frame).
+    pub frameless_ticks: u64,
 }
 
 /// The HAL's own counters (from its state frames), since this controller's handshake: the robot side's verdict
@@ -375,7 +377,15 @@ impl ServoTick {
             self.phase = Phase::Running;
         }
 
-        // 4. Motion for the next tick.
+        // 4. Motion for the next tick — one per state frame, as libfranka's controller answers each robot packet.
+        // A tick that found no new frame (its clock ran ahead of the robot's, as franka-sim's does under load, or it
+        // woke twice in one HAL period) sends nothing and leaves the motion where it is: the HAL follows one answer
+        // per frame, so a second one would only put the motion ahead of the joints. A stop brakes on regardless, so
+        // that it ends even when frames have stopped coming (the HAL brakes on its own then).
+        if input.frame.is_none() && self.seq > 0 && self.phase != Phase::Stopping {
+            self.counters.frameless_ticks += 1;
+            return out;
+        }
         let next = now + self.dt_ns;
         let mut target = [0.0; MAX_JOINTS];
         let mut target_v = [0.0; MAX_JOINTS];

@@ -77,21 +77,22 @@ fn number_after(text: &str, name: &str) -> f64 {
 }
 
 /// The HAL report's robot line ("robot 127.0.0.1: … 0 reflexes …"): no reflex, and the robot's own control
-/// command success rate (over its last 100 cycles) ≥ 0.95 throughout — unless the machine shows it held the HAL
-/// up: a rate of r means (1 − r)·100 commands missing in some 100 cycles, and the HAL cannot answer a state it
-/// never got, so the states the HAL never saw must account for that many.
+/// command success rate (over its last 100 cycles) ≥ 0.95 throughout — unless the run shows that states reached
+/// the HAL late: a rate of r means (1 − r)·100 commands missing in some 100 cycles, and the HAL cannot answer in
+/// time a state it never got (lost) or got only as the next one came (bunched: franka-sim catching up after a
+/// stall of its own, or the machine holding the HAL up), so those states must account for that many.
 fn assert_robot_line_clean(hal_stdout: &str, hal_stderr: &str, sim_log: &str) {
     let line = assert_no_reflex(hal_stdout, hal_stderr, sim_log);
     let rate = number_after(line, "control success rate min");
-    let unseen = number_after(line, "cycles,");
+    let late = number_after(line, "cycles,") + number_after(line, "lost states,");
     let missing = ((1.0 - rate) * 100.0).round();
     assert!(
-        rate >= 0.95 || unseen >= missing,
-        "the robot's control command success rate fell to {rate} ({missing} of 100 commands missing) while the HAL \
-         saw all but {unseen} states: {line}"
+        rate >= 0.95 || late >= missing,
+        "the robot's control command success rate fell to {rate} ({missing} of 100 commands missing) while all but \
+         {late} states reached the HAL in time: {line}"
     );
     if rate < 0.95 {
-        eprintln!("the success rate fell to {rate}: the machine kept {unseen} robot states from the HAL ({line})");
+        eprintln!("the success rate fell to {rate}: {late} robot states reached the HAL late or never ({line})");
     }
 }
 

@@ -47,7 +47,8 @@ fn push_t_runs_through_the_camera_the_engine_and_ik_within_limits() {
 
     // The camera: each inference read a fresh frame of the trained size; nothing refused, nothing missing.
     let calls = u64_at(&s, "/k/calls");
-    assert!(calls >= 10, "{calls} inferences in two episodes");
+    // (An episode takes a few chunks at least: the block starts well away from its target.)
+    assert!(calls >= 4, "{calls} inferences in two episodes");
     assert_eq!(u64_at(&s, "/camera/counts/used"), calls, "one fresh frame per inference: {}", s["camera"]);
     assert_eq!(s["camera"]["counts"]["stale"], 0, "{}", s["camera"]);
     assert_eq!(u64_at(&s, "/camera/no_frame"), 0);

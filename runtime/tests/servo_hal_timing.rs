@@ -1,12 +1,13 @@
 //! marsd's servo tick and the HAL's tick, both as plain logic, on one simulated clock: the HAL ticks every
 //! millisecond; the servo ticks 300 µs after each HAL tick, except that (seeded, at random) it sometimes ticks
-//! twice between two HAL ticks (two answers to one frame), wakes so late that it skips a frame (the HAL gets no
+//! twice between two HAL ticks (the second tick finds no new frame and sends nothing), wakes so late that it skips a frame (the HAL gets no
 //! command in one tick), or sends a command that reaches the HAL only after its next tick (a late command).
 //! That is what a noisy machine does to the two processes; the test makes it happen thousands of times in a few
 //! seconds, deterministically, while the servo runs reset motions between random poses.
 //!
-//! Whatever the timing, the servo's smoother never fails, the HAL never has to clamp a command (late ones and
-//! second answers are timing, counted apart), and the HAL's applied setpoints stay within every limit.
+//! Whatever the timing, the servo's smoother never fails, the HAL never has to clamp a command (late ones are
+//! timing, counted apart), it never gets two answers to one frame, and its applied setpoints stay within every
+//! limit. The same with a robot whose clock runs slower than marsd's.
 
 use std::path::{Path, PathBuf};
 use std::time::Duration;
@@ -44,6 +45,8 @@ struct Outcome {
     rejected: u64,
     late: u64,
     duplicates: u64,
+    /// Servo ticks that found no new frame (and sent nothing).
+    frameless: u64,
     last_resorts: u64,
     worst: [f64; 3],
 }
@@ -181,13 +184,14 @@ fn run(seed: u64, resets: u64, p_fault: f64) -> Outcome {
     out.rejected = last.rejected_commands;
     out.late = last.late_commands;
     out.duplicates = last.duplicate_commands;
+    out.frameless = servo.counters.frameless_ticks;
     out.last_resorts = last.position_guard_hits + last.infeasible_steps;
     out
 }
 
 #[test]
 fn a_noisy_servo_timing_never_fails_the_smoother_nor_makes_the_hal_clamp() {
-    let (mut late, mut duplicates) = (0, 0);
+    let (mut late, mut frameless) = (0, 0);
     for seed in 0..30 {
         let o = run(seed, 12, 0.02);
         eprintln!("seed {seed}: {o:?}");
@@ -196,9 +200,10 @@ fn a_noisy_servo_timing_never_fails_the_smoother_nor_makes_the_hal_clamp() {
         assert_eq!((o.clamped, o.rejected, o.last_resorts), (0, 0, 0), "seed {seed}: {o:?}");
         assert!(o.worst.iter().all(|w| *w <= 1.0 + 1e-6), "seed {seed}: {o:?}");
         late += o.late;
-        duplicates += o.duplicates;
+        assert_eq!(o.duplicates, 0, "one command per frame: seed {seed}: {o:?}");
+        frameless += o.frameless;
     }
-    assert!(late > 100 && duplicates > 100, "the timing faults happened: {late} late, {duplicates} duplicates");
+    assert!(late > 100 && frameless > 100, "the timing faults happened: {late} late, {frameless} frameless ticks");
 }
 
 /// One servo and one HAL on the simulated clock; from HAL tick `nan_from` on, joint 3 measures NaN (as the HAL's
@@ -289,5 +294,109 @@ fn a_nan_sensor_is_reported_as_unusable_state_whatever_the_timing() {
             Some(StopCause::Trip(Trip::HalHolding(HoldReason::CommandTimeout))),
             "no NaN, offset {offset_us} µs, stall 25 ms"
         );
+    }
+}
+
+/// A robot slower than marsd's clock (franka-sim runs at 0.6–0.9× real time on a loaded machine): the HAL ticks
+/// every `robot_period_ns` of marsd's time while the servo ticks every millisecond, so the servo often finds no
+/// new frame.
+fn slow_robot_run(seed: u64, resets: u64, robot_period_ns: u64) -> Outcome {
+    let root = root();
+    let cfg = DaemonConfig::load(&root.join("configs/marsd.toml")).unwrap();
+    let mut profile = Profile::load(&root.join("configs/fr3.toml")).unwrap();
+    profile.sim.seed = seed;
+    let mut sim = SimBackend::new(&profile);
+    let mut hal = HalControl::start(&profile, &sim.read().unwrap()).unwrap();
+    let (mut ev, logger) = EventLogger::start(4096, Duration::from_millis(5), |_| {}).unwrap();
+    let mut servo = ServoTick::new(&cfg, &profile, 7).unwrap();
+    let mut rng = Lcg(seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1);
+    let n = profile.joints;
+    let (q_lo, q_hi) = profile.position_limits();
+    let mut to_servo: Vec<RobotState> = Vec::new();
+    let mut to_hal: Vec<JointCommand> = Vec::new();
+    let mut out = Outcome::default();
+    let (mut episode, mut finishing) = (0, false);
+    let mut next_servo = 300_000u64;
+    'run: for k in 1..400_000u64 {
+        let h = k * robot_period_ns;
+        while next_servo < h {
+            let now = next_servo;
+            next_servo += MS;
+            let arrived = std::mem::take(&mut to_servo);
+            for f in &arrived {
+                servo.note_frame_timing(f);
+            }
+            let request = match servo.phase() {
+                Phase::Idle | Phase::Ready if !finishing => {
+                    if episode == resets {
+                        finishing = true;
+                        Some(Request::Finish)
+                    } else {
+                        episode += 1;
+                        let mut pose = [0.0; MAX_JOINTS];
+                        for j in 0..n {
+                            let (lo, hi) = (q_lo[j] + 0.3, q_hi[j] - 0.3);
+                            pose[j] = lo + (hi - lo) * rng.unit();
+                        }
+                        Some(Request::MoveTo { episode, pose, gripper: 0.07 })
+                    }
+                }
+                _ => None,
+            };
+            let input = TickInput {
+                now_ns: now,
+                missed: 0,
+                frame: arrived.last(),
+                chunk: None,
+                request,
+                stop_requested: false,
+                hal_gone: false,
+            };
+            if let Some(cmd) = servo.tick(&input).command {
+                to_hal.push(cmd);
+            }
+            if servo.phase() == Phase::Finished {
+                break 'run;
+            }
+        }
+        hal.begin_tick(h);
+        hal.on_read(sim.read(), &mut ev);
+        for c in to_hal.drain(..) {
+            hal.on_command(&c, &mut ev);
+        }
+        let step = hal.step(20, &mut ev);
+        let (setpoint, gripper) = (step.setpoint.to_vec(), step.gripper);
+        let r = sim.apply(&setpoint);
+        hal.on_apply(r, &mut ev);
+        if let Some(g) = gripper {
+            let r = sim.move_gripper(g);
+            hal.on_gripper(r, &mut ev);
+        }
+        to_servo.push(hal.state_frame(h));
+    }
+    drop(ev);
+    logger.finish();
+    let last = hal.state_frame(0);
+    out.stop = servo.stop_cause();
+    out.resets = episode;
+    out.clamped = last.clamped_commands;
+    out.rejected = last.rejected_commands;
+    out.late = last.late_commands;
+    out.duplicates = last.duplicate_commands;
+    out.frameless = servo.counters.frameless_ticks;
+    out.last_resorts = last.position_guard_hits + last.infeasible_steps;
+    out
+}
+
+#[test]
+fn a_robot_slower_than_the_servo_clock_gets_one_command_per_frame_and_none_clamped() {
+    for (seed, period_us) in [(0, 1100), (1, 1250), (2, 1430), (3, 1670)] {
+        let o = slow_robot_run(seed, 6, period_us * 1000);
+        eprintln!("robot period {period_us} µs: {o:?}");
+        assert_eq!(o.stop, Some(StopCause::Finished), "period {period_us} µs: {o:?}");
+        assert_eq!(o.resets, 6);
+        assert_eq!((o.clamped, o.rejected, o.last_resorts), (0, 0, 0), "period {period_us} µs: {o:?}");
+        assert_eq!(o.duplicates, 0, "one command per frame: period {period_us} µs: {o:?}");
+        assert!(o.frameless > 0, "the servo's clock ran ahead: period {period_us} µs: {o:?}");
     }
 }

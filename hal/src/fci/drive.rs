@@ -35,6 +35,9 @@ use crate::gripper::GripperMove;
 use crate::profile::Profile;
 use crate::runner::{Ended, HalLoop, Next, Report, RunOptions};
 
+/// A state that comes less than half the robot's 1 ms period after the one before is bunched behind it.
+const BUNCHED: Duration = Duration::from_micros(500);
+
 /// Why the HAL would not take the robot over: nothing was commanded.
 #[derive(Debug, thiserror::Error)]
 pub enum FciStartRefusal {
@@ -196,7 +199,11 @@ fn control(
         |state, period| {
             let woke = Instant::now();
             if let Some(prev) = last {
-                hal.late_us.saturating_record((woke - prev).as_micros().saturating_sub(1000) as u64);
+                let since = woke - prev;
+                hal.late_us.saturating_record(since.as_micros().saturating_sub(1000) as u64);
+                if since < BUNCHED {
+                    report.bunched_states += 1;
+                }
             }
             last = Some(woke);
             // States the robot sent between the last one we saw and this one.

@@ -8,6 +8,10 @@ pub struct RobotLoopReport {
     pub cycles: u64,
     /// States the robot sent that the loop never saw (the robot's period counted past one cycle).
     pub lost_states: u64,
+    /// States that reached the loop less than half a period after the one before: that one came late (the robot,
+    /// the network or the machine held it up), so our answer to it most likely missed the robot's cycle, which
+    /// the robot's success rate then counts as a lost command.
+    pub bunched_states: u64,
     /// Cycles in which the robot reported another setpoint than our last command (it extrapolated over a lost
     /// one), and the filter continued from the robot's.
     pub resyncs: u64,
@@ -28,11 +32,12 @@ impl std::fmt::Display for RobotLoopReport {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(
             f,
-            "  robot {}: {} cycles, {} lost states, {} setpoint resyncs, control success rate min {} last {:.3}; {} \
-             reflexes, {} recoveries",
+            "  robot {}: {} cycles, {} lost states, {} bunched states, {} setpoint resyncs, control success rate min {} \
+             last {:.3}; {} reflexes, {} recoveries",
             self.addr,
             self.cycles,
             self.lost_states,
+            self.bunched_states,
             self.resyncs,
             self.min_success_rate.map_or("n/a".to_string(), |r| format!("{r:.3}")),
             self.last_success_rate,

@@ -231,6 +231,7 @@ fn table(runs: &[Run], args: &BackendBenchArgs) -> String {
             }),
         ),
         ("robot states the HAL never saw", Box::new(|r| show(num(&r.hal, "/robot/lost_states"), 0))),
+        ("robot states bunched behind a late one", Box::new(|r| show(num(&r.hal, "/robot/bunched_states"), 0))),
         ("setpoint resyncs to the robot's history", Box::new(|r| show(num(&r.hal, "/robot/resyncs"), 0))),
         (
             "robot reflexes",
