@@ -51,20 +51,116 @@ struct Outcome {
     worst: [f64; 3],
 }
 
+/// One servo and one HAL (on the mock plant) for `resets` reset motions between seeded random poses, stepped by
+/// the caller on its simulated clock.
+struct Rig {
+    sim: SimBackend,
+    hal: HalControl,
+    ev: mars_hal::events::EventSender,
+    logger: EventLogger,
+    servo: ServoTick,
+    rng: Lcg,
+    q_lo: Vec<f64>,
+    q_hi: Vec<f64>,
+    resets: u64,
+    episode: u64,
+    finishing: bool,
+}
+
+impl Rig {
+    fn new(seed: u64, resets: u64) -> Self {
+        let root = root();
+        let cfg = DaemonConfig::load(&root.join("configs/marsd.toml")).unwrap();
+        let mut profile = Profile::load(&root.join("configs/fr3.toml")).unwrap();
+        profile.sim.seed = seed;
+        let mut sim = SimBackend::new(&profile);
+        let hal = HalControl::start(&profile, &sim.read().unwrap()).unwrap();
+        let (ev, logger) = EventLogger::start(4096, Duration::from_millis(5), |_| {}).unwrap();
+        let servo = ServoTick::new(&cfg, &profile, 7).unwrap();
+        let (q_lo, q_hi) = profile.position_limits();
+        let rng = Lcg(seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1);
+        Self { sim, hal, ev, logger, servo, rng, q_lo, q_hi, resets, episode: 0, finishing: false }
+    }
+
+    /// The servo's tick at `now` with the frames that arrived since its last one: the next reset (or the finish
+    /// once all are done) when it is idle, and the command it sends, if any.
+    fn servo_tick(&mut self, now: u64, arrived: &[RobotState]) -> Option<JointCommand> {
+        for f in arrived {
+            self.servo.note_frame_timing(f);
+        }
+        let request = match self.servo.phase() {
+            Phase::Idle | Phase::Ready if !self.finishing => {
+                if self.episode == self.resets {
+                    self.finishing = true;
+                    Some(Request::Finish)
+                } else {
+                    self.episode += 1;
+                    let mut pose = [0.0; MAX_JOINTS];
+                    for (j, p) in pose.iter_mut().enumerate().take(self.q_lo.len()) {
+                        let (lo, hi) = (self.q_lo[j] + 0.3, self.q_hi[j] - 0.3);
+                        *p = lo + (hi - lo) * self.rng.unit();
+                    }
+                    Some(Request::MoveTo { episode: self.episode, pose, gripper: 0.07 })
+                }
+            }
+            _ => None,
+        };
+        let input = TickInput {
+            now_ns: now,
+            missed: 0,
+            frame: arrived.last(),
+            chunk: None,
+            request,
+            stop_requested: false,
+            hal_gone: false,
+        };
+        self.servo.tick(&input).command
+    }
+
+    /// The HAL's tick at `h`: read, the commands that arrived, step, apply, publish.
+    fn hal_tick(&mut self, h: u64, commands: &mut Vec<JointCommand>) -> RobotState {
+        self.hal.begin_tick(h);
+        self.hal.on_read(self.sim.read(), &mut self.ev);
+        for c in commands.drain(..) {
+            self.hal.on_command(&c, &mut self.ev);
+        }
+        let step = self.hal.step(20, &mut self.ev);
+        let (setpoint, gripper) = (step.setpoint.to_vec(), step.gripper);
+        let r = self.sim.apply(&setpoint);
+        self.hal.on_apply(r, &mut self.ev);
+        if let Some(g) = gripper {
+            let r = self.sim.move_gripper(g);
+            self.hal.on_gripper(r, &mut self.ev);
+        }
+        self.hal.state_frame(h)
+    }
+
+    fn finish(mut self, worst: [f64; 3]) -> Outcome {
+        drop(self.ev);
+        self.logger.finish();
+        let last = self.hal.state_frame(0);
+        Outcome {
+            stop: self.servo.stop_cause(),
+            resets: self.episode,
+            clamped: last.clamped_commands,
+            rejected: last.rejected_commands,
+            late: last.late_commands,
+            duplicates: last.duplicate_commands,
+            frameless: self.servo.counters.frameless_ticks,
+            last_resorts: last.position_guard_hits + last.infeasible_steps,
+            worst,
+        }
+    }
+}
+
 /// Runs `resets` reset motions with the servo ticking as described in the module doc, for seed `seed`.
 fn run(seed: u64, resets: u64, p_fault: f64) -> Outcome {
-    let root = root();
-    let cfg = DaemonConfig::load(&root.join("configs/marsd.toml")).unwrap();
-    let mut profile = Profile::load(&root.join("configs/fr3.toml")).unwrap();
-    profile.sim.seed = seed;
-    let mut sim = SimBackend::new(&profile);
-    let mut hal = HalControl::start(&profile, &sim.read().unwrap()).unwrap();
-    let (mut ev, logger) = EventLogger::start(4096, Duration::from_millis(5), |_| {}).unwrap();
-    let mut servo = ServoTick::new(&cfg, &profile, 7).unwrap();
-    let mut rng = Lcg(seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1);
-    let n = profile.joints;
-    let (q_lo, q_hi) = profile.position_limits();
-
+    let mut rig = Rig::new(seed, resets);
+    let n = rig.q_lo.len();
+    let (dq_max, ddq_max, jerk_max) = {
+        let p = Profile::load(&root().join("configs/fr3.toml")).unwrap();
+        (p.dq_max, p.ddq_max, p.jerk_max)
+    };
     // Frames in flight to the servo and commands in flight to the HAL, with the time they were sent.
     let mut to_servo: Vec<RobotState> = Vec::new();
     let mut to_hal: Vec<JointCommand> = Vec::new();
@@ -72,9 +168,7 @@ fn run(seed: u64, resets: u64, p_fault: f64) -> Outcome {
     // FIFO: a later one cannot overtake a delayed one).
     let mut delayed: Vec<JointCommand> = Vec::new();
     let mut delaying = false;
-    let mut out = Outcome::default();
-    let mut episode = 0;
-    let mut finishing = false;
+    let mut worst = [0.0f64; 3];
     let mut prev: Vec<[f64; MAX_JOINTS]> = Vec::new();
     // Servo tick times not yet run (planned one HAL period ahead).
     let mut servo_ticks: Vec<u64> = Vec::new();
@@ -88,73 +182,28 @@ fn run(seed: u64, resets: u64, p_fault: f64) -> Outcome {
             servo_ticks.remove(0);
             let arrived: Vec<RobotState> = to_servo.iter().filter(|f| f.timestamp_ns <= now).copied().collect();
             to_servo.retain(|f| f.timestamp_ns > now);
-            for f in &arrived {
-                servo.note_frame_timing(f);
-            }
-            let request = match servo.phase() {
-                Phase::Idle | Phase::Ready if !finishing => {
-                    if episode == resets {
-                        finishing = true;
-                        Some(Request::Finish)
-                    } else {
-                        episode += 1;
-                        let mut pose = [0.0; MAX_JOINTS];
-                        for j in 0..n {
-                            let (lo, hi) = (q_lo[j] + 0.3, q_hi[j] - 0.3);
-                            pose[j] = lo + (hi - lo) * rng.unit();
-                        }
-                        Some(Request::MoveTo { episode, pose, gripper: 0.07 })
-                    }
-                }
-                _ => None,
-            };
-            let input = TickInput {
-                now_ns: now,
-                missed: 0,
-                frame: arrived.last(),
-                chunk: None,
-                request,
-                stop_requested: false,
-                hal_gone: false,
-            };
-            if let Some(cmd) = servo.tick(&input).command {
+            if let Some(cmd) = rig.servo_tick(now, &arrived) {
                 if delaying { delayed.push(cmd) } else { to_hal.push(cmd) }
             }
-            if servo.phase() == Phase::Finished {
+            if rig.servo.phase() == Phase::Finished {
                 break 'run;
             }
         }
-
-        // The HAL's tick at k ms: read, the commands that arrived, step, apply, publish.
-        hal.begin_tick(h);
-        hal.on_read(sim.read(), &mut ev);
-        for c in to_hal.drain(..) {
-            hal.on_command(&c, &mut ev);
-        }
+        let frame = rig.hal_tick(h, &mut to_hal);
         to_hal.append(&mut delayed);
         delaying = false;
-        let step = hal.step(20, &mut ev);
-        let (setpoint, gripper) = (step.setpoint.to_vec(), step.gripper);
-        let r = sim.apply(&setpoint);
-        hal.on_apply(r, &mut ev);
-        if let Some(g) = gripper {
-            let r = sim.move_gripper(g);
-            hal.on_gripper(r, &mut ev);
-        }
-        let frame = hal.state_frame(h);
         // The HAL's applied stream, differentiated like the robot does.
         prev.push(frame.applied_position);
         if prev.len() > 4 {
             prev.remove(0);
         }
         if prev.len() == 4 {
-            #[allow(clippy::needless_range_loop)] // four frames and three limit arrays indexed by joint
             for j in 0..n {
                 let v = (prev[3][j] - prev[2][j]) * 1e3;
                 let a = (prev[3][j] - 2.0 * prev[2][j] + prev[1][j]) * 1e6;
                 let jerk = (prev[3][j] - 3.0 * prev[2][j] + 3.0 * prev[1][j] - prev[0][j]) * 1e9;
-                let ratios = [v / profile.dq_max[j], a / profile.ddq_max[j], jerk / profile.jerk_max[j]];
-                for (w, x) in out.worst.iter_mut().zip(ratios) {
+                let ratios = [v / dq_max[j], a / ddq_max[j], jerk / jerk_max[j]];
+                for (w, x) in worst.iter_mut().zip(ratios) {
                     *w = w.max(x.abs());
                 }
             }
@@ -162,9 +211,9 @@ fn run(seed: u64, resets: u64, p_fault: f64) -> Outcome {
         to_servo.push(frame);
 
         // The servo's ticks in this period: normally one at +0.3 ms; sometimes one more at +0.8 (a double tick:
-        // two answers to this frame); sometimes the one at +0.3 comes at +1.2 instead (after the HAL's next tick
-        // and frame: this frame is skipped); sometimes its command is delivered after the HAL's next tick.
-        let u = rng.unit() / p_fault;
+        // the second finds no new frame); sometimes the one at +0.3 comes at +1.2 instead (after the HAL's next
+        // tick and frame: this frame is skipped); sometimes its command is delivered after the HAL's next tick.
+        let u = rig.rng.unit() / p_fault;
         if u < 1.0 {
             servo_ticks.extend([h + 300_000, h + 800_000]);
         } else if u < 2.0 {
@@ -175,18 +224,7 @@ fn run(seed: u64, resets: u64, p_fault: f64) -> Outcome {
         }
         servo_ticks.sort_unstable();
     }
-    drop(ev);
-    logger.finish();
-    let last = hal.state_frame(0);
-    out.stop = servo.stop_cause();
-    out.resets = episode;
-    out.clamped = last.clamped_commands;
-    out.rejected = last.rejected_commands;
-    out.late = last.late_commands;
-    out.duplicates = last.duplicate_commands;
-    out.frameless = servo.counters.frameless_ticks;
-    out.last_resorts = last.position_guard_hits + last.infeasible_steps;
-    out
+    rig.finish(worst)
 }
 
 #[test]
@@ -301,91 +339,25 @@ fn a_nan_sensor_is_reported_as_unusable_state_whatever_the_timing() {
 /// every `robot_period_ns` of marsd's time while the servo ticks every millisecond, so the servo often finds no
 /// new frame.
 fn slow_robot_run(seed: u64, resets: u64, robot_period_ns: u64) -> Outcome {
-    let root = root();
-    let cfg = DaemonConfig::load(&root.join("configs/marsd.toml")).unwrap();
-    let mut profile = Profile::load(&root.join("configs/fr3.toml")).unwrap();
-    profile.sim.seed = seed;
-    let mut sim = SimBackend::new(&profile);
-    let mut hal = HalControl::start(&profile, &sim.read().unwrap()).unwrap();
-    let (mut ev, logger) = EventLogger::start(4096, Duration::from_millis(5), |_| {}).unwrap();
-    let mut servo = ServoTick::new(&cfg, &profile, 7).unwrap();
-    let mut rng = Lcg(seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1);
-    let n = profile.joints;
-    let (q_lo, q_hi) = profile.position_limits();
+    let mut rig = Rig::new(seed, resets);
     let mut to_servo: Vec<RobotState> = Vec::new();
     let mut to_hal: Vec<JointCommand> = Vec::new();
-    let mut out = Outcome::default();
-    let (mut episode, mut finishing) = (0, false);
     let mut next_servo = 300_000u64;
     'run: for k in 1..400_000u64 {
         let h = k * robot_period_ns;
         while next_servo < h {
-            let now = next_servo;
-            next_servo += MS;
             let arrived = std::mem::take(&mut to_servo);
-            for f in &arrived {
-                servo.note_frame_timing(f);
-            }
-            let request = match servo.phase() {
-                Phase::Idle | Phase::Ready if !finishing => {
-                    if episode == resets {
-                        finishing = true;
-                        Some(Request::Finish)
-                    } else {
-                        episode += 1;
-                        let mut pose = [0.0; MAX_JOINTS];
-                        for j in 0..n {
-                            let (lo, hi) = (q_lo[j] + 0.3, q_hi[j] - 0.3);
-                            pose[j] = lo + (hi - lo) * rng.unit();
-                        }
-                        Some(Request::MoveTo { episode, pose, gripper: 0.07 })
-                    }
-                }
-                _ => None,
-            };
-            let input = TickInput {
-                now_ns: now,
-                missed: 0,
-                frame: arrived.last(),
-                chunk: None,
-                request,
-                stop_requested: false,
-                hal_gone: false,
-            };
-            if let Some(cmd) = servo.tick(&input).command {
+            if let Some(cmd) = rig.servo_tick(next_servo, &arrived) {
                 to_hal.push(cmd);
             }
-            if servo.phase() == Phase::Finished {
+            next_servo += MS;
+            if rig.servo.phase() == Phase::Finished {
                 break 'run;
             }
         }
-        hal.begin_tick(h);
-        hal.on_read(sim.read(), &mut ev);
-        for c in to_hal.drain(..) {
-            hal.on_command(&c, &mut ev);
-        }
-        let step = hal.step(20, &mut ev);
-        let (setpoint, gripper) = (step.setpoint.to_vec(), step.gripper);
-        let r = sim.apply(&setpoint);
-        hal.on_apply(r, &mut ev);
-        if let Some(g) = gripper {
-            let r = sim.move_gripper(g);
-            hal.on_gripper(r, &mut ev);
-        }
-        to_servo.push(hal.state_frame(h));
+        to_servo.push(rig.hal_tick(h, &mut to_hal));
     }
-    drop(ev);
-    logger.finish();
-    let last = hal.state_frame(0);
-    out.stop = servo.stop_cause();
-    out.resets = episode;
-    out.clamped = last.clamped_commands;
-    out.rejected = last.rejected_commands;
-    out.late = last.late_commands;
-    out.duplicates = last.duplicate_commands;
-    out.frameless = servo.counters.frameless_ticks;
-    out.last_resorts = last.position_guard_hits + last.infeasible_steps;
-    out
+    rig.finish([0.0; 3])
 }
 
 #[test]
