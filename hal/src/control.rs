@@ -127,6 +127,9 @@ pub struct HalControl {
     last_command_seq: u64,
     /// State frames built so far; the newest one's `seq` (commands answering an older one are late).
     frames: u64,
+    /// The frame count when the setpoint was last re-synchronised to the robot's own (it extrapolated over a
+    /// command it did not get): a clamp soon after one is reported with it.
+    robot_resync_at: Option<u64>,
     /// (session, frame) of the last command followed: one command per frame is this tick's.
     followed_answer: (u64, u64),
     /// The last measurement read, and whether this tick's read succeeded.
@@ -172,6 +175,7 @@ impl HalControl {
             target: None,
             last_command_seq: 0,
             frames: 0,
+            robot_resync_at: None,
             followed_answer: (0, 0),
             measured: *first,
             measured_now: true,
@@ -293,7 +297,14 @@ impl HalControl {
         if let Some(reason) = admitted.clamp_reason
             && self.filter.clamped <= CLAMPS_LOGGED
         {
-            ev.send(LoopEvent::Clamped { seq: cmd.seq, reason, answered: cmd.state_seq, newest: self.frames });
+            let since_robot_resync = self.robot_resync_at.map(|f| self.frames - f);
+            ev.send(LoopEvent::Clamped {
+                seq: cmd.seq,
+                reason,
+                answered: cmd.state_seq,
+                newest: self.frames,
+                since_robot_resync,
+            });
         }
         if cmd.session == 0 {
             self.filter.rejected += 1;
@@ -473,6 +484,7 @@ impl HalControl {
     /// get in time, or over states we never saw): the filter continues from the robot's (see
     /// [`SafetyFilter::resync`]), so the next command is continuous with what the robot did.
     pub fn resync_setpoint(&mut self, q: &[f64], v: &[f64], a: &[f64]) {
+        self.robot_resync_at = Some(self.frames);
         self.filter.resync(q, v, a);
     }
 

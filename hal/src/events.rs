@@ -34,6 +34,8 @@ pub enum LoopEvent {
         /// The frame the command answered, and the newest frame the HAL had built.
         answered: u64,
         newest: u64,
+        /// Frames since the setpoint was last re-synchronised to the robot's (fci), if ever.
+        since_robot_resync: Option<u64>,
     },
     /// Only the first wrong-schema frame is reported; the rest are counted in the exit report.
     WrongSchema(SchemaMismatch),
@@ -67,11 +69,12 @@ impl std::fmt::Display for LoopEvent {
         match self {
             LoopEvent::Refused { seq, refusal } => write!(f, "refused command {seq}: {refusal}"),
             LoopEvent::ReservedSession { seq } => write!(f, "refused command {seq}: session id 0 is reserved"),
-            LoopEvent::Clamped { seq, reason, answered, newest } => {
-                write!(
-                    f,
-                    "clamped command {seq} (answering frame {answered}, the newest {newest}) to the limits: {reason}"
-                )
+            LoopEvent::Clamped { seq, reason, answered, newest, since_robot_resync } => {
+                write!(f, "clamped command {seq} (answering frame {answered}, the newest {newest}")?;
+                if let Some(k) = since_robot_resync {
+                    write!(f, "; {k} frames after a resync to the robot's setpoint")?;
+                }
+                write!(f, ") to the limits: {reason}")
             }
             LoopEvent::WrongSchema(m) => write!(f, "refusing commands: {m}"),
             LoopEvent::ControllerLost(peer) => {
