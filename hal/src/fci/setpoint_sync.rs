@@ -20,6 +20,8 @@
 //!   model does the same arithmetic, so the filter continues from the history the robot will judge against.
 //!   That our command came late shows in the next state (the robot's next guess instead of it), or, at a constant
 //!   acceleration, where that guess is our command to float32's last bit, only in the success rate falling.
+//!   And where our last command before unseen states came late, the robot throws away its guesses up to it and
+//!   guesses only the cycles after it: `q_d` shows how many, and our next command is differenced over the rest.
 
 use super::state::JOINTS;
 
@@ -40,7 +42,9 @@ pub enum ResyncFrom {
     OursThenExtrapolated(u64),
     /// Our last command lost (dropped), and this many cycles extrapolated by the robot.
     LostThenExtrapolated(u64),
-    /// Our last command applied late, differenced over this many cycles (the unseen ones before it included).
+    /// Our first command after unseen states differenced over this many cycles: it came late (the unseen ones before
+    /// it included), or our last command before them did, and the robot's guesses of the cycles it missed were
+    /// thrown away but not replaced.
     LateOverCycles(u64),
     /// The robot's own reported `q_d`, `dq_d`, `ddq_d` (float32, as received).
     RobotReport,
@@ -83,6 +87,19 @@ impl History {
     }
 }
 
+/// Applied mode, after unseen states: the two histories the robot may record our first command after them into, and
+/// over how many cycles.
+#[derive(Debug, Clone, Copy)]
+struct Gap {
+    /// That command on time: the history the state showed, and the cycles from it. One where the state shows our last
+    /// command before the gap extrapolated over every unseen cycle; more where that command came late: the robot
+    /// threw away the guesses it replaced and guessed only the cycles after it arrived.
+    on_time: (History, u64),
+    /// That command late (it replaces the robot's guesses of the gap), or our last command before the gap came after
+    /// the state did: our last command before the gap, over the whole interval from it.
+    late: (History, u64),
+}
+
 /// A gap longer than this is not reconstructed: the robot's communication reflex fires at 20 lost cycles (and
 /// franka-sim stops extrapolating there).
 const MAX_RECONSTRUCTED_CYCLES: u64 = 19;
@@ -94,10 +111,8 @@ pub struct RobotSetpoints {
     sent: Option<[f64; JOINTS]>,
     /// The robot applies a command that missed its cycle once it arrives (franka-sim); a real FR3 drops it.
     late_commands_applied: bool,
-    /// Applied mode, after unseen states: the history at our last command before them, and the cycles from it to
-    /// our first command after them, over which the robot differences that command when it replaces the robot's
-    /// guesses of the gap (that command came late, or our last one before the gap did: both rewind the guesses).
-    before_gap: Option<(History, u64)>,
+    /// Applied mode, after unseen states: which histories our first command after them may be recorded into.
+    before_gap: Option<Gap>,
     /// The robot's success rate in the last state: it falls only when a cycle went without our command in time.
     success_rate: Option<f64>,
     /// How the last resync was made.
@@ -137,22 +152,29 @@ impl RobotSetpoints {
         ours.record(&s, 1);
         let before_gap = self.before_gap.take();
         if missed_states == 0 {
-            if let Some((mut b, cycles)) = before_gap {
-                // Our first command after unseen states: recorded one cycle after the robot's guesses of the gap, or
-                // replacing them, differenced over the whole interval from our last command before them.
+            if let Some(gap) = before_gap {
+                // Our first command after unseen states: recorded after the robot's guesses of the gap, or replacing
+                // them, differenced over the whole interval from our last command before them.
+                let (mut on_time, on_time_cycles) = gap.on_time;
+                let guess = on_time.extrapolated(1);
+                on_time.record(&s, on_time_cycles);
+                let (mut b, cycles) = gap.late;
                 b.record(&s, cycles);
                 // Replacing them if it came late: the state then shows the robot's next guess instead of it. Where
                 // that guess is our command (a constant acceleration, such as the filter's brake at its limit: the
                 // same law), in q_d, dq_d and ddq_d alike, only the cycle counted lost tells.
-                let guess = h.extrapolated(1);
                 let late = !within(&s, q_d)
                     || missed_its_cycle
-                    || (!within_velocity(&ours.v, dq_d) && within_velocity(&guess.v, dq_d));
+                    || (!within_velocity(&on_time.v, dq_d) && within_velocity(&guess.v, dq_d));
                 // Replacing them on time too if our last command before them came late and rewound them; the
                 // reported velocity tells (its published derivatives are its history's): the two differ by half a
                 // cycle of acceleration, far above float32 rounding whenever it matters.
-                if late || distance(&b.v, dq_d) < distance(&ours.v, dq_d) {
+                if late || distance(&b.v, dq_d) < distance(&on_time.v, dq_d) {
                     return Some(self.continue_from(b, ResyncFrom::LateOverCycles(cycles)));
+                }
+                // On time, over the cycles the robot's history skipped: its velocity is their mean, below ours.
+                if on_time_cycles > 1 {
+                    return Some(self.continue_from(on_time, ResyncFrom::LateOverCycles(on_time_cycles)));
                 }
             }
             if within(&s, q_d) || self.late_commands_applied {
@@ -170,9 +192,12 @@ impl RobotSetpoints {
         let gap = ours.extrapolated(missed_states);
         if self.late_commands_applied || within(&gap.q, q_d) {
             if self.late_commands_applied {
-                // Which history the robot keeps shows once our next command is in (see `before_gap`); until then
-                // the gap's guesses are where a smooth continuation goes either way.
-                self.before_gap = Some((ours, missed_states + 1));
+                // Which history the robot keeps shows once our next command is in (see `Gap`); until then the gap's
+                // guesses are where a smooth continuation goes either way (the robot differences our next command
+                // over the cycles between them and the history it shows, whichever that is).
+                let shown = extrapolations_shown(&ours, missed_states, q_d);
+                let on_time = (ours.extrapolated(shown), missed_states + 1 - shown);
+                self.before_gap = Some(Gap { on_time, late: (ours, missed_states + 1) });
             }
             let at_rest = gap.q == s && gap.v.iter().chain(&gap.a).all(|&x| x == 0.0);
             if at_rest {
@@ -206,6 +231,14 @@ impl RobotSetpoints {
     fn robot(&mut self, reported: History) -> History {
         self.continue_from(reported, ResyncFrom::RobotReport)
     }
+}
+
+/// Applied mode, after `missed` unseen states: how many cycles the robot extrapolated after our last command `ours`,
+/// as `q_d` shows. Fewer than `missed` where that command came late: the robot threw away the guesses it replaced and
+/// guessed only the cycles after it arrived (measured: three unseen states, two guesses, a reflex at 13.65 rad/s²).
+/// `missed` where nothing else matches (the robot's guesses of our last command itself; at rest, any).
+fn extrapolations_shown(ours: &History, missed: u64, q_d: &[f64; JOINTS]) -> u64 {
+    (0..=missed).rev().find(|&k| within(&ours.extrapolated(k).q, q_d)).unwrap_or(missed)
 }
 
 /// The largest difference between two joint vectors.
@@ -465,6 +498,54 @@ mod tests {
         let mut robot = before;
         robot.record(&c1, 2);
         assert_eq!(r, robot);
+        assert_eq!(s.last_from, Some(ResyncFrom::LateOverCycles(2)));
+    }
+
+    /// The reflex of 2026-11-26 (franka-sim: 13.65 rad/s² on joint 5 where the filter braked at ~9.1), with the
+    /// HAL's logged joint-4 trace braking at −9 rad/s²: our last command before three unseen states (`c(2)`) reached
+    /// franka-sim two cycles late. It rewound both guesses, recorded `c(2)`, and guessed only the last two cycles,
+    /// so the 4 ms state shows `c(2)` plus two extrapolated cycles (not three), and franka-sim differences our next
+    /// command over the two cycles its history skipped: its velocity there is their mean, and a command continuing
+    /// from a one-cycle history read as 1.5× our acceleration.
+    #[test]
+    fn applied_a_command_late_by_two_cycles_before_three_unseen_states_makes_the_next_differenced_over_two() {
+        let mut start = History { q: [0.5; JOINTS], v: ZERO, a: ZERO };
+        (start.q[3], start.v[3], start.a[3]) = (-1.5830233, -0.47187, -9.0);
+        let [q, v, a] = report(&start);
+        let start = History { q, v, a };
+        let c = |k| start.extrapolated(k).q;
+        let mut s = RobotSetpoints::new(true);
+        assert_eq!(s.observe(&q, &v, &a, 0.99, 0), None);
+        s.sent(c(1));
+        let mut robot = start;
+        robot.record(&c(1), 1);
+        let [q, v, a] = report(&robot);
+        assert_eq!(s.observe(&q, &v, &a, 0.99, 0), None);
+        // c(2) reaches the robot two cycles late: it throws away its two guesses, records c(2) over one cycle, and
+        // guesses the two cycles left before the state we see (as logged, to its printed digits).
+        s.sent(c(2));
+        robot.record(&c(2), 1);
+        let shown = robot.extrapolated(2);
+        assert!((shown.q[3] - -1.5850009).abs() < 3e-7 && (shown.v[3] - -0.50787).abs() < 1e-5, "as logged: {shown:?}");
+        // The state after the unseen ones: the filter continues from our command's three cycles extrapolated, the
+        // robot's two extrapolated and one more, so that our next command is judged below our acceleration.
+        let [q, v, a] = report(&shown);
+        let r = s.observe(&q, &v, &a, 0.96, 3).expect("the resync over the unseen states");
+        let c4 = r.extrapolated(1).q;
+        s.sent(c4);
+        robot = shown;
+        robot.record(&c4, 2);
+        assert!(robot.a[3].abs() <= 10.0, "{}", robot.a[3]);
+        // The next state shows our command recorded over two cycles; the filter brakes on at −9 from there.
+        let [q, v, a] = report(&robot);
+        let r = s.observe(&q, &v, &a, 0.96, 0);
+        let mut next = r.or(s.history).expect("a history");
+        next.a[3] = -9.0;
+        let before = robot;
+        robot.record(&next.extrapolated(1).q, 1);
+        let jerk = (robot.a[3] - before.a[3]) / DT;
+        assert!(robot.a[3].abs() <= 10.0 && jerk.abs() <= 5000.0, "{} rad/s², {jerk} rad/s³", robot.a[3]);
+        assert_eq!(r, Some(before), "the robot's history, exactly");
         assert_eq!(s.last_from, Some(ResyncFrom::LateOverCycles(2)));
     }
 }
