@@ -68,6 +68,10 @@ pub struct ServoConfig {
     pub position_margin: f64,
     /// Reset moves to a start pose end when every joint is this close and the smoother is at rest (rad).
     pub settle_tolerance: f64,
+    /// Reset moves to a start pose run at this fraction of the planning velocity limits (0, 1]; the policy's
+    /// motions run at full speed.
+    #[serde(default = "default_reset_speed")]
+    pub reset_speed: f64,
 }
 
 #[derive(Debug, Clone, Deserialize)]
@@ -135,6 +139,9 @@ fn default_max_consecutive_send_errors() -> u64 {
 fn yes() -> bool {
     true
 }
+fn default_reset_speed() -> f64 {
+    0.5
+}
 fn default_servo_priority() -> i32 {
     80
 }
@@ -169,6 +176,9 @@ impl DaemonConfig {
         positive("handshake_timeout_s", self.handshake_timeout_s)?;
         positive("servo.stale_state_ms", self.servo.stale_state_ms)?;
         positive("servo.settle_tolerance", self.servo.settle_tolerance)?;
+        if !(self.servo.reset_speed.is_finite() && self.servo.reset_speed > 0.0 && self.servo.reset_speed <= 1.0) {
+            return bad("servo.reset_speed", format!("must be in (0, 1], got {}", self.servo.reset_speed));
+        }
         if !(self.servo.position_margin.is_finite() && (0.0..0.5).contains(&self.servo.position_margin)) {
             return bad(
                 "servo.position_margin",

@@ -149,6 +149,8 @@ pub struct ServoTick {
     g_lo: f64,
     g_hi: f64,
     settle_tolerance: f64,
+    /// Resets move at this fraction of the velocity limits (`servo.reset_speed`).
+    reset_speed: f64,
     last_state: RobotState,
     /// The HAL has followed this session at least once (so a HOLDING status afterwards means it stopped).
     followed: bool,
@@ -199,6 +201,7 @@ impl ServoTick {
             g_lo: profile.gripper_min,
             g_hi: profile.gripper_max,
             settle_tolerance: cfg.servo.settle_tolerance,
+            reset_speed: cfg.servo.reset_speed,
             last_state: RobotState::default(),
             followed: false,
             refused_for_content: false,
@@ -347,6 +350,8 @@ impl ServoTick {
                 self.pose = pose;
                 self.gripper_target = gripper.clamp(self.g_lo, self.g_hi);
                 self.phase = Phase::Resetting;
+                // A valid speed, checked with the config: setting it cannot fail.
+                let _ = self.smoother.set_speed(self.reset_speed);
             }
             _ => {}
         }
@@ -410,6 +415,7 @@ impl ServoTick {
                     }
                     self.schedule.hold(now, &hold);
                     self.phase = Phase::Ready;
+                    let _ = self.smoother.set_speed(1.0);
                 }
                 r
             }

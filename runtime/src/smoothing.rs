@@ -101,6 +101,8 @@ pub enum SmoothingError {
     TimeStep(f64),
     #[error("safety factor {0} must be finite and in (0, 1]")]
     SafetyFactor(f64),
+    #[error("speed {0} must be finite and in (0, 1]")]
+    Speed(f64),
     #[error("joint {joint}: {kind} limit {value} must be finite and positive")]
     Limit { joint: usize, kind: &'static str, value: f64 },
     #[error("{what} has {got} values but the smoother drives {expected} joints")]
@@ -121,8 +123,10 @@ pub enum SmoothingError {
 /// [`new`]: Smoother::new
 pub struct Smoother {
     n: usize,
-    /// Scaled limits, as given to ruckig.
+    /// Scaled limits, as given to ruckig (times `speed`).
     max_velocity: [f64; MAX_JOINTS],
+    /// The same at full speed.
+    full_velocity: [f64; MAX_JOINTS],
     safety_factor: f64,
     /// Position-dependent velocity bounds, tightened for ruckig's lag, and the braking their envelope allows.
     position_dependent: Option<([JointVelocityBound; MAX_JOINTS], [f64; MAX_JOINTS])>,
@@ -196,6 +200,7 @@ impl Smoother {
         let mut s = Smoother {
             n,
             max_velocity,
+            full_velocity: max_velocity,
             safety_factor,
             position_dependent,
             otg: Ruckig::new(None, dt_s),
@@ -205,6 +210,23 @@ impl Smoother {
         };
         s.reset(&[0.0; MAX_JOINTS])?;
         Ok(s)
+    }
+
+    /// Plans the next motions at `speed` (0 < speed ≤ 1) of the velocity limits (e.g. slower moves to a start pose,
+    /// as libfranka's examples make them). A motion faster than the new limit is brought down to it within the
+    /// acceleration and jerk limits. Allocation-free.
+    pub fn set_speed(&mut self, speed: f64) -> Result<(), SmoothingError> {
+        if !(speed.is_finite() && speed > 0.0 && speed <= 1.0) {
+            return Err(SmoothingError::Speed(speed));
+        }
+        for i in 0..self.n {
+            self.max_velocity[i] = (speed * self.full_velocity[i]).max(MIN_VELOCITY_LIMIT);
+            if self.position_dependent.is_none() {
+                self.input.max_velocity[i] = self.max_velocity[i];
+            }
+        }
+        // Position-dependent bounds: `velocity_limits_here` caps the envelope at the new limit from the next step.
+        Ok(())
     }
 
     pub fn joints(&self) -> usize {

@@ -569,3 +569,36 @@ fn one_joint_matches_the_closed_form_time_optimal_duration() {
         assert!((t - t_opt).abs() <= 1.5 * dt, "d = {d}: arrived after {t} s, closed form {t_opt} s");
     }
 }
+
+/// `set_speed` caps every joint's velocity at that fraction of its planning limit (a long move reaches the cap and
+/// never passes it), with both kinds of velocity limits; back at full speed the same move goes faster; a speed
+/// outside (0, 1] is refused and changes nothing; and changing it allocates nothing.
+#[test]
+fn set_speed_caps_the_velocity_at_its_fraction_of_the_limits() {
+    for p in [fr3(), fr3_position_dependent()] {
+        let n = 7;
+        let full = Limits::from_profile(&p);
+        let peak = |speed: f64| {
+            let mut s = smoother(&p, n);
+            let allocs = allocations_in(|| s.set_speed(speed).unwrap());
+            assert_eq!(allocs, 0);
+            let mut target = [0.0; MAX_JOINTS];
+            target[..n].copy_from_slice(&p.home);
+            target[0] += 1.5; // joint 1: ±2.9 rad of range, so the bound stays the constant cap here
+            let mut peak: f64 = 0.0;
+            for _ in 0..3000 {
+                let k = s.track(&target, &[0.0; MAX_JOINTS]).unwrap();
+                peak = peak.max(k.velocity[0].abs());
+            }
+            peak
+        };
+        let cap = DEFAULT_SAFETY_FACTOR * full.velocity[0];
+        let (half, whole) = (peak(0.5), peak(1.0));
+        assert!(half <= 0.5 * cap + 1e-9 && half > 0.49 * cap, "half speed: peak {half}, cap {cap}");
+        assert!(whole > 0.9 * cap, "full speed: peak {whole}, cap {cap}");
+        let mut s = smoother(&p, n);
+        for bad in [0.0, -0.5, 1.5, f64::NAN] {
+            assert!(s.set_speed(bad).is_err(), "{bad}");
+        }
+    }
+}
