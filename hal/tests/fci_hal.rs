@@ -243,7 +243,9 @@ fn the_hal_drives_franka_sim_from_its_measured_pose_and_brakes_on_command_loss_w
     let mut rig = Rig::start();
     // Nothing commanded yet: the arm stays where it was measured (the HAL never moves an arm unasked).
     let idle = rig.watch(Duration::from_millis(500)).to_vec();
-    assert!(idle.len() > 300, "{} frames in 0.5 s", idle.len());
+    // Frames keep coming while the HAL holds (franka-sim's own rate falls to a third of real time on a busy VM:
+    // 171 frames in 0.5 s seen; the claim here is that the loop runs, not the simulator's speed).
+    assert!(idle.len() > 100, "{} frames in 0.5 s", idle.len());
     // The first frame carries the measurement the HAL started from.
     let start = q7(&rig.frames[0]);
     for f in &idle {
@@ -330,7 +332,9 @@ fn sigterm_mid_motion_brakes_to_rest_before_the_hal_releases_the_robot_and_a_hal
     assert!(away(&q7(&first), &home) > 0.3 && away(&q7(&first), &start) > 0.1, "{:?}", q7(&first));
     assert!(away(&q7(&first), &left_at) < 1e-3, "the arm is where the first HAL left it");
     let idle = rig.watch(Duration::from_millis(500)).to_vec();
-    assert!(idle.len() > 300, "{} frames in 0.5 s", idle.len());
+    // Frames keep coming while the HAL holds (franka-sim's own rate falls to a third of real time on a busy VM:
+    // 171 frames in 0.5 s seen; the claim here is that the loop runs, not the simulator's speed).
+    assert!(idle.len() > 100, "{} frames in 0.5 s", idle.len());
     for f in &idle {
         assert_eq!(f.hold_reason, HoldReason::NoSession as u32);
         assert_eq!((f.fault, f.robot_errors), (0, 0));
