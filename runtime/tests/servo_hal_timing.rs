@@ -60,6 +60,7 @@ struct Rig {
     logger: EventLogger,
     servo: ServoTick,
     rng: Lcg,
+    profile: Profile,
     q_lo: Vec<f64>,
     q_hi: Vec<f64>,
     resets: u64,
@@ -79,7 +80,7 @@ impl Rig {
         let servo = ServoTick::new(&cfg, &profile, 7).unwrap();
         let (q_lo, q_hi) = profile.position_limits();
         let rng = Lcg(seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1);
-        Self { sim, hal, ev, logger, servo, rng, q_lo, q_hi, resets, episode: 0, finishing: false }
+        Self { sim, hal, ev, logger, servo, rng, profile, q_lo, q_hi, resets, episode: 0, finishing: false }
     }
 
     /// The servo's tick at `now` with the frames that arrived since its last one: the next reset (or the finish
@@ -157,10 +158,8 @@ impl Rig {
 fn run(seed: u64, resets: u64, p_fault: f64) -> Outcome {
     let mut rig = Rig::new(seed, resets);
     let n = rig.q_lo.len();
-    let (dq_max, ddq_max, jerk_max) = {
-        let p = Profile::load(&root().join("configs/fr3.toml")).unwrap();
-        (p.dq_max, p.ddq_max, p.jerk_max)
-    };
+    let (dq_max, ddq_max, jerk_max) =
+        (rig.profile.dq_max.clone(), rig.profile.ddq_max.clone(), rig.profile.jerk_max.clone());
     // Frames in flight to the servo and commands in flight to the HAL, with the time they were sent.
     let mut to_servo: Vec<RobotState> = Vec::new();
     let mut to_hal: Vec<JointCommand> = Vec::new();
