@@ -350,8 +350,11 @@ impl ServoTick {
                 self.pose = pose;
                 self.gripper_target = gripper.clamp(self.g_lo, self.g_hi);
                 self.phase = Phase::Resetting;
-                // A valid speed, checked with the config: setting it cannot fail.
-                let _ = self.smoother.set_speed(self.reset_speed);
+                // The config checked the speed; were it refused anyway, moving at full speed would be a silent
+                // fallback: stop instead.
+                if self.smoother.set_speed(self.reset_speed).is_err() {
+                    self.stop_with(StopCause::Trip(Trip::Smoothing));
+                }
             }
             _ => {}
         }
@@ -415,7 +418,7 @@ impl ServoTick {
                     }
                     self.schedule.hold(now, &hold);
                     self.phase = Phase::Ready;
-                    let _ = self.smoother.set_speed(1.0);
+                    self.smoother.set_speed(1.0).expect("1.0 is a valid speed");
                 }
                 r
             }
