@@ -42,6 +42,20 @@ pub struct EpisodeResult {
     pub late_chunks: u64,
 }
 
+/// How many late chunks a report times.
+pub const LATE_CHUNKS_KEPT: usize = 16;
+
+/// A chunk ready after the servo needed it (CLOCK_MONOTONIC ns, the HAL's frame clock).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct LateChunk {
+    /// When the policy loop woke to compute it (observation, then inference).
+    pub woke_ns: u64,
+    /// When the servo needed it.
+    pub need_ns: u64,
+    /// When it was ready.
+    pub ready_ns: u64,
+}
+
 /// Totals of the policy loop.
 #[derive(Debug, Clone, Default, Serialize)]
 pub struct PolicyReport {
@@ -57,6 +71,8 @@ pub struct PolicyReport {
     pub capped: u64,
     /// Chunks ready after the servo needed them.
     pub late_chunks: u64,
+    /// The first [`LATE_CHUNKS_KEPT`] of them, timed: what a stall of the machine must cover to explain each.
+    pub late_chunk_times: Vec<LateChunk>,
     /// Calls that could not fit even K = 1; their chunks were dropped.
     pub over_budget: u64,
     pub engine_errors: u64,
@@ -115,6 +131,7 @@ impl PolicyLoop {
     pub fn run(mut self, cfg: &DaemonConfig) -> PolicyReport {
         let mut report = PolicyReport {
             episodes: crate::tally::EpisodeTally::new(self.task.mode_names().len(), cfg.traces_kept),
+            late_chunk_times: Vec::with_capacity(LATE_CHUNKS_KEPT),
             ..Default::default()
         };
         let episodes = if cfg.episodes == 0 { u64::MAX } else { cfg.episodes as u64 };
@@ -374,6 +391,9 @@ impl PolicyLoop {
             k_sum += out.k_used as u64;
             if ready > need_ns {
                 report.late_chunks += 1;
+                if report.late_chunk_times.len() < LATE_CHUNKS_KEPT {
+                    report.late_chunk_times.push(LateChunk { woke_ns: now, need_ns, ready_ns: ready });
+                }
                 ep_late += 1;
                 if faults.late.bad() {
                     self.request(Request::Trip(Trip::LateChunks));

@@ -30,6 +30,9 @@ pub struct DeadlineMisses {
     /// Servo periods skipped because a tick ran a whole period late.
     pub servo_missed_periods: u64,
     pub late_chunks: u64,
+    /// The first late chunks' inference windows (all of them when `late_chunks` is at most
+    /// [`crate::policy_loop::LATE_CHUNKS_KEPT`]).
+    pub late_chunk_times: Vec<crate::policy_loop::LateChunk>,
     pub over_budget: u64,
     /// Actions of late chunks that were already due, dropped.
     pub actions_dropped: u64,
@@ -177,6 +180,7 @@ impl Summary {
             deadline_misses: DeadlineMisses {
                 servo_missed_periods: s.missed_periods,
                 late_chunks: p.late_chunks,
+                late_chunk_times: p.late_chunk_times.clone(),
                 over_budget: p.over_budget,
                 actions_dropped: s.counters.actions_dropped,
                 starved_ticks: s.counters.starved_ticks,

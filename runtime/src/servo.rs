@@ -372,6 +372,15 @@ impl ServoTick {
         {
             self.pending = *c;
         }
+        // A tick that found no new frame (its clock ran ahead of the robot's, as franka-sim's does under load, or it
+        // woke twice in one HAL period) sends nothing and leaves the motion where it is: the HAL follows one answer
+        // per frame, so a second one would only put the motion ahead of the joints. Nor does it adopt a chunk: the
+        // first command from a chunk is the one that reports its camera's capture → command latency. A stop brakes
+        // on regardless, so that it ends even when frames have stopped coming (the HAL brakes on its own then).
+        if input.frame.is_none() && self.seq > 0 && self.phase != Phase::Stopping {
+            self.counters.frameless_ticks += 1;
+            return out;
+        }
         if matches!(self.phase, Phase::Ready | Phase::Running)
             && self.pending.seq > self.schedule.current_seq()
             && self.pending.episode == self.episode
@@ -386,14 +395,6 @@ impl ServoTick {
         }
 
         // 4. Motion for the next tick — one per state frame, as libfranka's controller answers each robot packet.
-        // A tick that found no new frame (its clock ran ahead of the robot's, as franka-sim's does under load, or it
-        // woke twice in one HAL period) sends nothing and leaves the motion where it is: the HAL follows one answer
-        // per frame, so a second one would only put the motion ahead of the joints. A stop brakes on regardless, so
-        // that it ends even when frames have stopped coming (the HAL brakes on its own then).
-        if input.frame.is_none() && self.seq > 0 && self.phase != Phase::Stopping {
-            self.counters.frameless_ticks += 1;
-            return out;
-        }
         let next = now + self.dt_ns;
         let mut target = [0.0; MAX_JOINTS];
         let mut target_v = [0.0; MAX_JOINTS];

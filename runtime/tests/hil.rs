@@ -46,8 +46,10 @@ fn marsd_session(r: &Recorded) -> u64 {
 /// - marsd stopped on a timing trip (stale state, tick overruns, the HAL's command timeout), and in the window
 ///   around the trip (its time from marsd's "watchdog trip" log line) the HAL — the highest-priority process,
 ///   SCHED_FIFO 85 — published no frame for ≥ 15 ms, or the VM's steal time grew;
-/// - or, without a trip, its servo missed more than `missed_limit` periods, and the HAL itself missed at least
-///   the excess in frame gaps of the same run (nothing of the rig ran then).
+/// - or, without a trip, its servo missed more than `missed_limit` periods, or chunks were late, and each is
+///   covered: the HAL itself missed at least the excess periods in frame gaps of the same run (nothing of the rig
+///   ran then), and while each late chunk was computed the HAL froze, or the hypervisor stole, at least as long
+///   as the chunk was late.
 fn machine_stall_explains(r: &Recorded, s: &serde_json::Value, marsd: &Proc, missed_limit: u64) -> Option<String> {
     let trip = s["trip"].as_str();
     if let Some(trip) = trip {
@@ -61,18 +63,49 @@ fn machine_stall_explains(r: &Recorded, s: &serde_json::Value, marsd: &Proc, mis
         eprintln!("around the trip ({trip}): {e}");
         return e.is_stall().then(|| format!("marsd tripped ({trip}) and {e}"));
     }
+    let mut explained = Vec::new();
     let missed = u64_at(s, "/deadline_misses/servo_missed_periods");
-    let gaps = hal_gaps(r);
-    let hal_missed = mars_runtime::stall::hal_missed_periods(&gaps, 1.0);
-    (missed > missed_limit && hal_missed >= missed - missed_limit).then(|| {
-        format!(
+    if missed > missed_limit {
+        let gaps = hal_gaps(r);
+        let hal_missed = mars_runtime::stall::hal_missed_periods(&gaps, 1.0);
+        if hal_missed < missed - missed_limit {
+            return None;
+        }
+        explained.push(format!(
             "the servo missed {missed} periods (limit {missed_limit}) while the HAL itself missed {hal_missed} in \
              {} frame gaps ≥ {} ms (longest {:.1} ms)",
             gaps.len(),
             mars_runtime::stall::MIN_GAP_MS,
             gaps.iter().map(|g| g.ms()).fold(0.0, f64::max)
-        )
-    })
+        ));
+    }
+    let late = u64_at(s, "/deadline_misses/late_chunks");
+    if late > 0 {
+        let times = s["deadline_misses"]["late_chunk_times"].as_array().cloned().unwrap_or_default();
+        if times.len() as u64 != late {
+            eprintln!("{late} late chunks, {} of them timed: no evidence for the rest", times.len());
+            return None;
+        }
+        // Any pause of the HAL longer than its period counts here: the lateness may be a few ms.
+        let gaps = mars_runtime::stall::frame_gaps(r.states.iter().map(|(f, _)| (f.seq, f.timestamp_ns)), 1.5);
+        for t in &times {
+            let at = |k: &str| t[k].as_u64().unwrap_or_else(|| panic!("late chunk without {k}: {t}"));
+            let e = mars_runtime::stall::around_late_chunk(
+                at("woke_ns"),
+                at("need_ns"),
+                at("ready_ns"),
+                &gaps,
+                1.0,
+                &r.steal,
+            );
+            eprintln!("late chunk: {e}");
+            if !e.is_stall() {
+                return None;
+            }
+            explained.push(e.to_string());
+        }
+    }
+    (!explained.is_empty()).then(|| explained.join("; "))
 }
 
 /// Test 1: The shipped config, 10 episodes: success, both grasps, no limit violation anywhere, no allocation in the

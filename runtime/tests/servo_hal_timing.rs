@@ -371,3 +371,71 @@ fn a_robot_slower_than_the_servo_clock_gets_one_command_per_frame_and_none_clamp
         assert!(o.frameless > 0, "the servo's clock ran ahead: period {period_us} µs: {o:?}");
     }
 }
+
+/// A chunk that becomes due in a tick with no new frame is adopted in the next tick that has one, and that tick's
+/// command reports the chunk's camera capture time: every adopted chunk gets its capture → command latency (CI saw
+/// 22 latencies for 23 adopted chunks when the frameless tick adopted and sent nothing).
+#[test]
+fn a_chunk_due_in_a_frameless_tick_reports_its_capture_with_the_next_command() {
+    use mars_runtime::chunk::TimedChunk;
+    let root = root();
+    let cfg = DaemonConfig::load(&root.join("configs/marsd.toml")).unwrap();
+    let profile = Profile::load(&root.join("configs/fr3.toml")).unwrap();
+    let mut servo = ServoTick::new(&cfg, &profile, 7).unwrap();
+    let n = profile.home.len();
+    let frame = |seq: u64, now: u64| {
+        let mut f = RobotState { seq, timestamp_ns: now, num_joints: n as u32, gripper: 0.07, ..Default::default() };
+        f.position[..n].copy_from_slice(&profile.home);
+        f.applied_position[..n].copy_from_slice(&profile.home);
+        f
+    };
+    fn input<'a>(
+        now: u64,
+        frame: Option<&'a RobotState>,
+        chunk: Option<&'a TimedChunk>,
+        request: Option<Request>,
+    ) -> TickInput<'a> {
+        TickInput { now_ns: now, missed: 0, frame, chunk, request, stop_requested: false, hal_gone: false }
+    }
+    // At home, a reset to home: the servo is at rest there at once and waits for the policy's chunk.
+    let mut pose = [0.0; MAX_JOINTS];
+    pose[..n].copy_from_slice(&profile.home);
+    let t0 = 1000 * MS;
+    let (f1, f2) = (frame(1, t0), frame(2, t0 + MS));
+    servo.tick(&input(t0, Some(&f1), None, None));
+    servo.tick(&input(t0 + MS, Some(&f2), None, Some(Request::MoveTo { episode: 1, pose, gripper: 0.07 })));
+    let mut now = t0 + 2 * MS;
+    for seq in 3.. {
+        let f = frame(seq, now);
+        assert!(servo.tick(&input(now, Some(&f), None, None)).command.is_some());
+        now += MS;
+        if servo.phase() == Phase::Ready {
+            break;
+        }
+        assert!(seq < 100, "the reset to the pose it is at never settled: {:?}", servo.phase());
+    }
+    // A chunk holding the pose, its first action due now: adoptable at once.
+    let mut chunk = TimedChunk {
+        seq: 1 << 32 | 1,
+        episode: 1,
+        first_due_ns: now + MS,
+        period_ns: 10 * MS,
+        len: 4,
+        ready_ns: now,
+        capture_ns: now - 20 * MS,
+        ..Default::default()
+    };
+    for a in chunk.actions.iter_mut().take(4) {
+        a[..n].copy_from_slice(&profile.home);
+        a[n] = 0.07;
+    }
+    let frameless = servo.tick(&input(now, None, Some(&chunk), None));
+    assert!(frameless.command.is_none() && frameless.adopted_capture_ns.is_none(), "{frameless:?}");
+    assert_eq!(servo.counters.chunks_adopted, 0, "adopted in a tick that sent nothing");
+    let f = frame(1000, now + MS / 2);
+    let next = servo.tick(&input(now + MS / 2, Some(&f), None, None));
+    assert!(next.command.is_some(), "{next:?}");
+    assert_eq!(next.adopted_capture_ns, Some(chunk.capture_ns));
+    assert_eq!(servo.counters.chunks_adopted, 1);
+    assert_eq!(servo.phase(), Phase::Running);
+}
