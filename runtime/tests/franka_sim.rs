@@ -112,6 +112,93 @@ fn assert_no_reflex<'a>(hal_stdout: &'a str, hal_stderr: &str, sim_log: &str) ->
     line
 }
 
+/// What a test did to the robot's state stream itself, so that only the rest counts as evidence.
+#[derive(Clone, Copy, PartialEq)]
+enum Injected {
+    Nothing,
+    /// The HAL stopped for several ms at a time: the states it never saw then come in stretches of more than
+    /// `mars_hal::fci::recent_cycles::SHORT_STRETCH`.
+    LongStalls,
+}
+
+/// Whether the robot's reflexes in the HAL's report (its stdout) are explained by franka-sim's own timing rather than
+/// by the HAL, with the evidence tied to each reflex: in the 64 cycles before it, the simulator (a Python process,
+/// here on a loaded 2-core machine) delivered states bunched (two within half a period: it caught up after a pause
+/// of its own), or, beyond what the test injected, states the HAL never saw. After such states the HAL can only
+/// guess which command franka-sim applied (it applies late commands, unlike an FR3 — `setpoint_sync`), and a wrong
+/// guess reads to it as a discontinuity. `None` without a reflex, or if any reflex lacks that evidence.
+fn reflexes_follow_irregular_states(hal_out: &str, injected: Injected) -> Option<String> {
+    let reflexes: Vec<&str> = hal_out.lines().filter(|l| l.trim_start().starts_with("reflex ")).collect();
+    if reflexes.is_empty() {
+        return None;
+    }
+    for line in &reflexes {
+        let tail = &line[line.find("cycles before it:")?..];
+        let unseen = number_after(tail, "cycles before it:");
+        let short = number_after(tail, "at once;");
+        let bunched = number_after(tail, "),");
+        let explained = bunched > 0.0
+            || match injected {
+                Injected::Nothing => unseen > 0.0,
+                Injected::LongStalls => short > 0.0,
+            };
+        if !explained {
+            return None;
+        }
+    }
+    Some(reflexes.iter().map(|l| l.trim()).collect::<Vec<_>>().join("\n"))
+}
+
+/// The evidence rule on the HAL's own report text (its `Regularity`), without a simulator.
+#[test]
+fn a_reflex_counts_as_franka_sims_only_after_states_the_test_did_not_make_irregular() {
+    use mars_hal::fci::recent_cycles::Regularity;
+    let report = |r: Regularity| {
+        format!(
+            "  robot 127.0.0.1: 900 cycles, 1 reflexes\n  reflex 1: joint_motion_generator_acceleration_discontinuity \
+             (27 cycles after the last setpoint resync, over 0 unseen states, from LateOverCycles(4)); {r}\n"
+        )
+    };
+    let regular = Regularity { cycles: 64, ..Default::default() };
+    let stall = Regularity { unseen: 7, longest_unseen: 7, ..regular };
+    let hiccup = Regularity { unseen: 8, longest_unseen: 7, short_unseen: 1, ..regular };
+    let bunched = Regularity { bunched: 1, ..stall };
+    for injected in [Injected::Nothing, Injected::LongStalls] {
+        assert!(reflexes_follow_irregular_states(&report(regular), injected).is_none());
+        assert!(reflexes_follow_irregular_states(&report(hiccup), injected).is_some());
+        assert!(reflexes_follow_irregular_states(&report(bunched), injected).is_some());
+    }
+    // An 8 ms stop the test injected explains nothing in that test; elsewhere it is the machine's.
+    assert!(reflexes_follow_irregular_states(&report(stall), Injected::LongStalls).is_none());
+    assert!(reflexes_follow_irregular_states(&report(stall), Injected::Nothing).is_some());
+    // No reflex, or one without the account: no evidence.
+    assert!(reflexes_follow_irregular_states("  robot 127.0.0.1: 900 cycles, 0 reflexes", Injected::Nothing).is_none());
+    assert!(reflexes_follow_irregular_states("  reflex 1: joint_reflex", Injected::Nothing).is_none());
+}
+
+/// Runs `attempt` (given its number) up to twice: a first attempt that returns false (its failure explained by
+/// franka-sim's timing, evidence printed) is run again; the second must pass.
+fn with_one_rerun(what: &str, attempt: impl Fn(u32) -> bool) {
+    for n in 1..=2 {
+        if attempt(n) {
+            return;
+        }
+    }
+    panic!("{what}: two runs in a row were spoiled by franka-sim's timing (see above)");
+}
+
+/// On a first attempt whose HAL report shows reflexes that franka-sim's irregular states explain: prints the
+/// evidence and says so (the caller returns false to run again).
+fn rerun_for_irregular_states(attempt: u32, what: &str, hal_out: &str, injected: Injected) -> bool {
+    let why = if attempt == 1 { reflexes_follow_irregular_states(hal_out, injected) } else { None };
+    if let Some(why) = &why {
+        eprintln!(
+            "RERUN {what}: attempt 1 is inconclusive: franka-sim's states came irregularly before each reflex:\n{why}"
+        );
+    }
+    why.is_some()
+}
+
 /// Each session frame's velocity of every joint within the FR3's position-dependent bound at its position, up to
 /// `slack`; `pick` reads (position, velocity) of joint j from a frame. Returns the least room seen (rad/s, seq,
 /// joint).
@@ -168,10 +255,15 @@ fn assert_measured_velocity_within_the_bounds(r: &Recorded) {
 #[test]
 fn pick_cup_succeeds_through_the_fci_hal_on_franka_sim_with_no_reflex() {
     franka_sim_venv();
+    with_one_rerun("Pick Cup on franka-sim", pick_cup_attempt);
+}
+
+/// One run of the Pick Cup test; false if franka-sim's timing explains its reflexes (first attempt only).
+fn pick_cup_attempt(attempt: u32) -> bool {
     let _sim_lock = franka_sim_lock();
     let _rt = rt_rig_lock();
-    let logs = TempDir::new("franka-sim-demo");
-    let robot = robot("fsdemo");
+    let logs = TempDir::new(&format!("franka-sim-demo{attempt}"));
+    let robot = robot(&format!("fsdemo{attempt}"));
     let mut cmd = Command::new(env!("CARGO_BIN_EXE_mars-hil"));
     cmd.args(["demo", "--backend", "franka-sim", "--episodes", "3", "--robot", &robot])
         .arg("--out")
@@ -179,6 +271,9 @@ fn pick_cup_succeeds_through_the_fci_hal_on_franka_sim_with_no_reflex() {
     let mut demo = spawn_named(cmd, "demo", &logs);
     let code = demo.exit_code(Duration::from_secs(300));
     let out = demo.stdout_text();
+    if rerun_for_irregular_states(attempt, "Pick Cup on franka-sim", &out, Injected::Nothing) {
+        return false;
+    }
     assert_eq!(code, 0, "{}", demo.logs());
     let s: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(logs.join("out/summary.json")).unwrap()).unwrap();
@@ -194,6 +289,7 @@ fn pick_cup_succeeds_through_the_fci_hal_on_franka_sim_with_no_reflex() {
     let sim_log = std::fs::read_to_string(logs.join("out/franka-sim.log")).unwrap_or_default();
     assert_robot_line_clean(&out, &demo.stderr_text(), &sim_log);
     assert!(find_line(&out, &["loop allocations after warm-up: 0 system-allocator calls"]).is_some(), "{out}");
+    true
 }
 
 /// The HAL clamps none of marsd's commands — except, an open problem (README "In the simulator"), one now and then
@@ -271,7 +367,13 @@ fn sigkill_of_marsd_mid_motion_brakes_the_fr3_to_rest_with_no_reflex() {
 /// within seconds (11–17 rad/s², 7000 rad/s³).
 #[test]
 fn a_hal_stalled_for_milliseconds_again_and_again_raises_no_reflex() {
-    let (rig, mut hal, rec, mut marsd) = start_on_franka_sim("fsstall", 2);
+    with_one_rerun("the stalled HAL on franka-sim", stalled_hal_attempt);
+}
+
+/// One run of the stalled-HAL test; false if franka-sim's timing, beyond the stalls injected, explains its
+/// reflexes (first attempt only).
+fn stalled_hal_attempt(attempt: u32) -> bool {
+    let (rig, mut hal, rec, mut marsd) = start_on_franka_sim(&format!("fsstall{attempt}"), 2);
     let pid = hal.pid();
     let stops = ProcessStops::start(move || Some(pid), Duration::from_millis(8), Duration::from_millis(300));
     let code = marsd.exit_code(Duration::from_secs(120));
@@ -279,6 +381,9 @@ fn a_hal_stalled_for_milliseconds_again_and_again_raises_no_reflex() {
     hal.signal(libc::SIGTERM);
     let hal_code = hal.exit_code(Duration::from_secs(10));
     let hal_out = hal.stdout_text();
+    if rerun_for_irregular_states(attempt, "the stalled HAL on franka-sim", &hal_out, Injected::LongStalls) {
+        return false;
+    }
     assert_no_reflex(&hal_out, &hal.stderr_text(), &rig.sim.log_text());
     assert_eq!((code, hal_code), (0, 0), "{}\n{}", marsd.logs(), hal.logs());
     let s = summary(&rig.logs, "marsd");
@@ -297,4 +402,5 @@ fn a_hal_stalled_for_milliseconds_again_and_again_raises_no_reflex() {
     let lost = number_after(line, "cycles,");
     eprintln!("{stalls} stalls of 8 ms: {line}");
     assert!(stalls >= 20 && lost >= 50.0, "{stalls} stalls, {lost} lost states: the stalls did not bite");
+    true
 }

@@ -38,6 +38,9 @@ use crate::runner::{Ended, HalLoop, Next, Report, RunOptions};
 /// A state that comes less than half the robot's 1 ms period after the one before is bunched behind it.
 const BUNCHED: Duration = Duration::from_micros(500);
 
+/// The cycles before a reflex whose regularity its report gives (and whose last few it logs).
+const REGULARITY_CYCLES: usize = 64;
+
 /// Why the HAL would not take the robot over: nothing was commanded.
 #[derive(Debug, thiserror::Error)]
 pub enum FciStartRefusal {
@@ -194,17 +197,15 @@ fn control(
     let mut cycles_in_motion = 0u64;
     let mut robot_setpoints = RobotSetpoints::new(profile.fci.late_commands == LateCommands::Applied);
     let mut last_resync: Option<(u64, u64)> = None;
-    let mut recent = RecentCycles::<8>::default();
+    let mut recent = RecentCycles::<REGULARITY_CYCLES>::default();
     let result = fci.robot().control_joint_positions(
         |state, period| {
             let woke = Instant::now();
+            let bunched = last.is_some_and(|prev| woke - prev < BUNCHED);
             if let Some(prev) = last {
-                let since = woke - prev;
-                hal.late_us.saturating_record(since.as_micros().saturating_sub(1000) as u64);
-                if since < BUNCHED {
-                    report.bunched_states += 1;
-                }
+                hal.late_us.saturating_record((woke - prev).as_micros().saturating_sub(1000) as u64);
             }
+            report.bunched_states += u64::from(bunched);
             last = Some(woke);
             // States the robot sent between the last one we saw and this one.
             let missed = period.as_millis().saturating_sub(1);
@@ -246,6 +247,7 @@ fn control(
                 ddq_d: state.ddq_d,
                 sent: cycle.command,
                 resynced: resync.is_some(),
+                bunched,
             });
             let mut cmd = JointPositions::new(cycle.command);
             if let Next::End(e) = next {
@@ -271,6 +273,8 @@ fn control(
                     report.cycles - at
                 );
             }
+            // How regularly the states came before it: the robot may have applied what the HAL could only guess.
+            why += &format!("; {}", recent.regularity());
             // The cycles before it, for the joint our last commands moved fastest (a discontinuity is usually there).
             let joint = (0..JOINTS)
                 .max_by(|&a, &b| {
@@ -278,7 +282,7 @@ fn control(
                     speed(a).total_cmp(&speed(b))
                 })
                 .unwrap_or(0);
-            warn!("the last cycles before the reflex, joint {}:{}", joint + 1, recent.describe(joint));
+            warn!("the last cycles before the reflex, joint {}:{}", joint + 1, recent.describe(joint, 8));
             Phase::Reflex(why)
         }
         (Err(e), _) => Phase::Lost(e.to_string()),

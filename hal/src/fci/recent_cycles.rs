@@ -1,5 +1,7 @@
 //! The last few robot cycles as the HAL saw them, kept in place (no allocation in the loop) and logged after a
-//! reflex: what the robot reported it applied next to what we sent, so a discontinuity can be traced to its cycle.
+//! reflex: what the robot reported it applied next to what we sent, so a discontinuity can be traced to its cycle,
+//! and how regularly its states came before it (a robot that skipped or bunched states leaves the HAL to guess what
+//! it applied meanwhile).
 
 use super::state::JOINTS;
 
@@ -12,6 +14,36 @@ pub struct CycleRecord {
     pub ddq_d: [f64; JOINTS],
     pub sent: [f64; JOINTS],
     pub resynced: bool,
+    /// The state came less than half a period after the one before.
+    pub bunched: bool,
+}
+
+/// The longest stretch of unseen states counted as short.
+pub const SHORT_STRETCH: u64 = 3;
+
+/// How regularly the robot's states came over the cycles kept.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Regularity {
+    pub cycles: usize,
+    /// States the robot sent that the HAL never saw.
+    pub unseen: u64,
+    /// The most unseen at once (one stretch).
+    pub longest_unseen: u64,
+    /// Unseen states in stretches of at most [`SHORT_STRETCH`]: a machine's hiccups, not a stall of seconds' worth.
+    pub short_unseen: u64,
+    /// States that came bunched behind the one before.
+    pub bunched: u64,
+}
+
+impl std::fmt::Display for Regularity {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "in the {} cycles before it: {} unseen states (at most {} at once; {} in stretches of 1-{SHORT_STRETCH}), {} \
+             bunched",
+            self.cycles, self.unseen, self.longest_unseen, self.short_unseen, self.bunched
+        )
+    }
 }
 
 /// A ring of the last `N` cycles.
@@ -40,17 +72,33 @@ impl<const N: usize> RecentCycles<N> {
         (0..self.len).map(move |i| &self.ring[(self.next + N - self.len + i) % N])
     }
 
-    /// One line per cycle for `joint`: period, q_d, dq_d, ddq_d, what we sent, and the velocity and acceleration
-    /// our command implies against the robot's reported setpoint (what the robot's differencing judges).
-    pub fn describe(&self, joint: usize) -> String {
-        let mut out = String::new();
+    /// Unseen and bunched states over the cycles kept.
+    pub fn regularity(&self) -> Regularity {
+        let mut r = Regularity { cycles: self.len, ..Default::default() };
         for c in self.iter() {
+            let unseen = c.period_ms.saturating_sub(1);
+            r.unseen += unseen;
+            r.longest_unseen = r.longest_unseen.max(unseen);
+            if unseen <= SHORT_STRETCH {
+                r.short_unseen += unseen;
+            }
+            r.bunched += u64::from(c.bunched);
+        }
+        r
+    }
+
+    /// One line per cycle for `joint`, the last `last` cycles: period, q_d, dq_d, ddq_d, what we sent, and the velocity and acceleration
+    /// our command implies against the robot's reported setpoint (what the robot's differencing judges).
+    pub fn describe(&self, joint: usize, last: usize) -> String {
+        let mut out = String::new();
+        for c in self.iter().skip(self.len.saturating_sub(last)) {
             let v = (c.sent[joint] - c.q_d[joint]) / 1e-3;
             let a = (v - c.dq_d[joint]) / 1e-3;
             out += &format!(
-                "\n    period {} ms{}: q_d {:.7} dq_d {:.5} ddq_d {:.3} | sent {:.7} → v {:.5} a {:.3}",
+                "\n    period {} ms{}{}: q_d {:.7} dq_d {:.5} ddq_d {:.3} | sent {:.7} → v {:.5} a {:.3}",
                 c.period_ms,
                 if c.resynced { " (resync)" } else { "" },
+                if c.bunched { " (bunched)" } else { "" },
                 c.q_d[joint],
                 c.dq_d[joint],
                 c.ddq_d[joint],
@@ -74,6 +122,17 @@ mod tests {
             r.push(CycleRecord { period_ms: p, ..Default::default() });
         }
         assert_eq!(r.iter().map(|c| c.period_ms).collect::<Vec<_>>(), vec![3, 4, 5]);
-        assert_eq!(r.describe(0).lines().count(), 4);
+        assert_eq!(r.describe(0, 8).lines().count(), 4);
+        assert_eq!(r.describe(0, 2).lines().count(), 3);
+        // Periods 3, 4, 5 ms: 2 + 3 + 4 unseen, at most 4 at once, 2 + 3 of them in short stretches.
+        let want = Regularity { cycles: 3, unseen: 9, longest_unseen: 4, short_unseen: 5, bunched: 0 };
+        assert_eq!(r.regularity(), want);
+        r.push(CycleRecord { period_ms: 1, bunched: true, ..Default::default() });
+        let want = Regularity { cycles: 3, unseen: 7, longest_unseen: 4, short_unseen: 3, bunched: 1 };
+        assert_eq!(r.regularity(), want);
+        assert_eq!(
+            want.to_string(),
+            "in the 3 cycles before it: 7 unseen states (at most 4 at once; 3 in stretches of 1-3), 1 bunched"
+        );
     }
 }
