@@ -248,6 +248,7 @@ fn control(
                 sent: cycle.command,
                 resynced: resync.is_some(),
                 bunched,
+                success_rate: state.control_command_success_rate,
             });
             let mut cmd = JointPositions::new(cycle.command);
             if let Next::End(e) = next {
@@ -275,13 +276,9 @@ fn control(
             }
             // How regularly the states came before it: the robot may have applied what the HAL could only guess.
             why += &format!("; {}", recent.regularity());
-            // The cycles before it, for the joint our last commands moved fastest (a discontinuity is usually there).
-            let joint = (0..JOINTS)
-                .max_by(|&a, &b| {
-                    let speed = |j: usize| recent.iter().map(|c| c.dq_d[j].abs()).fold(0.0, f64::max);
-                    speed(a).total_cmp(&speed(b))
-                })
-                .unwrap_or(0);
+            // The cycles before it, for the joint where our last commands implied the largest jerk against the
+            // robot's report (a discontinuity is usually there).
+            let joint = recent.roughest_joint(8);
             warn!("the last cycles before the reflex, joint {}:{}", joint + 1, recent.describe(joint, 8));
             Phase::Reflex(why)
         }
