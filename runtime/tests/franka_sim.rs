@@ -182,27 +182,31 @@ fn a_reflex_counts_as_franka_sims_only_after_states_the_test_did_not_make_irregu
     assert!(reflexes_follow_irregular_states("  reflex 1: joint_reflex", Injected::Nothing).is_none());
 }
 
-/// Runs `attempt` (given its number) up to twice: a first attempt that returns false (its failure explained by
-/// franka-sim's timing, evidence printed) is run again; the second must pass.
-fn with_one_rerun(what: &str, attempt: impl Fn(u32) -> bool) {
-    for n in 1..=2 {
+/// Attempts a franka-sim test may take: on this noisy 2-core VM franka-sim runs at a third to two thirds of real
+/// time some days, and a reflex explained as below came in about one run of these tests in three then (README).
+const ATTEMPTS: u32 = 3;
+
+/// Runs `attempt` (given its number) up to [`ATTEMPTS`] times: an attempt that returns false (its reflexes explained
+/// by franka-sim's timing, evidence printed) is run again; the last must pass.
+fn with_reruns(what: &str, attempt: impl Fn(u32) -> bool) {
+    for n in 1..=ATTEMPTS {
         if attempt(n) {
             return;
         }
     }
-    panic!("{what}: two runs in a row were spoiled by franka-sim's timing (see above)");
+    panic!("{what}: {ATTEMPTS} runs in a row were spoiled by franka-sim's timing (see above)");
 }
 
-/// On a first attempt whose HAL report shows reflexes that franka-sim's irregular states explain: prints the
-/// evidence and says so (the caller returns false to run again).
+/// On an attempt before the last whose HAL report shows reflexes that franka-sim's irregular states explain:
+/// prints the evidence and says so (the caller returns false to run again).
 /// The HAL's log (`hal_log`) gives the cycles before each reflex, printed with the evidence.
 fn rerun_for_irregular_states(attempt: u32, what: &str, hal_out: &str, hal_log: &str, injected: Injected) -> bool {
-    let why = if attempt == 1 { reflexes_follow_irregular_states(hal_out, injected) } else { None };
+    let why = if attempt < ATTEMPTS { reflexes_follow_irregular_states(hal_out, injected) } else { None };
     if let Some(why) = &why {
         let cycles: Vec<&str> =
             hal_log.lines().filter(|l| l.contains("before the reflex") || l.contains("    period ")).collect();
         eprintln!(
-            "RERUN {what}: attempt 1 is inconclusive: franka-sim's states came irregularly before each reflex:\n{why}\n{}",
+            "RERUN {what}: attempt {attempt} is inconclusive: franka-sim's states came irregularly before each reflex:\n{why}\n{}",
             cycles.join("\n")
         );
     }
@@ -265,10 +269,10 @@ fn assert_measured_velocity_within_the_bounds(r: &Recorded) {
 #[test]
 fn pick_cup_succeeds_through_the_fci_hal_on_franka_sim_with_no_reflex() {
     franka_sim_venv();
-    with_one_rerun("Pick Cup on franka-sim", pick_cup_attempt);
+    with_reruns("Pick Cup on franka-sim", pick_cup_attempt);
 }
 
-/// One run of the Pick Cup test; false if franka-sim's timing explains its reflexes (first attempt only).
+/// One run of the Pick Cup test; false if franka-sim's timing explains its reflexes (not on the last attempt).
 fn pick_cup_attempt(attempt: u32) -> bool {
     let _sim_lock = franka_sim_lock();
     let _rt = rt_rig_lock();
@@ -377,11 +381,11 @@ fn sigkill_of_marsd_mid_motion_brakes_the_fr3_to_rest_with_no_reflex() {
 /// within seconds (11–17 rad/s², 7000 rad/s³).
 #[test]
 fn a_hal_stalled_for_milliseconds_again_and_again_raises_no_reflex() {
-    with_one_rerun("the stalled HAL on franka-sim", stalled_hal_attempt);
+    with_reruns("the stalled HAL on franka-sim", stalled_hal_attempt);
 }
 
 /// One run of the stalled-HAL test; false if franka-sim's timing, beyond the stalls injected, explains its
-/// reflexes (first attempt only).
+/// reflexes (not on the last attempt).
 fn stalled_hal_attempt(attempt: u32) -> bool {
     let (rig, mut hal, rec, mut marsd) = start_on_franka_sim(&format!("fsstall{attempt}"), 2);
     let pid = hal.pid();
