@@ -46,10 +46,10 @@ fn marsd_session(r: &Recorded) -> u64 {
 /// - marsd stopped on a timing trip (stale state, tick overruns, the HAL's command timeout), and in the window
 ///   around the trip (its time from marsd's "watchdog trip" log line) the HAL — the highest-priority process,
 ///   SCHED_FIFO 85 — published no frame for ≥ 15 ms, or the VM's steal time grew;
-/// - or, without a trip, its servo missed more than `missed_limit` periods, or chunks were late, and each is
-///   covered: the HAL itself missed at least the excess periods in frame gaps of the same run (nothing of the rig
-///   ran then), and while each late chunk was computed the HAL froze, or the hypervisor stole, at least as long
-///   as the chunk was late.
+/// - or, without a trip, chunks were late, and while each was computed the HAL froze, or the hypervisor stole, at
+///   least as long as the chunk was late — and its servo missed no more than `missed_limit` periods beyond those
+///   the HAL itself missed in the same run ([`hal_missed_periods`]: nothing of the rig ran then; the tests hold
+///   the servo to the same count).
 fn machine_stall_explains(r: &Recorded, s: &serde_json::Value, marsd: &Proc, missed_limit: u64) -> Option<String> {
     let trip = s["trip"].as_str();
     if let Some(trip) = trip {
@@ -65,19 +65,10 @@ fn machine_stall_explains(r: &Recorded, s: &serde_json::Value, marsd: &Proc, mis
     }
     let mut explained = Vec::new();
     let missed = u64_at(s, "/deadline_misses/servo_missed_periods");
-    if missed > missed_limit {
-        let gaps = hal_gaps(r);
-        let hal_missed = mars_runtime::stall::hal_missed_periods(&gaps, 1.0);
-        if hal_missed < missed - missed_limit {
-            return None;
-        }
-        explained.push(format!(
-            "the servo missed {missed} periods (limit {missed_limit}) while the HAL itself missed {hal_missed} in \
-             {} frame gaps ≥ {} ms (longest {:.1} ms)",
-            gaps.len(),
-            mars_runtime::stall::MIN_GAP_MS,
-            gaps.iter().map(|g| g.ms()).fold(0.0, f64::max)
-        ));
+    // Missed periods the HAL itself missed too are no failure (the tests hold the servo to the rest); more than that
+    // is the servo's own, and nothing here explains it.
+    if missed > missed_limit.saturating_add(hal_missed_periods(r)) {
+        return None;
     }
     let late = u64_at(s, "/deadline_misses/late_chunks");
     if late > 0 {
@@ -106,6 +97,13 @@ fn machine_stall_explains(r: &Recorded, s: &serde_json::Value, marsd: &Proc, mis
         }
     }
     (!explained.is_empty()).then(|| explained.join("; "))
+}
+
+/// Periods the HAL — the highest-priority thread of the rig, on the servo's core — itself failed to run in a
+/// recorded run (frame gaps above 1.5 periods): those the servo missed too were the machine's, not the servo's.
+fn hal_missed_periods(r: &Recorded) -> u64 {
+    let gaps = mars_runtime::stall::frame_gaps(r.states.iter().map(|(s, _)| (s.seq, s.timestamp_ns)), 1.5);
+    mars_runtime::stall::hal_missed_periods(&gaps, 1.0)
 }
 
 /// Test 1: The shipped config, 10 episodes: success, both grasps, no limit violation anywhere, no allocation in the
@@ -368,10 +366,7 @@ fn slow_engine_attempt(attempt: u32) -> bool {
     // (a 10-15 ms VM-wide stall costs 10-15 periods; seen on this CI VM a few times a minute under load). Those
     // the HAL — the highest-priority thread of the rig, on the servo's core — missed too in this very run were
     // the machine's, not the servo's: only what the servo missed beyond them is held to the limit.
-    let hal_missed = mars_runtime::stall::hal_missed_periods(
-        &mars_runtime::stall::frame_gaps(r.states.iter().map(|(s, _)| (s.seq, s.timestamp_ns)), 1.5),
-        1.0,
-    );
+    let hal_missed = hal_missed_periods(&r);
     eprintln!("servo missed {missed} periods; the HAL itself missed {hal_missed} in the same run");
     assert!(
         missed <= SLOW_MISSED_LIMIT + hal_missed,
