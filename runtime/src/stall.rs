@@ -155,7 +155,7 @@ pub fn around_trip(trip_ns: u64, gaps: &[FrameGap], steal: &[StealSample]) -> Ev
 }
 
 /// What the machine did while a late chunk was computed, from the policy loop's wake-up to the chunk being ready.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[derive(Debug, Clone, Copy)]
 pub struct LateEvidence {
     /// How late the chunk was (ms after the servo needed it).
     pub late_ms: f64,

@@ -113,7 +113,7 @@ fn assert_no_reflex<'a>(hal_stdout: &'a str, hal_stderr: &str, sim_log: &str) ->
 }
 
 /// What a test did to the robot's state stream itself, so that only the rest counts as evidence.
-#[derive(Clone, Copy, PartialEq)]
+#[derive(Clone, Copy)]
 enum Injected {
     Nothing,
     /// The HAL stopped for several ms at a time: the states it never saw then come in stretches of more than

@@ -78,7 +78,7 @@ fn machine_stall_explains(r: &Recorded, s: &serde_json::Value, marsd: &Proc, mis
             return None;
         }
         // Any pause of the HAL longer than its period counts here: the lateness may be a few ms.
-        let gaps = mars_runtime::stall::frame_gaps(r.states.iter().map(|(f, _)| (f.seq, f.timestamp_ns)), 1.5);
+        let gaps = hal_pauses(r);
         for t in &times {
             let at = |k: &str| t[k].as_u64().unwrap_or_else(|| panic!("late chunk without {k}: {t}"));
             let e = mars_runtime::stall::around_late_chunk(
@@ -99,11 +99,16 @@ fn machine_stall_explains(r: &Recorded, s: &serde_json::Value, marsd: &Proc, mis
     (!explained.is_empty()).then(|| explained.join("; "))
 }
 
-/// Periods the HAL — the highest-priority thread of the rig, on the servo's core — itself failed to run in a
-/// recorded run (frame gaps above 1.5 periods): those the servo missed too were the machine's, not the servo's.
+/// The HAL's frame gaps above 1.5 periods in a recorded run: where the HAL — the highest-priority thread of the
+/// rig, on the servo's core — did not run.
+fn hal_pauses(r: &Recorded) -> Vec<mars_runtime::stall::FrameGap> {
+    mars_runtime::stall::frame_gaps(r.states.iter().map(|(s, _)| (s.seq, s.timestamp_ns)), 1.5)
+}
+
+/// Periods the HAL itself failed to run in a recorded run: those the servo missed too were the machine's, not the
+/// servo's.
 fn hal_missed_periods(r: &Recorded) -> u64 {
-    let gaps = mars_runtime::stall::frame_gaps(r.states.iter().map(|(s, _)| (s.seq, s.timestamp_ns)), 1.5);
-    mars_runtime::stall::hal_missed_periods(&gaps, 1.0)
+    mars_runtime::stall::hal_missed_periods(&hal_pauses(r), 1.0)
 }
 
 /// Test 1: The shipped config, 10 episodes: success, both grasps, no limit violation anywhere, no allocation in the
