@@ -48,6 +48,10 @@ pub fn to_json(r: &Report) -> Value {
         // Paced by the robot: robot state in → command out; otherwise the tick's work (read → apply → publish).
         "work_us": quantiles(&r.work_us),
         "overruns": r.overruns,
+        // Ticks longer than the period, by why (see `mars_rt::overlong`).
+        "period_us": r.period.as_micros() as u64,
+        "overlong_ticks": r.overlong,
+        "longest_overlong_tick": r.longest,
         "rejected": r.rejected,
         "clamped": r.clamped,
         "late_commands": r.late_commands,

@@ -18,6 +18,7 @@ use mars_ipc::liveness::{PeerWatch, Side};
 use mars_ipc::node::create_node;
 use mars_ipc::{CommandReader, FrameReceiveError, HeartbeatThread, RobotNamespace, StateWriter};
 use mars_rt::alloc_count::{self, Counts, RtPoolScope};
+use mars_rt::overlong::{Longest, OverlongCounts, Stamp, TickAccount};
 use mars_rt::{RtStatus, Ticker, monotonic_ns, setup_realtime};
 use tracing::{info, warn};
 
@@ -73,6 +74,12 @@ pub struct Report {
     pub work_us: Histogram<u64>,
     /// Whole periods skipped because the loop fell behind.
     pub overruns: u64,
+    /// The period a tick must fit in (the profile's; the robot's cycle for fci).
+    pub period: Duration,
+    /// Ticks that blocked, and the others that took longer than `period` by why (ticks an injected fault delayed
+    /// are not counted).
+    pub overlong: OverlongCounts,
+    pub longest: Option<Longest>,
     pub rejected: u64,
     pub clamped: u64,
     /// Commands whose step from the setpoint was off by timing the HAL found itself (`SafetyFilter::timing_steps`).
@@ -130,6 +137,24 @@ impl std::fmt::Display for Report {
             q(&self.work_us, 0.999),
             self.work_us.max()
         )?;
+        let o = &self.overlong;
+        write!(
+            f,
+            "  ticks that blocked: {}; others answering later than the {} µs period: {} computing, {} held up (off the \
+             CPU, or in the driver and kernel after the tick)",
+            o.blocked,
+            self.period.as_micros(),
+            o.computing,
+            o.held_up
+        )?;
+        match self.longest {
+            Some(l) => writeln!(
+                f,
+                "; the longest: tick {}, {} µs ({} µs of the tick's own CPU time)",
+                l.tick, l.wall_us, l.tick_cpu_us
+            )?,
+            None => writeln!(f)?,
+        }
         writeln!(
             f,
             "  commands: {} rejected, {} clamped, {} wrong schema, {} late for their tick, {} more stepping from \
@@ -204,6 +229,8 @@ pub struct HalLoop {
     /// Lateness of each tick's start: past the timer's deadline, or past the robot's period.
     pub late_us: Histogram<u64>,
     pub work_us: Histogram<u64>,
+    /// Ticks that blocked or overran (see [`mars_rt::overlong`]).
+    ticks_timed: TickAccount,
 }
 
 /// What the loop should do after a tick.
@@ -277,6 +304,7 @@ impl HalLoop {
             realtime,
             late_us: Histogram::new_with_bounds(1, 10_000_000, 3)?,
             work_us: Histogram::new_with_bounds(1, 10_000_000, 3)?,
+            ticks_timed: TickAccount::new(Duration::from_secs_f64(profile.period_s())),
         })
     }
 
@@ -292,7 +320,8 @@ impl HalLoop {
 
     /// One tick that began at `woke`: read the backend, take the commands, filter, apply, publish the frame.
     /// Allocates nothing but iceoryx2's pooled block for the frame.
-    pub fn tick(&mut self, backend: &mut dyn Backend, woke: Instant) -> Next {
+    pub fn tick(&mut self, backend: &mut dyn Backend, woke: Stamp) -> Next {
+        self.ticks_timed.begin(woke);
         let (control, ev) = (&mut self.control, &mut self.ev);
         // Frames carry CLOCK_MONOTONIC time, which the controller shares: it computes state ages from it.
         let now_ns = monotonic_ns();
@@ -334,7 +363,11 @@ impl HalLoop {
         }
 
         // 4. State frame.
-        let st = control.state_frame(now_ns);
+        let mut st = control.state_frame(now_ns);
+        let timed = self.ticks_timed.counts();
+        st.ticks_blocked = timed.blocked;
+        st.overlong_ticks_computing = timed.computing;
+        st.overlong_ticks_held_up = timed.held_up;
         if !injected.late.is_zero() {
             std::thread::sleep(injected.late);
         }
@@ -355,7 +388,8 @@ impl HalLoop {
         }
         self.tick += 1;
         self.ticks.store(self.tick, Ordering::Release);
-        self.work_us.saturating_record(woke.elapsed().as_micros() as u64);
+        self.work_us.saturating_record(woke.at.elapsed().as_micros() as u64);
+        self.ticks_timed.end(Stamp::now(), !(injected.late.is_zero() && injected.stall.is_zero()));
         if self.tick == WARMUP_TICKS {
             self.at_warmup = alloc_count::thread_counts().map(|c| (c, self.sent));
         }
@@ -395,7 +429,8 @@ impl HalLoop {
     }
 
     /// Ends the run: stops the logger and the heartbeat (the controller sees this HAL leave) and reports.
-    pub fn finish(self, ended: Ended, overruns: u64, robot: Option<crate::fci::RobotLoopReport>) -> Report {
+    pub fn finish(mut self, ended: Ended, overruns: u64, robot: Option<crate::fci::RobotLoopReport>) -> Report {
+        self.ticks_timed.finish();
         let allocations_after_warmup = self.at_warmup.zip(self.at_last_tick).map(|((c0, sent0), (c1, sent1))| {
             (Counts { system: c1.system - c0.system, pooled: c1.pooled - c0.pooled }, sent1 - sent0)
         });
@@ -418,6 +453,9 @@ impl HalLoop {
             wake_late_us: self.late_us,
             work_us: self.work_us,
             overruns,
+            period: self.ticks_timed.period(),
+            overlong: self.ticks_timed.counts(),
+            longest: self.ticks_timed.longest(),
             rejected: f.rejected,
             clamped: f.clamped,
             timing_steps: f.timing_steps,
@@ -445,7 +483,7 @@ pub fn run(profile: &Profile, backend: &mut dyn Backend, opts: &RunOptions) -> a
     let mut ticker = Ticker::new(Duration::from_secs_f64(profile.period_s()));
     let ended = loop {
         let wake = ticker.wait();
-        let woke = Instant::now();
+        let woke = Stamp::now();
         hal.late_us.saturating_record(wake.late_ns / 1000);
         if let Next::End(e) = hal.tick(backend, woke) {
             break e;

@@ -151,6 +151,8 @@ fn a_valid_command_stream_is_tracked() {
         assert!((last.position[i] - target[i]).abs() < 0.03, "joint {i}: {} vs {}", last.position[i], target[i]);
     }
     assert_eq!(last.rejected_commands, 0);
+    // By the kernel's count of the loop thread's voluntary context switches in each tick.
+    assert_eq!(last.ticks_blocked, 0, "the HAL's tick never blocks");
 }
 
 #[test]

@@ -16,7 +16,8 @@ use iceoryx2::prelude::ZeroCopySend;
 /// v6: the robot's own report (`RobotState::robot_errors`, `robot_reflex_errors`, `robot_success_rate`,
 /// `robot_mode`), `fault::ROBOT_REFLEX` / `ROBOT_CONNECTION_LOST`, `HoldReason::RobotFault` / `HalStopping`.
 /// v7: `RobotState::robot_cycles` (the robot's cycles since the previous frame) in place of the padding.
-pub const SCHEMA_VERSION: u32 = 7;
+/// v8: `RobotState::ticks_blocked`, `overlong_ticks_*` (the HAL's ticks that blocked or overran its period).
+pub const SCHEMA_VERSION: u32 = 8;
 
 /// The iceoryx2 user header of state and command frames.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ZeroCopySend)]

@@ -181,6 +181,17 @@ pub struct RobotState {
     /// after states the HAL never saw, across which the applied setpoint moved as the robot did (difference it
     /// over this many cycles, not one). 0 for a backend paced by the HAL's own timer: one setpoint step per frame.
     pub robot_cycles: u32,
+    /// The HAL's ticks so far in which its loop thread gave the CPU up (something in the tick blocked: a bug, the
+    /// tick must never block), from the kernel's accounting of that thread (`mars_rt::overlong`). A frame counts
+    /// the ticks before its own, as do the two below.
+    pub ticks_blocked: u64,
+    /// The other ticks whose answer took longer than the HAL's period (so came late; judged up to the next tick
+    /// when the thread never waited in between: a robot's driver sends the answer after the tick) because the
+    /// tick's own CPU time reached the period: its work did not fit.
+    pub overlong_ticks_computing: u64,
+    /// ... although the tick's own CPU time stayed under the period: the thread was held off the CPU (preempted,
+    /// or its virtual CPU stolen by the hypervisor) or busy in the driver and kernel after the tick.
+    pub overlong_ticks_held_up: u64,
 }
 
 impl Default for RobotState {
@@ -214,6 +225,9 @@ impl Default for RobotState {
             robot_success_rate: 0.0,
             robot_mode: robot_mode::NOT_REPORTED,
             robot_cycles: 0,
+            ticks_blocked: 0,
+            overlong_ticks_computing: 0,
+            overlong_ticks_held_up: 0,
         }
     }
 }

@@ -7,6 +7,7 @@
 //! at setup, from the thread concerned, saying what was refused, why, and which setting allows it.
 
 pub mod alloc_count;
+pub mod overlong;
 pub mod rig_lock;
 
 use std::time::Duration;

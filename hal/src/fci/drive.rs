@@ -22,6 +22,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use franka::{ControllerMode, FrankaError, JointPositions, RobotMode, RobotState};
+use mars_rt::overlong::Stamp;
 use tracing::{info, warn};
 
 use super::hand::{Grasp, Hand};
@@ -200,7 +201,8 @@ fn control(
     let mut recent = RecentCycles::<REGULARITY_CYCLES>::default();
     let result = fci.robot().control_joint_positions(
         |state, period| {
-            let woke = Instant::now();
+            let start = Stamp::now();
+            let woke = start.at;
             let bunched = last.is_some_and(|prev| woke - prev < BUNCHED);
             if let Some(prev) = last {
                 hal.late_us.saturating_record((woke - prev).as_micros().saturating_sub(1000) as u64);
@@ -238,7 +240,7 @@ fn control(
                 commanding: true,
                 cycles: u32::try_from(missed + 1).unwrap_or(u32::MAX),
             };
-            let next = hal.tick(&mut cycle, woke);
+            let next = hal.tick(&mut cycle, start);
             robot_setpoints.sent(cycle.command);
             recent.push(CycleRecord {
                 period_ms: period.as_millis(),
@@ -301,7 +303,7 @@ fn hold(
         let state = fci.read_once(timeout).map_err(|e| e.to_string())?;
         let mut cycle =
             Cycle { state: &state, hand: hand.as_deref_mut(), command: state.q, commanding: false, cycles: 0 };
-        if let Next::End(e) = hal.tick(&mut cycle, Instant::now()) {
+        if let Next::End(e) = hal.tick(&mut cycle, Stamp::now()) {
             return Ok(Some(e));
         }
         if !recover.swap(false, Ordering::AcqRel) {
