@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 use mars_hal::profile::Profile;
 use mars_runtime::task::eval::evaluate;
 use mars_runtime::task::expert::generate_demos;
-use mars_runtime::task::{DoneReason, PickCup, Progress, TaskError};
+use mars_runtime::task::{DoneReason, PickCup, Progress, TaskError, arm};
 
 /// Counts this thread's heap allocations, so a test can assert that a call makes none.
 struct CountingAlloc;
@@ -55,11 +55,11 @@ fn task_text() -> String {
 }
 
 fn task() -> PickCup {
-    PickCup::load(&repo("configs/pick_cup.toml"), &fr3()).expect("shipped task is valid")
+    PickCup::load(&repo("configs/pick_cup.toml"), &arm(&fr3())).expect("shipped task is valid")
 }
 
 fn refusal(text: &str) -> String {
-    match PickCup::parse(text, "test.toml", &fr3()) {
+    match PickCup::parse(text, "test.toml", &arm(&fr3())) {
         Err(e @ (TaskError::Invalid { .. } | TaskError::Parse { .. })) => e.to_string(),
         other => panic!("expected a refusal, got {other:?}"),
     }
@@ -95,7 +95,7 @@ fn config_errors_name_the_field_and_the_problem() {
     let e = refusal(&format!("speed = 3\n{}", task_text()));
     assert!(e.contains("test.toml") && e.contains("speed"), "{e}");
 
-    let e = PickCup::load(Path::new("no/such/task.toml"), &fr3()).expect_err("missing file").to_string();
+    let e = PickCup::load(Path::new("no/such/task.toml"), &arm(&fr3())).expect_err("missing file").to_string();
     assert!(e.contains("cannot read task no/such/task.toml"), "{e}");
 }
 
@@ -159,7 +159,7 @@ fn expert_demos_are_valid_balanced_and_deterministic() {
 
 #[test]
 fn an_expert_too_fast_for_the_robot_is_refused() {
-    let t = PickCup::parse(&task_text().replace("grasp_s = 1.5", "grasp_s = 0.1"), "fast.toml", &fr3()).unwrap();
+    let t = PickCup::parse(&task_text().replace("grasp_s = 1.5", "grasp_s = 0.1"), "fast.toml", &arm(&fr3())).unwrap();
     let e = format!("{:#}", generate_demos(&t, &fr3(), 2, 0).expect_err("0.57 rad in 0.1 s is too fast"));
     assert!(e.contains("expert demo 0 (grasp `rim`) is invalid") && e.contains("velocity: true"), "{e}");
 }

@@ -6,10 +6,25 @@
 //! - [`nav2d`]: the benchmark task — a point agent through one of several passages between two gates.
 //! - [`push_t`]: the paper's FR3 Push-T — a T block pushed across a table by the end effector, seen from above;
 //!   the expert goes around the block by the upper or the lower route.
+//! - [`pick_cup`]: the FR3 Pick Cup in joint space — a mug grasped by its rim or by its handle. Its world is the
+//!   arm (the HAL's mock plant, franka-sim or an FR3), so its expert and rollouts live with the HAL's plant in
+//!   `mars_runtime::task`; the task itself (poses, observation, success and mode) is here.
 //!
-//! (FR3 Pick Cup's world is the HAL's own mock plant, so it lives beside it, in `mars_runtime::task`.)
+//! Every task says what a policy and the runtime need to know of it through one small trait, [`Task`].
 
 pub mod demo;
 pub mod nav2d;
+pub mod pick_cup;
 pub mod push_t;
 pub mod rollout;
+
+/// What every task tells the policy and the runtime about itself.
+pub trait Task {
+    fn name(&self) -> &str;
+    /// Values per observation (state tasks; a camera's images come beside it).
+    fn obs_dim(&self) -> usize;
+    /// Values per action.
+    fn action_dim(&self) -> usize;
+    /// The modes' names, in the order the task numbers them.
+    fn mode_names(&self) -> Vec<String>;
+}

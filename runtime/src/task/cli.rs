@@ -16,7 +16,7 @@ pub const TASK: &str = "fr3_pick_cup";
 /// The profile and the task checked against it.
 pub fn load_task(task: &Path, profile: &Path) -> anyhow::Result<(PickCup, Profile)> {
     let profile = Profile::load(profile)?;
-    let task = PickCup::load(task, &profile)?;
+    let task = PickCup::load(task, &super::arm(&profile))?;
     Ok((task, profile))
 }
 

@@ -1,15 +1,15 @@
 //! The FR3 hardware-in-the-loop tasks: Pick Cup in joint space (grasp by the rim or by the handle) and Push-T on
 //! the table (around the block by the upper or the lower route), behind one [`HilTask`] marsd runs.
 //!
-//! [`pick_cup`] defines Pick Cup (TOML, start poses, observations, the [`pick_cup::EpisodeMonitor`]); [`expert`]
-//! records balanced demos on the sim plant; [`eval`] rolls a checkpoint out in-process; [`sim_arm`] is the
-//! plant behind the servo both use; [`cli`] is what `mars-hil demos` / `eval-sim` run. [`push_t`] is Push-T as
+//! Pick Cup itself (TOML, start poses, observations, the [`pick_cup::EpisodeMonitor`]) lives with the other tasks
+//! in `mars_tasks::pick_cup`, checked against the profile's facts ([`arm`]); its world is the arm, so here are
+//! [`expert`] (balanced demos on the sim plant), [`eval`] (a checkpoint rolled out in-process) and [`sim_arm`] (the
+//! plant behind the servo both use); [`cli`] is what `mars-hil demos` / `eval-sim` run. [`push_t`] is Push-T as
 //! marsd sees it (the world is the scene process, `crate::scene`).
 
 pub mod cli;
 pub mod eval;
 pub mod expert;
-pub mod pick_cup;
 pub mod push_t;
 pub mod push_t_cli;
 pub mod sim_arm;
@@ -17,9 +17,25 @@ pub mod sim_arm;
 use std::path::Path;
 
 use mars_hal::profile::Profile;
+pub use mars_tasks::Task;
+pub use mars_tasks::pick_cup;
 
-pub use pick_cup::{DoneReason, EpisodeMonitor, PickCup, Progress, TaskError};
+pub use pick_cup::{Arm, DoneReason, EpisodeMonitor, PickCup, Progress, TaskError};
 pub use push_t::PushTHil;
+
+/// The profile's facts a joint-space task is checked against.
+pub fn arm(p: &Profile) -> Arm {
+    Arm {
+        name: p.name.clone(),
+        joints: p.joints,
+        rate_hz: p.rate_hz,
+        home: p.home.clone(),
+        q_min: p.q_min.clone(),
+        q_max: p.q_max.clone(),
+        gripper_min: p.gripper_min,
+        gripper_max: p.gripper_max,
+    }
+}
 
 /// A task marsd can run, chosen by the task file's `kind` (none: Pick Cup).
 #[derive(Debug, Clone)]
@@ -41,7 +57,7 @@ impl HilTask {
             .get("kind")
             .map(|k| k.as_str().map(str::to_owned));
         match kind {
-            None => PickCup::parse(&text, &origin, profile).map(Self::PickCup),
+            None => PickCup::parse(&text, &origin, &arm(profile)).map(Self::PickCup),
             Some(Some(k)) if k == "push_t" => PushTHil::parse(&text, &origin, profile).map(Self::PushT),
             Some(k) => Err(TaskError::Invalid {
                 path: origin,
@@ -51,25 +67,24 @@ impl HilTask {
         }
     }
 
-    pub fn name(&self) -> &str {
+    /// The task behind the trait every task shares.
+    pub fn task(&self) -> &dyn Task {
         match self {
-            Self::PickCup(t) => &t.cfg.name,
-            Self::PushT(t) => &t.cfg.name,
+            Self::PickCup(t) => t,
+            Self::PushT(t) => t,
         }
+    }
+
+    pub fn name(&self) -> &str {
+        self.task().name()
     }
 
     pub fn obs_dim(&self) -> usize {
-        match self {
-            Self::PickCup(t) => t.obs_dim(),
-            Self::PushT(t) => t.obs_dim(),
-        }
+        self.task().obs_dim()
     }
 
     pub fn action_dim(&self) -> usize {
-        match self {
-            Self::PickCup(t) => t.action_dim(),
-            Self::PushT(t) => t.action_dim(),
-        }
+        self.task().action_dim()
     }
 
     pub fn policy_rate_hz(&self) -> f64 {
@@ -81,10 +96,7 @@ impl HilTask {
 
     /// The modes' names, in the order the task numbers them.
     pub fn mode_names(&self) -> Vec<String> {
-        match self {
-            Self::PickCup(t) => t.cfg.grasps.iter().map(|g| g.name.clone()).collect(),
-            Self::PushT(t) => t.mode_names(),
-        }
+        self.task().mode_names()
     }
 }
 

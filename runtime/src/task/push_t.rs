@@ -215,6 +215,24 @@ fn validate(c: &PushTHilConfig, p: &Profile) -> Result<(), (String, String)> {
     Ok(())
 }
 
+impl mars_tasks::Task for PushTHil {
+    fn name(&self) -> &str {
+        &self.cfg.name
+    }
+
+    fn obs_dim(&self) -> usize {
+        PushTHil::obs_dim(self)
+    }
+
+    fn action_dim(&self) -> usize {
+        PushTHil::action_dim(self)
+    }
+
+    fn mode_names(&self) -> Vec<String> {
+        PushTHil::mode_names(self)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

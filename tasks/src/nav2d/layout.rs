@@ -429,6 +429,27 @@ fn passage_name(layout: &Layout, mode: usize) -> &str {
     layout.passages.get(mode).map_or("?", |p| p.name.as_str())
 }
 
+impl crate::Task for Layout {
+    fn name(&self) -> &str {
+        &self.name
+    }
+
+    /// The agent's position.
+    fn obs_dim(&self) -> usize {
+        2
+    }
+
+    /// The next target position.
+    fn action_dim(&self) -> usize {
+        2
+    }
+
+    /// The passages, in mode order.
+    fn mode_names(&self) -> Vec<String> {
+        self.passages.iter().map(|p| p.name.clone()).collect()
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

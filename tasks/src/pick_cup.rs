@@ -1,17 +1,35 @@
 //! The FR3 Pick Cup task in joint space (after the paper's real-world Pick Cup: grasp a mug by its rim or by its
 //! handle). From a jittered `home`, a shared approach to a pre-grasp pose, then one of two grasp configurations,
 //! the gripper closes, and a shared retreat. Read from TOML (`configs/pick_cup.toml`) and checked against the
-//! robot profile before anything moves.
+//! arm's facts ([`Arm`], from the robot profile) before anything moves. Its world is the arm itself: the HAL's
+//! mock plant in the HIL demo, franka-sim or a real FR3, so the task is its poses, its observation and the
+//! [`EpisodeMonitor`] that tells success and the mode from the measured state.
 
 use std::path::Path;
 
-use mars_hal::profile::Profile;
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
 use serde::Deserialize;
 
 /// Every pose the task can command, jitter included, stays this far (rad) inside the profile's joint limits.
 pub const LIMIT_MARGIN_RAD: f64 = 0.2;
+
+/// What a joint-space task checks its poses against: the robot profile's facts (marsd and `mars-hil` build it
+/// from the HAL's profile: `mars_runtime::task::arm`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Arm {
+    pub name: String,
+    pub joints: usize,
+    /// The servo rate (Hz): a policy's rate must divide it.
+    pub rate_hz: f64,
+    /// The un-jittered start pose (rad).
+    pub home: Vec<f64>,
+    pub q_min: Vec<f64>,
+    pub q_max: Vec<f64>,
+    /// The gripper's opening range (m).
+    pub gripper_min: f64,
+    pub gripper_max: f64,
+}
 
 /// One way to grasp the cup: a mode of the task.
 #[derive(Debug, Clone, PartialEq, Deserialize)]
@@ -76,14 +94,14 @@ pub enum TaskError {
 }
 
 impl PickCup {
-    pub fn load(path: &Path, profile: &Profile) -> Result<Self, TaskError> {
+    pub fn load(path: &Path, profile: &Arm) -> Result<Self, TaskError> {
         let origin = path.display().to_string();
         let text = std::fs::read_to_string(path).map_err(|error| TaskError::Read { path: origin.clone(), error })?;
         Self::parse(&text, &origin, profile)
     }
 
     /// Parse and validate against `profile`; `origin` names the source in errors.
-    pub fn parse(text: &str, origin: &str, profile: &Profile) -> Result<Self, TaskError> {
+    pub fn parse(text: &str, origin: &str, profile: &Arm) -> Result<Self, TaskError> {
         let cfg: PickCupConfig =
             toml::from_str(text).map_err(|e| TaskError::Parse { path: origin.to_owned(), error: Box::new(e) })?;
         let ticks = profile.rate_hz / cfg.policy_rate_hz;
@@ -96,7 +114,7 @@ impl PickCup {
         Ok(task)
     }
 
-    fn validate(&self, p: &Profile) -> Result<(), (String, String)> {
+    fn validate(&self, p: &Arm) -> Result<(), (String, String)> {
         let c = &self.cfg;
         let err = |field: &str, problem: String| Err((field.to_owned(), problem));
         for (field, v) in [
@@ -250,7 +268,8 @@ impl PickCup {
     }
 }
 
-pub(crate) fn max_abs_diff(a: &[f64], b: &[f64]) -> f64 {
+/// The largest difference between two poses, joint by joint (rad).
+pub fn max_abs_diff(a: &[f64], b: &[f64]) -> f64 {
     a.iter().zip(b).fold(0.0, |m, (x, y)| m.max((x - y).abs()))
 }
 
@@ -342,5 +361,23 @@ impl EpisodeMonitor {
         let done = Progress::Done { success: self.grasped.is_some(), mode: self.grasped, reason };
         self.done = Some(done);
         done
+    }
+}
+
+impl crate::Task for PickCup {
+    fn name(&self) -> &str {
+        &self.cfg.name
+    }
+
+    fn obs_dim(&self) -> usize {
+        PickCup::obs_dim(self)
+    }
+
+    fn action_dim(&self) -> usize {
+        PickCup::action_dim(self)
+    }
+
+    fn mode_names(&self) -> Vec<String> {
+        self.cfg.grasps.iter().map(|g| g.name.clone()).collect()
     }
 }
