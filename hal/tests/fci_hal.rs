@@ -352,9 +352,13 @@ fn drive_and_brake(attempt: u32) -> bool {
     // Commands stop mid-excursion: the HAL brakes to rest within the limits, and the robot raises no reflex.
     let q_mid = excursion(start, 0.3, 3000)(750);
     rig.stream(1, 750, excursion(start, 0.3, 3000));
+    // A reflex while braking ends the wait too (CI saw one after 343 held-up answers): judged by the same rule.
     let rest = rig.wait_for("rest after command loss", Duration::from_secs(5), |f| {
-        f.is(status::AT_REST) && f.hold_reason == HoldReason::CommandTimeout as u32
+        (f.is(status::AT_REST) && f.hold_reason == HoldReason::CommandTimeout as u32) || f.fault != 0
     });
+    if spoiled_by_a_franka_sim_reflex(&mut rig, &rest, attempt, what) {
+        return false;
+    }
     assert!(rest.position[0] > start[0] + 0.05 && (rest.position[0] - q_mid[0]).abs() < 0.1, "{rest:?}");
     let after = rig.watch(Duration::from_millis(300)).to_vec();
     if spoiled_by_a_franka_sim_reflex(&mut rig, after.last().unwrap_or(&rest), attempt, what) {
@@ -376,6 +380,11 @@ fn drive_and_brake(attempt: u32) -> bool {
 
 #[test]
 fn sigterm_mid_motion_brakes_to_rest_before_the_hal_releases_the_robot_and_a_hal_restarted_there_moves_nothing() {
+    with_reruns("SIGTERM mid-motion on franka-sim", sigterm_mid_motion);
+}
+
+/// One attempt of the test above; false when a reflex spoiled it that franka-sim's timing explains.
+fn sigterm_mid_motion(attempt: u32) -> bool {
     let _sim = FrankaSim::start_strict();
     let mut rig = Rig::start();
     let start = q7(&rig.wait_for("a frame", Duration::from_secs(5), |_| true));
@@ -401,6 +410,9 @@ fn sigterm_mid_motion_brakes_to_rest_before_the_hal_releases_the_robot_and_a_hal
         rig.frames.push(s);
     }
     let (code, out, _) = rig.exit(Duration::from_secs(5));
+    if attempt < ATTEMPTS && rerun_for_irregular_states(attempt, "SIGTERM mid-motion", &out, &out, Injected::Nothing) {
+        return false;
+    }
     assert_eq!(code, Some(0), "{out}");
     let stopping = &rig.frames[from..];
     assert!(stopping.iter().any(|f| f.hold_reason == HoldReason::HalStopping as u32), "the stop is visible");
@@ -431,6 +443,7 @@ fn sigterm_mid_motion_brakes_to_rest_before_the_hal_releases_the_robot_and_a_hal
             assert!((f.position[j] - first.position[j]).abs() < 1e-3, "joint {j} moved to {}", f.position[j]);
         }
     }
+    true
 }
 
 #[test]
