@@ -14,7 +14,7 @@ use std::sync::atomic::{AtomicU32, Ordering};
 use std::time::{Duration, Instant};
 
 use iceoryx2::prelude::*;
-use mars_hal::fci::sim_evidence::{ATTEMPTS, Injected, rerun_for_irregular_states, with_reruns};
+use mars_hal::fci::sim_evidence::{Injected, rerun_for_irregular_states, with_reruns};
 use mars_hal::profile::Profile;
 use mars_ipc::node::create_node;
 use mars_ipc::*;
@@ -296,7 +296,7 @@ fn assert_within_fr3_limits(frames: &[RobotState]) {
     }
 }
 
-/// After a frame showing a robot fault: on an attempt before the last whose HAL report shows the reflex followed
+/// After a frame showing a robot fault: on an attempt before the last (`rerun_for_irregular_states` knows which) whose HAL report shows the reflex followed
 /// irregular states of franka-sim's (`sim_evidence`), ends the HAL and returns true (run again); otherwise fails
 /// with the frame and the HAL's report. Returns false when `f` shows no fault.
 fn spoiled_by_a_franka_sim_reflex(rig: &mut Rig, f: &RobotState, attempt: u32, what: &str) -> bool {
@@ -305,7 +305,7 @@ fn spoiled_by_a_franka_sim_reflex(rig: &mut Rig, f: &RobotState, attempt: u32, w
     }
     rig.signal(libc::SIGTERM);
     let (_, out, _) = rig.exit(Duration::from_secs(10));
-    if attempt < ATTEMPTS && rerun_for_irregular_states(attempt, what, &out, &out, Injected::Nothing) {
+    if rerun_for_irregular_states(attempt, what, &out, &out, Injected::Nothing) {
         return true;
     }
     panic!("{what}: the robot stopped itself: {f:?}\n{out}");
@@ -410,7 +410,7 @@ fn sigterm_mid_motion(attempt: u32) -> bool {
         rig.frames.push(s);
     }
     let (code, out, _) = rig.exit(Duration::from_secs(5));
-    if attempt < ATTEMPTS && rerun_for_irregular_states(attempt, "SIGTERM mid-motion", &out, &out, Injected::Nothing) {
+    if rerun_for_irregular_states(attempt, "SIGTERM mid-motion", &out, &out, Injected::Nothing) {
         return false;
     }
     assert_eq!(code, Some(0), "{out}");

@@ -15,7 +15,7 @@ use std::time::Duration;
 
 use common::*;
 use mars_hal::fci::franka_sim::FrankaSim;
-use mars_hal::fci::sim_evidence::{Injected, rerun_for_irregular_states, with_reruns};
+use mars_hal::fci::sim_evidence::{self, Injected, rerun_for_irregular_states, with_reruns};
 use mars_hal::profile::Profile;
 use mars_ipc::{HoldReason, RobotState, status};
 use mars_runtime::bench::backends::ProcessStops;
@@ -70,11 +70,7 @@ fn start_on_franka_sim(name: &str, episodes: usize) -> (OnFrankaSim, Proc, Recor
 
 /// The number after `name` in `text` (e.g. "min 0.970" → 0.97).
 fn number_after(text: &str, name: &str) -> f64 {
-    let rest = &text[text.find(name).unwrap_or_else(|| panic!("no {name:?} in:\n{text}")) + name.len()..];
-    rest.split_whitespace()
-        .next()
-        .and_then(|w| w.trim_end_matches([',', ';']).parse().ok())
-        .unwrap_or_else(|| panic!("no number after {name:?} in:\n{text}"))
+    sim_evidence::number_after(text, name).unwrap_or_else(|| panic!("no number after {name:?} in:\n{text}"))
 }
 
 /// The HAL report's robot line ("robot 127.0.0.1: … 0 reflexes …"): no reflex, and the robot's own control

@@ -44,8 +44,8 @@ pub fn reflexes_follow_irregular_states(hal_out: &str, injected: Injected) -> Op
     Some(reflexes.iter().map(|l| l.trim()).collect::<Vec<_>>().join("\n"))
 }
 
-/// The number after `name` in `text` ("min 0.970" → 0.97).
-fn number_after(text: &str, name: &str) -> Option<f64> {
+/// The number after `name` in `text` ("min 0.970" → 0.97), as the HAL's report prints it.
+pub fn number_after(text: &str, name: &str) -> Option<f64> {
     let rest = &text[text.find(name)? + name.len()..];
     rest.split_whitespace().next()?.trim_end_matches([',', ';']).parse().ok()
 }
