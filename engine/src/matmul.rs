@@ -7,11 +7,13 @@
 //! path does not exist on ARM). So:
 //!
 //! - single-row products (encoder, scheduler, the observation's conditioning) call `gemm::gemm` whole: gemv;
-//! - multi-row products (the C tokens, the K steps' conditioning), on x86-64 with AVX2 + FMA, call gemm's own
-//!   register-blocked microkernels (`gemm_f32::microkernel::fma`, the ones its packed path uses) directly on
-//!   weights pre-packed at load time into the panel layout those kernels read: gemm's inner loop without its
-//!   per-call setup, packing or allocation. Each output accumulates over k sequentially, as in gemm's packed
-//!   path (the one candle's matmuls take for these shapes).
+//! - multi-row products (the C tokens, the K steps' conditioning, a convolution's pixels), on x86-64 with
+//!   AVX2 + FMA, call gemm's own register-blocked microkernels (`gemm_f32::microkernel::fma`, or
+//!   `::avx512f` where the CPU has AVX-512F — the ones its packed path uses) directly on weights pre-packed at
+//!   load time, 64-byte aligned, into the panel layout those kernels read: gemm's inner loop without its
+//!   per-call setup, packing or allocation. Each output accumulates over k in chunks of a few hundred, as in
+//!   gemm's packed path (the one candle's matmuls take for these shapes); [`tile`] is one such call with the
+//!   caller's strides (a convolution reads its receptive fields in place with it).
 //! - on other CPUs (or when asked for, [`crate::EngineConfig::portable_kernels`]) multi-row products are one
 //!   `gemm::gemm` gemv per row: allocation-free everywhere, slower;
 //! - with `threads > 1`, multi-row products go to `gemm::gemm` whole with rayon parallelism; that path
@@ -23,12 +25,22 @@ use gemm::Parallelism;
 /// How token products are computed, chosen once at load.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum MatMul {
-    /// gemm's FMA microkernels on pre-packed panels (x86-64 with AVX2 + FMA).
-    Microkernel,
+    /// gemm's microkernels on pre-packed panels (x86-64 with AVX2 + FMA, or AVX-512F).
+    Microkernel(Simd),
     /// One `gemm::gemm` matrix-vector product per row.
     Rows,
     /// `gemm::gemm` whole, rayon-parallel (allocates inside gemm).
     Threaded(usize),
+}
+
+/// Which of gemm's microkernel families the panels are packed for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Simd {
+    /// 256-bit registers: panels of 16 outputs, 6 rows per call.
+    Avx2Fma,
+    /// 512-bit registers: panels of 16–64 outputs (as many as the layer has, up to 4 registers), 6 rows per call.
+    /// Twice the multiply-adds per instruction: it pays off on the encoder's convolutions.
+    Avx512,
 }
 
 impl MatMul {
@@ -37,8 +49,12 @@ impl MatMul {
     pub fn detect(threads: usize, portable: bool) -> Self {
         if threads > 1 {
             MatMul::Threaded(threads)
-        } else if panels::available() && !portable {
-            MatMul::Microkernel
+        } else if portable {
+            MatMul::Rows
+        } else if panels::avx512_available() {
+            MatMul::Microkernel(Simd::Avx512)
+        } else if panels::available() {
+            MatMul::Microkernel(Simd::Avx2Fma)
         } else {
             MatMul::Rows
         }
@@ -46,12 +62,21 @@ impl MatMul {
 
     /// Whether token linears need their weights in panel layout ([`pack_panels`]).
     pub fn uses_panels(self) -> bool {
-        self == MatMul::Microkernel
+        matches!(self, MatMul::Microkernel(_))
+    }
+
+    /// Outputs per weight panel for a layer of `output` outputs (0 where panels are not used).
+    pub fn panel_rows(self, output: usize) -> usize {
+        match self {
+            MatMul::Microkernel(simd) => panels::panel_rows(simd, output),
+            _ => 0,
+        }
     }
 
     pub fn describe(self) -> &'static str {
         match self {
-            MatMul::Microkernel => "gemm FMA microkernels on pre-packed weights",
+            MatMul::Microkernel(Simd::Avx2Fma) => "gemm AVX2 + FMA microkernels on pre-packed weights",
+            MatMul::Microkernel(Simd::Avx512) => "gemm AVX-512 microkernels on pre-packed weights",
             MatMul::Rows => "gemm matrix-vector products, one per row (portable)",
             MatMul::Threaded(_) => "gemm, rayon-threaded (allocates)",
         }
@@ -74,9 +99,10 @@ impl MatMul {
         }
         match self {
             _ if rows == 1 => gemm_tiles(x, 1, l, y, 1, n, Parallelism::None),
-            MatMul::Microkernel if l.panels.len() == panels::packed_len(n, k) => {
-                // SAFETY: `Microkernel` is only chosen when `panels::available()`; lengths asserted above.
-                unsafe { panels::product(x, rows, l, y) }
+            MatMul::Microkernel(simd) if l.panels.len() == panels::packed_len(n, k, self.panel_rows(n)) => {
+                // SAFETY: `Microkernel(simd)` is only chosen when the CPU has that family's instructions
+                // (`MatMul::detect`, or a caller that checked `panels::*available`); lengths asserted above.
+                unsafe { panels::product(simd, x, rows, l, y) }
             }
             MatMul::Threaded(_) => gemm_tiles(x, rows, l, y, rows, n, self.parallelism()),
             _ => gemm_tiles(x, rows, l, y, 1, n, Parallelism::None),
@@ -120,38 +146,101 @@ fn gemm_tiles(x: &[f32], rows: usize, l: &Linear, y: &mut [f32], tile_rows: usiz
     }
 }
 
-/// `weight` [out, in] in the panel layout of gemm's microkernels: panels of [`panels::MR`] outputs, each
-/// stored k-major ([k][MR], contiguous), the last panel zero-padded. Empty where the microkernels are not used.
-pub fn pack_panels(weight: &[f32], output: usize, input: usize) -> Box<[f32]> {
-    let mr = panels::MR;
-    let mut packed = vec![0.0; panels::packed_len(output, input)];
+/// Weights in panel layout, 64-byte aligned: each k of a panel is whole 512-bit registers, and a register load
+/// from an address that is not 64-byte aligned spans two cache lines (half the load throughput).
+#[derive(Debug, Clone, Default)]
+pub struct Panels {
+    lines: Vec<CacheLine>,
+    len: usize,
+}
+
+#[derive(Debug, Clone, Copy, Default)]
+#[repr(C, align(64))]
+struct CacheLine([f32; 16]);
+
+impl Panels {
+    fn zeroed(len: usize) -> Self {
+        Self { lines: vec![CacheLine::default(); len.div_ceil(16)], len }
+    }
+
+    /// Length in f32 values.
+    pub(crate) fn len(&self) -> usize {
+        self.len
+    }
+
+    fn as_ptr(&self) -> *const f32 {
+        self.lines.as_ptr().cast()
+    }
+
+    fn as_mut_slice(&mut self) -> &mut [f32] {
+        // SAFETY: `lines` holds len.div_ceil(16) · 16 ≥ len contiguous f32 values (repr(C) arrays, no padding:
+        // 16 · 4 bytes is exactly the 64-byte alignment).
+        unsafe { std::slice::from_raw_parts_mut(self.lines.as_mut_ptr().cast(), self.len) }
+    }
+}
+
+/// `weight` [out, in] in the panel layout of `mm`'s microkernels: panels of [`MatMul::panel_rows`] outputs, each
+/// stored k-major ([k][rows], contiguous), the last panel zero-padded. Empty where the microkernels are not used.
+pub fn pack_panels(weight: &[f32], output: usize, input: usize, mm: MatMul) -> Panels {
+    let mr = mm.panel_rows(output);
+    if mr == 0 {
+        return Panels::default();
+    }
+    let mut panels = Panels::zeroed(panels::packed_len(output, input, mr));
+    let packed = panels.as_mut_slice();
     for (o, row) in weight.chunks_exact(input).enumerate() {
         let (p, r) = (o / mr, o % mr);
         for (kk, &v) in row.iter().enumerate() {
             packed[p * mr * input + kk * mr + r] = v;
         }
     }
-    packed.into_boxed_slice()
+    panels
 }
+
+pub(crate) use panels::{Chunk, MAX_COLS, tile};
 
 #[cfg(target_arch = "x86_64")]
 mod panels {
+    use super::Simd;
     use crate::weights::Linear;
-    use gemm_f32::microkernel::fma::f32 as uk;
+    use gemm_common::microkernel::MicroKernelFn;
+    use gemm_f32::microkernel::{avx512f::f32 as uk512, fma::f32 as uk256};
 
-    /// f32 lanes of an AVX register.
-    const LANES: usize = 8;
-    /// Outputs per panel (rows of gemm's microkernel tile).
-    pub const MR: usize = uk::MR_DIV_N * LANES;
-    /// Tokens per microkernel call (columns of its tile).
-    const NR: usize = uk::NR;
-
-    pub fn packed_len(output: usize, input: usize) -> usize {
-        output.div_ceil(MR) * MR * input
-    }
+    /// f32 lanes of a 256- and a 512-bit register.
+    const LANES_256: usize = 8;
+    const LANES_512: usize = 16;
+    /// Rows of activations per microkernel call (columns of its tile); the same in both families.
+    const NR: usize = uk256::NR;
+    const _: () = assert!(uk512::NR == NR);
 
     pub fn available() -> bool {
         is_x86_feature_detected!("avx2") && is_x86_feature_detected!("fma")
+    }
+
+    pub fn avx512_available() -> bool {
+        available() && is_x86_feature_detected!("avx512f")
+    }
+
+    /// AVX2: gemm's 2-register panels (16 outputs). AVX-512: 1–4 registers, as few as hold the layer's outputs,
+    /// so that a 16-channel convolution does not compute 48 padding rows.
+    pub fn panel_rows(simd: Simd, output: usize) -> usize {
+        match simd {
+            Simd::Avx2Fma => uk256::MR_DIV_N * LANES_256,
+            Simd::Avx512 => output.div_ceil(LANES_512).clamp(1, uk512::MR_DIV_N) * LANES_512,
+        }
+    }
+
+    pub fn packed_len(output: usize, input: usize, panel_rows: usize) -> usize {
+        output.div_ceil(panel_rows) * panel_rows * input
+    }
+
+    /// The kernel for panels of `panel_rows` outputs and exactly `cols` rows of activations (a kernel reads all
+    /// its columns).
+    fn kernel(simd: Simd, panel_rows: usize, cols: usize) -> MicroKernelFn<f32> {
+        match simd {
+            Simd::Avx2Fma => uk256::UKR[panel_rows / LANES_256 - 1][cols - 1],
+            Simd::Avx512 => uk512::UKR[panel_rows / LANES_512 - 1][cols - 1],
+        }
     }
 
     /// Rows of activations one pass over the weight panels works on: as many as fit in this many bytes, so
@@ -159,76 +248,147 @@ mod panels {
     /// or thousands of rows; the DiT's 8 tokens are one block).
     const ROW_BLOCK_BYTES: usize = 128 * 1024;
     const MIN_ROW_BLOCK: usize = 8 * NR;
+    /// Columns of one microkernel call at most.
+    pub const MAX_COLS: usize = NR;
+    /// The reduction is cut into chunks whose slice of one weight panel is at most this large, so that it stays
+    /// in the L1 cache while every group of rows of the block reads it (a whole panel of a deep layer, e.g.
+    /// 64 outputs × 4608 inputs, is over 1 MB and would be streamed from L2 once per group).
+    const PANEL_CHUNK_BYTES: usize = 32 * 1024;
 
     /// y += x·Wᵀ for `rows` tokens (or pixels), W read from `l.panels`.
     ///
     /// # Safety
-    /// The CPU has AVX2 and FMA; `x` holds rows·in values, `y` rows·out, `l.panels` is `pack_panels` of `l`.
-    pub unsafe fn product(x: &[f32], rows: usize, l: &Linear, y: &mut [f32]) {
+    /// The CPU has `simd`'s instructions; `x` holds rows·in values, `y` rows·out, `l.panels` is `pack_panels`
+    /// of `l` for `simd`.
+    pub unsafe fn product(simd: Simd, x: &[f32], rows: usize, l: &Linear, y: &mut [f32]) {
         let (k, n) = (l.input, l.output);
+        let mr = panel_rows(simd, n);
+        let kc =
+            (std::env::var("KCB").ok().and_then(|v| v.parse().ok()).unwrap_or(PANEL_CHUNK_BYTES) / (4 * mr)).max(1);
         // Not fewer than MIN_ROW_BLOCK rows, though: every block streams all the weights once, and a deep layer's
-        // weights (MBs) cost more to stream than its few rows' activations to keep.
-        let block = (ROW_BLOCK_BYTES / (4 * k)).max(MIN_ROW_BLOCK);
+        // weights (MBs) cost more to stream than its few rows' activations to keep. A whole number of groups of
+        // NR rows, so that only the last block has a narrower group.
+        let block = (ROW_BLOCK_BYTES / (4 * k)).max(MIN_ROW_BLOCK) / NR * NR;
         for b0 in (0..rows).step_by(block) {
             let brows = block.min(rows - b0);
             // Rows in near-equal groups of at most NR (8 → 4 + 4, not 6 + 2): a narrow group has too few
             // independent accumulators to hide the FMA latency.
             let groups = brows.div_ceil(NR);
             let per_group = brows.div_ceil(groups);
-            for p in 0..n.div_ceil(MR) {
-                unsafe { panel(x, b0, brows, per_group, p, l, y) };
+            for k0 in (0..k).step_by(kc) {
+                let chunk = Chunk { k0, len: kc.min(k - k0) };
+                for p in 0..n.div_ceil(mr) {
+                    unsafe { panel(simd, chunk, x, (b0, brows, per_group), p, l, y) };
+                }
             }
         }
     }
 
-    /// Rows b0..b0 + brows of y, outputs of panel `p`, in groups of `per_group` rows.
+    /// Inputs k0..k0 + len of the reduction.
+    #[derive(Clone, Copy)]
+    pub struct Chunk {
+        pub k0: usize,
+        pub len: usize,
+    }
+
+    /// Adds inputs `chunk` of the products for rows b0..b0 + brows of y and the outputs of panel `p`, in groups
+    /// of `per_group` rows.
     ///
     /// # Safety
     /// As [`product`].
-    unsafe fn panel(x: &[f32], b0: usize, brows: usize, per_group: usize, p: usize, l: &Linear, y: &mut [f32]) {
+    unsafe fn panel(
+        simd: Simd,
+        chunk: Chunk,
+        x: &[f32],
+        (b0, brows, per_group): (usize, usize, usize),
+        p: usize,
+        l: &Linear,
+        y: &mut [f32],
+    ) {
         let (k, n) = (l.input, l.output);
-        let m = MR.min(n - p * MR);
-        let lhs = unsafe { l.panels.as_ptr().add(p * MR * k) };
+        let mr = panel_rows(simd, n);
         for j0 in (b0..b0 + brows).step_by(per_group) {
             let nb = per_group.min(b0 + brows - j0);
-            // The kernel for exactly `nb` columns: kernels read all their columns of the activations.
-            let ukr = uk::UKR[uk::MR_DIV_N - 1][nb - 1];
-            // dst(i, j) = y[j0 + j, p·MR + i]: row stride 1, column stride n. lhs: one zero-padded panel,
-            // MR values per k. rhs(kk, j) = x[j0 + j, kk]: row stride 1, column stride k. alpha_status 1:
-            // dst = acc + dst (dst holds the bias). Rows past `m` of the panel are padding and not stored.
+            // Column j of the tile is row j0 + j of x and of y.
             unsafe {
-                ukr(
-                    m,
+                tile(
+                    simd,
+                    l,
+                    p,
+                    chunk,
                     nb,
+                    y.as_mut_ptr().add(j0 * n + p * mr),
+                    n,
+                    x.as_ptr().add(j0 * k + chunk.k0),
                     k,
-                    y.as_mut_ptr().add(j0 * n + p * MR),
-                    lhs,
-                    x.as_ptr().add(j0 * k),
-                    n as isize,
-                    1,
-                    MR as isize,
-                    1,
-                    k as isize,
-                    1.0,
-                    1.0,
-                    1,
-                    false,
-                    false,
-                    false,
-                    lhs,
                 )
             };
         }
+    }
+
+    /// One microkernel call: dst(i, j) += Σ_{kk < chunk.len} W[p·mr + i, chunk.k0 + kk] · rhs[j·rhs_cs + kk] for
+    /// the outputs i of panel `p` (mr per panel) and the `nb` ≤ NR columns j, where dst(i, j) is
+    /// `dst[j·dst_cs + i]`. A convolution gives its own strides (`conv`): a column is then an output pixel
+    /// whose receptive-field row lies in the input at stride `rhs_cs`, with no im2col copy.
+    ///
+    /// # Safety
+    /// The CPU has `simd`'s instructions; `l.panels` is `pack_panels` of `l` for `simd`; chunk.k0 + chunk.len ≤
+    /// l.input; 1 ≤ nb ≤ NR; every dst(i, j) and rhs[j·rhs_cs + kk] addressed lies in its allocation.
+    #[allow(clippy::too_many_arguments)]
+    pub unsafe fn tile(
+        simd: Simd,
+        l: &Linear,
+        p: usize,
+        chunk: Chunk,
+        nb: usize,
+        dst: *mut f32,
+        dst_cs: usize,
+        rhs: *const f32,
+        rhs_cs: usize,
+    ) {
+        let (k, n) = (l.input, l.output);
+        let mr = panel_rows(simd, n);
+        let m = mr.min(n - p * mr);
+        // Panel p is [k][mr]: its chunk is contiguous from k0·mr on.
+        let lhs = unsafe { l.panels.as_ptr().add(p * mr * k + chunk.k0 * mr) };
+        // lhs: mr values per k (column stride mr, row stride 1); rhs(kk, j) = rhs[j·rhs_cs + kk] (row stride 1);
+        // dst row stride 1. alpha_status 1: dst = acc + dst (dst holds the bias and the earlier chunks' sums).
+        // Rows past `m` of the panel are padding and not stored.
+        unsafe {
+            kernel(simd, mr, nb)(
+                m,
+                nb,
+                chunk.len,
+                dst,
+                lhs,
+                rhs,
+                dst_cs as isize,
+                1,
+                mr as isize,
+                1,
+                rhs_cs as isize,
+                1.0,
+                1.0,
+                1,
+                false,
+                false,
+                false,
+                lhs,
+            )
+        };
     }
 }
 
 #[cfg(not(target_arch = "x86_64"))]
 mod panels {
+    use super::Simd;
     use crate::weights::Linear;
 
-    pub const MR: usize = 1;
+    pub fn panel_rows(_simd: Simd, _output: usize) -> usize {
+        1
+    }
 
-    pub fn packed_len(_output: usize, _input: usize) -> usize {
+    pub fn packed_len(_output: usize, _input: usize, _panel_rows: usize) -> usize {
         usize::MAX // never equal to a real length: the microkernel branch is never taken
     }
 
@@ -236,7 +396,34 @@ mod panels {
         false
     }
 
-    pub unsafe fn product(_x: &[f32], _rows: usize, _l: &Linear, _y: &mut [f32]) {
+    pub fn avx512_available() -> bool {
+        false
+    }
+
+    pub unsafe fn product(_simd: Simd, _x: &[f32], _rows: usize, _l: &Linear, _y: &mut [f32]) {
+        unreachable!("MatMul::Microkernel is never chosen off x86-64")
+    }
+
+    pub const MAX_COLS: usize = 1;
+
+    #[derive(Clone, Copy)]
+    pub struct Chunk {
+        pub k0: usize,
+        pub len: usize,
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    pub unsafe fn tile(
+        _simd: Simd,
+        _l: &Linear,
+        _p: usize,
+        _chunk: Chunk,
+        _nb: usize,
+        _dst: *mut f32,
+        _dst_cs: usize,
+        _rhs: *const f32,
+        _rhs_cs: usize,
+    ) {
         unreachable!("MatMul::Microkernel is never chosen off x86-64")
     }
 }
@@ -245,11 +432,11 @@ mod panels {
 mod tests {
     use super::*;
 
-    fn lin(input: usize, output: usize) -> Linear {
+    fn lin(input: usize, output: usize, mm: MatMul) -> Linear {
         let f = |i: usize| ((i * 7919 % 1000) as f32 / 1000.0) - 0.5;
         let weight: Box<[f32]> = (0..input * output).map(f).collect();
         Linear {
-            panels: pack_panels(&weight, output, input),
+            panels: pack_panels(&weight, output, input, mm),
             weight,
             bias: (0..output).map(|i| f(i + 13)).collect(),
             input,
@@ -271,7 +458,8 @@ mod tests {
     #[test]
     fn every_backend_matches_a_naive_product() {
         // rows 1 (gemv), fewer/more than a microkernel's columns; outputs that are not multiples of a panel;
-        // k of 1, 2 and odd sizes; convolution-sized products that the microkernel path splits into row blocks.
+        // k of 1, 2 and odd sizes; convolution-sized products that the microkernel path splits into row blocks;
+        // outputs that take AVX-512 panels of 1, 2, 3 and 4 registers (7, 20, 40, 100 and 128).
         let shapes = [
             (1, 2, 128),
             (1, 128, 3328),
@@ -285,13 +473,17 @@ mod tests {
         ];
         let mut backends = vec![MatMul::Rows, MatMul::Threaded(2)];
         if panels::available() {
-            backends.push(MatMul::Microkernel);
+            backends.push(MatMul::Microkernel(Simd::Avx2Fma));
+        }
+        if panels::avx512_available() {
+            backends.push(MatMul::Microkernel(Simd::Avx512));
         }
         for &(rows, input, output) in &shapes {
-            let l = lin(input, output);
             let x: Vec<f32> = (0..rows * input).map(|i| ((i * 31 % 17) as f32 - 8.0) / 8.0).collect();
-            let want = naive(&x, rows, &l);
+            let want = naive(&x, rows, &lin(input, output, MatMul::Rows));
             for &mm in &backends {
+                let l = lin(input, output, mm);
+                assert_eq!(l.panels.len() == 0, !mm.uses_panels(), "{mm:?}");
                 let mut y = vec![f32::NAN; rows * output];
                 mm.linear(&x, rows, &l, &mut y);
                 let err = y.iter().zip(&want).map(|(a, b)| (a - b).abs()).fold(0.0, f32::max);

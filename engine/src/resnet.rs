@@ -30,27 +30,28 @@ impl GroupNorm {
     /// Normalises `x` [pixels, C] in place over each group of C / groups contiguous channels and all pixels, then
     /// scales and shifts per channel; `relu` fuses a ReLU. Per group: the mean, then the variance about it (two
     /// passes, f64 sums, as candle's two-pass formula), then x·a + b per channel with a = γ / √(var + ε) and
-    /// b = β − mean·a. `scratch`: 2·C values.
-    fn apply(&self, x: &mut [f32], channels: usize, relu: bool, scratch: &mut [f32]) {
+    /// b = β − mean·a.
+    ///
+    /// Each pass sums [`LANES`] channels at a time over all pixels in f64 registers of their own (independent
+    /// adds that pipeline), then adds a group's channel sums: a running sum per group was a chain of dependent
+    /// adds, and per-channel sums in memory a load and store per value — 16 % of a narrow encoder's time.
+    fn apply(&self, x: &mut [f32], channels: usize, relu: bool, s: &mut NormScratch) {
         let per = channels / self.groups;
         let n = (x.len() / channels * per) as f64;
-        let (a, b) = scratch[..2 * channels].split_at_mut(channels);
-        for g in 0..self.groups {
-            let span = g * per..(g + 1) * per;
-            let mut sum = 0.0f64;
-            for px in x.chunks_exact(channels) {
-                sum += px[span.clone()].iter().map(|v| *v as f64).sum::<f64>();
-            }
-            let mean = sum / n;
-            let mut sq = 0.0f64;
-            for px in x.chunks_exact(channels) {
-                sq += px[span.clone()].iter().map(|v| (*v as f64 - mean).powi(2)).sum::<f64>();
-            }
-            let inv = 1.0 / (sq / n + GN_EPS).sqrt();
-            for c in span {
+        let (sums, rest) = s.wide[..3 * channels].split_at_mut(channels);
+        let (means, squares) = rest.split_at_mut(channels);
+        channel_sums(x, channels, sums, |v, _| v);
+        for (group, means) in sums.chunks_exact(per).zip(means.chunks_exact_mut(per)) {
+            means.fill(group.iter().sum::<f64>() / n);
+        }
+        channel_sums(x, channels, squares, |v, c| (v - means[c]).powi(2));
+        let (a, b) = s.narrow[..2 * channels].split_at_mut(channels);
+        for (g, group) in squares.chunks_exact(per).enumerate() {
+            let inv = 1.0 / (group.iter().sum::<f64>() / n + GN_EPS).sqrt();
+            for c in g * per..(g + 1) * per {
                 let scale = self.gamma[c] as f64 * inv;
                 a[c] = scale as f32;
-                b[c] = (self.beta[c] as f64 - mean * scale) as f32;
+                b[c] = (self.beta[c] as f64 - means[c] * scale) as f32;
             }
         }
         for px in x.chunks_exact_mut(channels) {
@@ -59,6 +60,42 @@ impl GroupNorm {
                 *v = if relu { y.max(0.0) } else { y };
             }
         }
+    }
+}
+
+/// Channels summed together in [`channel_sums`]: 8 f64 accumulators.
+const LANES: usize = 8;
+
+/// sums[c] = Σ over pixels of f(x[pixel, c] as f64, c), for `x` [pixels, channels].
+#[inline(always)]
+fn channel_sums(x: &[f32], channels: usize, sums: &mut [f64], f: impl Fn(f64, usize) -> f64) {
+    let mut c0 = 0;
+    while c0 + LANES <= channels {
+        let mut acc = [0.0f64; LANES];
+        for px in x.chunks_exact(channels) {
+            let px = &px[c0..c0 + LANES];
+            for i in 0..LANES {
+                acc[i] += f(px[i] as f64, c0 + i);
+            }
+        }
+        sums[c0..c0 + LANES].copy_from_slice(&acc);
+        c0 += LANES;
+    }
+    for (c, sum) in sums.iter_mut().enumerate().take(channels).skip(c0) {
+        *sum = x.iter().skip(c).step_by(channels).map(|v| f(*v as f64, c)).sum();
+    }
+}
+
+/// GroupNorm's working memory, sized at load for the widest layer: per-channel f64 sums, group means and sums
+/// of squares; per-channel f32 scale and shift.
+struct NormScratch {
+    wide: Box<[f64]>,
+    narrow: Box<[f32]>,
+}
+
+impl NormScratch {
+    fn new(channels: usize) -> Self {
+        Self { wide: vec![0.0; 3 * channels].into_boxed_slice(), narrow: vec![0.0; 2 * channels].into_boxed_slice() }
     }
 }
 
@@ -98,8 +135,7 @@ pub struct ImageEncoder {
     t2: Box<[f32]>,
     t3: Box<[f32]>,
     cols: Box<[f32]>,
-    /// GroupNorm's per-channel scale and shift.
-    norm_scratch: Box<[f32]>,
+    norm_scratch: NormScratch,
     out: Box<[f32]>,
 }
 
@@ -181,7 +217,7 @@ impl ImageEncoder {
                     bias: vec![0.0; keypoints].into_boxed_slice(),
                     input: channels,
                     output: keypoints,
-                    panels: Box::default(),
+                    panels: Default::default(),
                 }),
                 xs: (0..pixels).map(|p| at(p % hw.1, hw.1)).collect(),
                 ys: (0..pixels).map(|p| at(p / hw.1, hw.0)).collect(),
@@ -214,7 +250,7 @@ impl ImageEncoder {
             t2: buf(act),
             t3: buf(act),
             cols: buf(cols),
-            norm_scratch: buf(2 * 8 * w),
+            norm_scratch: NormScratch::new(8 * w),
         })
     }
 
@@ -334,5 +370,50 @@ fn spatial_softmax(maps: &mut [f32], k: usize, xs: &[f32], ys: &[f32], out: &mut
         }
         out[j] = x;
         out[k + j] = y;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// GroupNorm from its definition, in f64, one group at a time.
+    fn reference(x: &[f32], channels: usize, norm: &GroupNorm, relu: bool) -> Vec<f32> {
+        let per = channels / norm.groups;
+        let mut y = vec![0.0; x.len()];
+        for g in 0..norm.groups {
+            let values: Vec<f64> =
+                x.chunks_exact(channels).flat_map(|px| px[g * per..(g + 1) * per].iter().map(|v| *v as f64)).collect();
+            let mean = values.iter().sum::<f64>() / values.len() as f64;
+            let var = values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / values.len() as f64;
+            for (p, px) in x.chunks_exact(channels).enumerate() {
+                for c in g * per..(g + 1) * per {
+                    let v = (px[c] as f64 - mean) / (var + GN_EPS).sqrt() * norm.gamma[c] as f64 + norm.beta[c] as f64;
+                    y[p * channels + c] = if relu { v.max(0.0) } else { v } as f32;
+                }
+            }
+        }
+        y
+    }
+
+    #[test]
+    fn group_norm_equals_its_definition_for_any_channel_count() {
+        // Multiples of the 8 summing lanes, and counts with a remainder (a width-1 or odd-width network).
+        for (channels, groups) in [(32, 2), (16, 1), (24, 3), (12, 1), (5, 1), (1, 1)] {
+            let f = |i: usize| ((i * 7919 % 1013) as f32 / 101.3) - 4.0;
+            let norm = GroupNorm {
+                groups,
+                gamma: (0..channels).map(|c| 0.5 + c as f32 / 8.0).collect(),
+                beta: (0..channels).map(|c| c as f32 / 16.0 - 0.3).collect(),
+            };
+            let x: Vec<f32> = (0..37 * channels).map(f).collect();
+            for relu in [false, true] {
+                let mut y = x.clone();
+                norm.apply(&mut y, channels, relu, &mut NormScratch::new(channels));
+                let want = reference(&x, channels, &norm, relu);
+                let err = y.iter().zip(&want).map(|(a, b)| (a - b).abs()).fold(0.0, f32::max);
+                assert!(err < 1e-5, "{channels} channels, {groups} groups, relu {relu}: max error {err}");
+            }
+        }
     }
 }

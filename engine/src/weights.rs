@@ -9,7 +9,7 @@
 
 use crate::dims::Dims;
 use crate::error::LoadError;
-use crate::matmul::{MatMul, pack_panels};
+use crate::matmul::{MatMul, Panels, pack_panels};
 use safetensors::{Dtype, SafeTensors};
 use std::path::Path;
 
@@ -22,7 +22,7 @@ pub struct Linear {
     pub input: usize,
     pub output: usize,
     /// `weight` in microkernel panel layout for token linears; empty otherwise.
-    pub panels: Box<[f32]>,
+    pub panels: Panels,
 }
 
 #[derive(Debug, Clone)]
@@ -104,7 +104,7 @@ impl<'a> Reader<'a> {
             bias: self.tensor(&format!("{prefix}.bias"), &[output])?,
             input,
             output,
-            panels: Box::default(),
+            panels: Panels::default(),
         })
     }
 
@@ -116,7 +116,7 @@ impl<'a> Reader<'a> {
     /// `l` with its weights also in panel layout, when the engine's products use it.
     pub(crate) fn panels(&self, mut l: Linear) -> Linear {
         if self.mm.uses_panels() {
-            l.panels = pack_panels(&l.weight, l.output, l.input);
+            l.panels = pack_panels(&l.weight, l.output, l.input, self.mm);
         }
         l
     }
@@ -129,7 +129,7 @@ fn stack(parts: &[Linear]) -> Linear {
         bias: parts.iter().flat_map(|l| l.bias.iter().copied()).collect(),
         input: parts[0].input,
         output: parts.iter().map(|l| l.output).sum(),
-        panels: Box::default(),
+        panels: Panels::default(),
     }
 }
 
