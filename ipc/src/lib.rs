@@ -6,7 +6,8 @@
 //!
 //! - [`clock`]: CLOCK_MONOTONIC nanoseconds, the timestamps of every frame (comparable across processes).
 //! - [`schema`]: the schema version every frame carries in its user header, and the refusal of mismatches.
-//! - [`state`], [`command`], [`image`], [`scene`]: the `#[repr(C)]` zero-copy payloads.
+//! - [`state`], [`command`], [`image`], [`scene`]: the `#[repr(C)]` zero-copy payloads; [`live`]: what
+//!   `marsd top` reads.
 //! - [`names`]: the per-robot service namespace.
 //! - [`wire`]: typed publishers/subscribers for state, command and camera frames.
 //! - [`liveness`]: heartbeats over iceoryx2 events and a WaitSet watch that tells when the other side died.
@@ -17,6 +18,7 @@ pub mod clock;
 pub mod command;
 pub mod heartbeat_thread;
 pub mod image;
+pub mod live;
 pub mod liveness;
 pub mod names;
 pub mod node;
@@ -28,6 +30,7 @@ pub mod wire;
 pub use command::{CommandMode, JointCommand};
 pub use heartbeat_thread::{HeartbeatReport, HeartbeatThread};
 pub use image::{ImageEncoding, ImageHeader};
+pub use live::{LIVE_CHANNELS, LiveChannel, LiveStats};
 pub use liveness::{ControllerLiveness, HalLiveness, Heartbeat, Peer, PeerWatch, Side};
 pub use names::{NameError, RobotNamespace};
 pub use scene::{SceneAction, ScenePhase, SceneRequest, SceneState};
@@ -35,6 +38,6 @@ pub use schema::{FrameHeader, SCHEMA_VERSION, SchemaMismatch};
 pub use state::{HoldReason, MAX_JOINTS, RobotState, fault, robot_mode, status};
 pub use wire::{
     CommandReader, CommandWriter, FrameReceiveError, FrameSendError, ImageFrame, ImageReader, ImageReceiveError,
-    ImageWriter, SceneRequestReader, SceneRequestWriter, SceneStateReader, SceneStateWriter, StateReader, StateWriter,
-    WireError,
+    ImageWriter, LiveReader, LiveWriter, SceneRequestReader, SceneRequestWriter, SceneStateReader, SceneStateWriter,
+    StateReader, StateWriter, WireError,
 };

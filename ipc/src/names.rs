@@ -1,5 +1,5 @@
 //! Service names under a per-robot namespace: `mars/<robot>/state`, `mars/<robot>/command`,
-//! `mars/<robot>/camera/<camera>`, `mars/<robot>/scene/{state,request}`.
+//! `mars/<robot>/camera/<camera>`, `mars/<robot>/scene/{state,request}`, `mars/<robot>/live`.
 //!
 //! One namespace per robot lets two arms (or a sim and a test) run side by side on one machine; tests use a
 //! robot id with their pid and a counter so they never meet each other's services.
@@ -68,6 +68,11 @@ impl RobotNamespace {
     /// Where the controller asks the scene for resets ([`crate::SceneRequest`]).
     pub fn scene_request(&self) -> Result<ServiceName, NameError> {
         service_name(format!("mars/{}/scene/request", self.robot))
+    }
+
+    /// Where the controller's latency collector publishes [`crate::LiveStats`] (`marsd top`).
+    pub fn live(&self) -> Result<ServiceName, NameError> {
+        service_name(format!("mars/{}/live", self.robot))
     }
 
     /// Where a camera of this robot publishes images.

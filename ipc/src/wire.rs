@@ -1,4 +1,5 @@
-//! Typed ports for the kinds of frame: state, command, camera images, and the scene's state and requests.
+//! Typed ports for the kinds of frame: state, command, camera images, the scene's state and requests, and a
+//! daemon's live statistics.
 //!
 //! Both sides open every service through the functions here, so the quality-of-service settings they pass to
 //! iceoryx2 are identical by construction (iceoryx2 refuses to open a service with incompatible settings).
@@ -12,6 +13,7 @@ use iceoryx2::sample::Sample;
 
 use crate::command::JointCommand;
 use crate::image::ImageHeader;
+use crate::live::LiveStats;
 use crate::names::{NameError, RobotNamespace};
 use crate::scene::{SceneRequest, SceneState};
 use crate::schema::{FrameHeader, SchemaMismatch, check_schema_version};
@@ -190,6 +192,7 @@ frame_ports!(StateWriter, StateReader, RobotState, state);
 frame_ports!(CommandWriter, CommandReader, JointCommand, command);
 frame_ports!(SceneStateWriter, SceneStateReader, SceneState, scene_state);
 frame_ports!(SceneRequestWriter, SceneRequestReader, SceneRequest, scene_request);
+frame_ports!(LiveWriter, LiveReader, LiveStats, live);
 
 fn image_service(
     node: &Node<ipc::Service>,

@@ -108,13 +108,13 @@ pub struct WatchdogConfig {
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct HistogramConfig {
-    /// Length of one HdrHistogram interval-log interval (s).
+    /// Length of one HdrHistogram interval-log interval (s); every interval is also a `marsd top` refresh.
     pub interval_s: f64,
 }
 
 impl Default for HistogramConfig {
     fn default() -> Self {
-        Self { interval_s: 1.0 }
+        Self { interval_s: 0.25 }
     }
 }
 

@@ -100,7 +100,14 @@ pub fn run(p: Prepared) -> anyhow::Result<Outcome> {
     // The report draws with the task's geometry (Push-T's camera view); the task itself moves to the policy thread.
     let task_view = task.clone();
     std::fs::create_dir_all(&cfg.out).with_context(|| format!("creating {}", cfg.out.display()))?;
-    let collector = Collector::start(&cfg.out, Duration::from_millis(50))?;
+    let status = Arc::new(Status::default());
+    let live = crate::live::publisher(crate::live::LiveSetup {
+        robot: cfg.robot.clone(),
+        status: status.clone(),
+        period_ns: (profile.period_s() * 1e9) as u64,
+        inference_budget_ns: ((cfg.policy.lead_ms - cfg.policy.handoff_margin_ms).max(0.0) * 1e6) as u64,
+    });
+    let collector = Collector::start_with(&cfg.out, Duration::from_millis(50), Some(live))?;
     let servo_rec = collector.recorder("servo", &servo_channels(&task), 8);
     let policy_rec = collector.recorder(
         "policy",
@@ -108,7 +115,6 @@ pub fn run(p: Prepared) -> anyhow::Result<Outcome> {
         8,
     );
 
-    let status = Arc::new(Status::default());
     // Policy thread → servo thread (see `shared`).
     let (requests_in, requests_out) = rtrb::RingBuffer::new(16);
     let (chunk_in, chunk_out) = triple_buffer::triple_buffer(&TimedChunk::default());
@@ -197,7 +203,11 @@ pub fn run(p: Prepared) -> anyhow::Result<Outcome> {
             };
             let _ = scene_tx.send(Ok(()));
             let rt = crate::rt::setup_realtime("policy", policy_core, Some(policy_prio), false);
-            Some((PolicyLoop { engine, task, ch: policy_ch, rec: policy_rec, scene }.run(&policy_cfg), rt))
+            Some((
+                PolicyLoop { engine, task, ch: policy_ch, rec: policy_rec, scene, next_interval_ns: 0 }
+                    .run(&policy_cfg),
+                rt,
+            ))
         })
         .context("spawning the policy thread")?;
     if let Err(e) = scene_rx.recv().unwrap_or(Ok(())) {

@@ -58,6 +58,9 @@ pub enum Channel {
     CaptureToCommand,
 }
 
+/// The live view (`marsd top`) carries every channel.
+const _: () = assert!(Channel::COUNT <= mars_ipc::LIVE_CHANNELS);
+
 impl Channel {
     pub const COUNT: usize = 10;
     pub const ALL: [Channel; Channel::COUNT] = [
@@ -108,7 +111,8 @@ impl Channel {
         Histogram::new_with_bounds(1, high, 3).expect("constant bounds are valid")
     }
 
-    fn index(self) -> usize {
+    /// Its position in [`Channel::ALL`] (and in a live frame's channels).
+    pub fn index(self) -> usize {
         self as usize
     }
 }
@@ -132,6 +136,31 @@ impl Interval {
         Box::new(Interval { hists, start_ns: 0, end_ns: 0, stray: 0 })
     }
 }
+
+/// One interval of one loop as the collector received it, shown to the live hook ([`Collector::start_with`])
+/// before it is merged into the totals.
+pub struct IntervalView<'a> {
+    set: &'a Interval,
+}
+
+impl IntervalView<'_> {
+    /// CLOCK_MONOTONIC start and end (ns).
+    pub fn span_ns(&self) -> (u64, u64) {
+        (self.set.start_ns, self.set.end_ns)
+    }
+
+    /// The interval's histogram of `channel`; `None` if this loop does not record it.
+    pub fn histogram(&self, channel: Channel) -> Option<&Histogram<u64>> {
+        self.set.hists[channel.index()].as_ref()
+    }
+}
+
+/// Called on the collector thread with every interval it receives and the loops' starved count so far (for a
+/// live view; never on a real-time thread).
+pub type OnInterval = Box<dyn FnMut(&IntervalView<'_>, u64)>;
+/// Makes the [`OnInterval`] on the collector's thread (it may own what cannot leave that thread, such as an
+/// iceoryx2 port).
+pub type LiveHook = Box<dyn FnOnce() -> OnInterval + Send>;
 
 /// What a recorder and the collector both read about the recorder.
 struct PoolInfo {
@@ -225,6 +254,11 @@ pub struct Collector {
 impl Collector {
     /// Creates `dir` and its [`LOG_FILE`], and starts the thread, which looks for filled sets every `poll`.
     pub fn start(dir: &Path, poll: Duration) -> anyhow::Result<Collector> {
+        Self::start_with(dir, poll, None)
+    }
+
+    /// [`Self::start`], and `live` sees every interval as it arrives, with the loops' starved count so far.
+    pub fn start_with(dir: &Path, poll: Duration, live: Option<LiveHook>) -> anyhow::Result<Collector> {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
         let log_path = dir.join(LOG_FILE);
         let file = File::create(&log_path).with_context(|| format!("creating {}", log_path.display()))?;
@@ -236,7 +270,7 @@ impl Collector {
         let path = log_path.clone();
         let thread = std::thread::Builder::new()
             .name("marsd-latency".into())
-            .spawn(move || collect(&worker, file, path, poll))
+            .spawn(move || collect(&worker, file, path, poll, live))
             .context("spawning the latency collector thread")?;
         Ok(Collector { shared, thread: Some(thread), log_path })
     }
@@ -289,7 +323,8 @@ impl Drop for Collector {
 }
 
 /// The collector thread: poll, merge, log, recycle; a last pass after `stop`.
-fn collect(shared: &Shared, file: File, path: PathBuf, poll: Duration) -> Totals {
+fn collect(shared: &Shared, file: File, path: PathBuf, poll: Duration, live: Option<LiveHook>) -> Totals {
+    let mut live = live.map(|make| make());
     // Interval timestamps are seconds since the collector started (BaseTime), as the HdrHistogram tools expect.
     let (base_wall, base_ns) = (SystemTime::now(), monotonic_ns());
     let mut serializer = V2DeflateSerializer::new();
@@ -311,8 +346,12 @@ fn collect(shared: &Shared, file: File, path: PathBuf, poll: Duration) -> Totals
         let stopping = shared.stop.load(Ordering::Acquire);
         // The registry's lock is only taken here and in `Collector::recorder` (setup): never by a loop thread.
         let mut reg = shared.registry.lock().expect("latency registry poisoned");
+        let starved: u64 = reg.pools.iter().map(|p| p.info.starved.load(Ordering::Relaxed)).sum();
         for pool in &mut reg.pools {
             while let Ok(mut set) = pool.full.pop() {
+                if let Some(hook) = live.as_mut() {
+                    hook(&IntervalView { set: &set }, starved);
+                }
                 if let Some(w) = log.as_mut()
                     && let Err(e) = write_interval(w, &set, base_ns)
                 {

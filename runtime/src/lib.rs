@@ -20,6 +20,7 @@ pub mod effector;
 pub mod frame;
 pub mod latency;
 pub mod limits;
+pub mod live;
 pub mod plots;
 pub mod policy_loop;
 pub mod report;
@@ -34,6 +35,7 @@ pub mod stall_watch;
 pub mod tally;
 pub mod task;
 pub mod timeliness;
+pub mod top;
 pub mod traces;
 pub mod watchdog;
 

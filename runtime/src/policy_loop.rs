@@ -125,6 +125,9 @@ pub struct PolicyLoop {
     pub rec: Recorder,
     /// Push-T: the camera and the scene (opened on this thread).
     pub scene: Option<SceneLink>,
+    /// When the recorder's interval ends (0: at the first inference), so the live view and the interval log see
+    /// the policy's channels while the run goes on, not only at its end.
+    pub next_interval_ns: u64,
 }
 
 impl PolicyLoop {
@@ -357,6 +360,13 @@ impl PolicyLoop {
             self.rec.record(Channel::Encode, out.encode.as_nanos() as u64);
             self.rec.record(Channel::KRequested, out.k_requested as u64);
             self.rec.record(Channel::KUsed, out.k_used as u64);
+            let interval_ns = (cfg.histograms.interval_s * 1e9) as u64;
+            if ready >= self.next_interval_ns {
+                if self.next_interval_ns != 0 {
+                    self.rec.end_interval(ready);
+                }
+                self.next_interval_ns = ready + interval_ns;
+            }
             if out.capped {
                 report.capped += 1;
             }

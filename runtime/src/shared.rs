@@ -55,7 +55,8 @@ pub enum Phase {
 }
 
 impl Phase {
-    fn from_u8(v: u8) -> Self {
+    /// The phase a number (`Phase as u8`, as in a live frame) stands for; unknown numbers read as waiting.
+    pub fn from_u8(v: u8) -> Self {
         match v {
             1 => Self::Idle,
             2 => Self::Resetting,

@@ -28,6 +28,10 @@ enum Command {
     /// age on CLOCK_MONOTONIC, order): what arrived, what was refused and why, how old frames were, at what rate.
     /// Exits 0 when usable frames came and none was refused, 2 otherwise.
     Camera(mars_runtime::camera_watch::CameraArgs),
+    /// Watch a running daemon live: servo wake-up lateness and tick time, state age, inference time against its
+    /// budget, K, camera ages (p50/p99/max of each last interval, and how many samples took a period or more),
+    /// the servo's phase, episode and trip. Reads mars/<robot>/live; costs the daemon's loops nothing.
+    Top(mars_runtime::top::TopArgs),
 }
 
 fn main() -> std::process::ExitCode {
@@ -49,6 +53,13 @@ fn main() -> std::process::ExitCode {
                 print!("{report}");
                 std::process::ExitCode::from(if report.healthy() { 0 } else { 2 })
             }
+            Err(e) => {
+                eprintln!("error: {e:#}");
+                std::process::ExitCode::FAILURE
+            }
+        },
+        Some(Command::Top(t)) => match mars_runtime::top::run(&t) {
+            Ok(_) => std::process::ExitCode::SUCCESS,
             Err(e) => {
                 eprintln!("error: {e:#}");
                 std::process::ExitCode::FAILURE

@@ -20,8 +20,10 @@ use std::time::{Duration, Instant};
 use mars_ipc::node::create_node;
 use mars_ipc::{CommandReader, HoldReason, JointCommand, RobotNamespace, RobotState, StateReader, status};
 use mars_runtime::stall::{self, Evidence, FrameGap, StealSample};
+#[allow(unused_imports)] // each test binary uses a different part of this module
 pub use mars_runtime::stall::{log_time_of_day, now_time_of_day};
 
+#[allow(unused_imports)]
 pub use mars_runtime::rt::rig_lock::{RtRigLock, rt_rig_lock_held, rt_rig_lock_path};
 
 /// Takes the machine-wide real-time rig lock (see `mars_rt::rig_lock`) for the test's whole run.

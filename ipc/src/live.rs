@@ -1,0 +1,73 @@
+//! What `marsd top` shows of a running daemon: the newest latency interval of each of its loops and the servo
+//! loop's status, published a few times a second by the daemon's latency collector.
+//!
+//! The collector is an ordinary thread that already receives every interval's histograms from the real-time
+//! loops (through wait-free rings) to write the interval log; publishing a summary of them adds nothing to the
+//! loops themselves. Anyone can subscribe (`marsd top`, a test, a dashboard) without the daemon knowing.
+
+use iceoryx2::prelude::ZeroCopySend;
+
+/// Latency channels a frame has room for, in the order of the daemon's channel list
+/// (`mars_runtime::latency::Channel::ALL`, which checks at compile time that it fits).
+pub const LIVE_CHANNELS: usize = 12;
+
+/// One channel over its newest interval: time channels in ns, the K channels in ODE steps. `count` 0: no sample
+/// in that interval (the other fields are then 0).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, ZeroCopySend)]
+#[type_name("mars::LiveChannel")]
+#[repr(C)]
+pub struct LiveChannel {
+    pub count: u64,
+    pub p50: u64,
+    pub p99: u64,
+    pub max: u64,
+    /// Samples at or above the servo period (time channels): wake-ups a whole period late, ticks or answers
+    /// that took a period or more.
+    pub over_period: u64,
+    /// CLOCK_MONOTONIC start and end of the interval (ns).
+    pub start_ns: u64,
+    pub end_ns: u64,
+}
+
+/// A daemon's live view, sent after each interval the collector receives.
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("mars::LiveStats")]
+#[repr(C)]
+pub struct LiveStats {
+    pub seq: u64,
+    /// CLOCK_MONOTONIC when sent (ns).
+    pub timestamp_ns: u64,
+    /// The servo loop's period (ns).
+    pub period_ns: u64,
+    /// The policy's time budget per call (ns): the lead of a chunk over the servo's need of it.
+    pub inference_budget_ns: u64,
+    pub channels: [LiveChannel; LIVE_CHANNELS],
+    /// The servo loop's phase (`mars_runtime::shared::Phase` as a number), its episode and ticks so far.
+    pub phase: u32,
+    /// The trip that stopped the loop (`mars_runtime::watchdog::Trip` code); 0: none.
+    pub trip: u32,
+    pub episode: u64,
+    pub ticks: u64,
+    /// Passes of the policy thread's loops (a stuck policy thread stops counting).
+    pub policy_beats: u64,
+    /// Interval sets the loops kept filling because the collector had not returned one (a slow collector).
+    pub starved: u64,
+}
+
+impl Default for LiveStats {
+    fn default() -> Self {
+        Self {
+            seq: 0,
+            timestamp_ns: 0,
+            period_ns: 0,
+            inference_budget_ns: 0,
+            channels: [LiveChannel::default(); LIVE_CHANNELS],
+            phase: 0,
+            trip: 0,
+            episode: 0,
+            ticks: 0,
+            policy_beats: 0,
+            starved: 0,
+        }
+    }
+}

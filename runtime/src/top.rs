@@ -1,0 +1,165 @@
+//! `marsd top`: a running daemon's loops as they run, refreshed with every interval its latency collector
+//! receives (`histograms.interval_s`, 0.25 s in the shipped config). It attaches to `mars/<robot>/live` like any
+//! subscriber: no server, no request to the daemon, nothing added to its real-time loops (see `live`).
+
+use std::fmt::{self, Write as _};
+use std::io::{IsTerminal, Write as _};
+use std::time::{Duration, Instant};
+
+use anyhow::Context;
+use mars_ipc::clock::monotonic_ns;
+use mars_ipc::node::create_node;
+use mars_ipc::{LiveReader, LiveStats, RobotNamespace};
+
+use crate::latency::Channel;
+use crate::shared::Phase;
+use crate::watchdog::Trip;
+
+#[derive(clap::Args, Debug, Clone)]
+pub struct TopArgs {
+    /// The robot whose daemon to watch (the service is mars/<robot>/live).
+    #[arg(long)]
+    pub robot: String,
+    /// Show this many views, then exit (default: until the daemon stops publishing, or Ctrl-C).
+    #[arg(long)]
+    pub count: Option<u64>,
+    /// How long without a frame means the daemon is not (or no longer) running (s).
+    #[arg(long, default_value_t = 5.0)]
+    pub timeout_s: f64,
+    /// Print each view below the last instead of redrawing the screen (the default when stdout is not a terminal).
+    #[arg(long)]
+    pub plain: bool,
+}
+
+/// How the watch ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum TopEnd {
+    /// `--count` views shown.
+    Counted,
+    /// Frames came, then stopped for the timeout: the daemon ended (or hung).
+    DaemonGone { views: u64 },
+    /// Ctrl-C or SIGTERM.
+    Interrupted { views: u64 },
+}
+
+/// Watches until `--count` views, the daemon's silence, or a signal. An error if no frame came at all.
+pub fn run(args: &TopArgs) -> anyhow::Result<TopEnd> {
+    let ns = RobotNamespace::new(&args.robot)?;
+    let (node, _) = create_node(&format!("marsd-top-{}-{}", args.robot, std::process::id()))?;
+    let reader = LiveReader::new(&node, &ns).with_context(|| format!("subscribing to mars/{}/live", args.robot))?;
+    let redraw = !args.plain && std::io::stdout().is_terminal();
+    let timeout = Duration::from_secs_f64(args.timeout_s);
+    let (mut views, mut last_frame) = (0u64, Instant::now());
+    loop {
+        if node.wait(Duration::from_millis(50)).is_err() {
+            return Ok(TopEnd::Interrupted { views });
+        }
+        // Only the newest frame matters; older ones queued while we slept are skipped.
+        let mut newest = None;
+        while let Some(frame) = reader.receive().with_context(|| format!("reading {}", reader.service()))? {
+            newest = Some(frame);
+        }
+        let Some(frame) = newest else {
+            if last_frame.elapsed() < timeout {
+                continue;
+            }
+            if views == 0 {
+                anyhow::bail!(
+                    "no live frame on mars/{}/live within {:.1} s: is marsd running for robot {:?}?",
+                    args.robot,
+                    args.timeout_s,
+                    args.robot
+                );
+            }
+            println!("marsd on {} stopped publishing ({:.1} s without a frame)", args.robot, args.timeout_s);
+            return Ok(TopEnd::DaemonGone { views });
+        };
+        last_frame = Instant::now();
+        let text = View { robot: &args.robot, frame: &frame, now_ns: monotonic_ns() }.to_string();
+        let mut out = std::io::stdout().lock();
+        if redraw {
+            // Home, clear: one screen that updates in place.
+            write!(out, "\x1b[H\x1b[2J")?;
+        }
+        write!(out, "{text}")?;
+        out.flush()?;
+        views += 1;
+        if args.count.is_some_and(|n| views >= n) {
+            return Ok(TopEnd::Counted);
+        }
+    }
+}
+
+/// One screen of `marsd top`.
+pub struct View<'a> {
+    pub robot: &'a str,
+    pub frame: &'a LiveStats,
+    pub now_ns: u64,
+}
+
+impl fmt::Display for View<'_> {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let fr = self.frame;
+        let trip = match fr.trip {
+            0 => "none".to_string(),
+            code => Trip::from_code(code).map_or(format!("code {code}"), |t| t.to_string()),
+        };
+        writeln!(
+            f,
+            "marsd on {} — {:?}, episode {}, servo ticks {}, trip: {trip}",
+            self.robot,
+            Phase::from_u8(fr.phase as u8),
+            fr.episode,
+            fr.ticks
+        )?;
+        writeln!(
+            f,
+            "servo period {:.0} µs; policy budget per call {:.1} ms; live frame {}; intervals extended (collector slow) {}",
+            fr.period_ns as f64 / 1e3,
+            fr.inference_budget_ns as f64 / 1e6,
+            fr.seq,
+            fr.starved
+        )?;
+        writeln!(
+            f,
+            "{:<23} {:>5} {:>7} {:>9} {:>9} {:>9} {:>9} {:>8}",
+            "channel (last interval)", "unit", "count", "p50", "p99", "max", "≥ period", "age s"
+        )?;
+        for c in Channel::ALL {
+            let ch = &fr.channels[c.index()];
+            if ch.end_ns == 0 {
+                continue; // this daemon does not record it (e.g. camera channels on a state-only task)
+            }
+            let value = |v: u64| if c.is_time() { format!("{:.1}", v as f64 / 1e3) } else { v.to_string() };
+            let mut over = String::new();
+            if c.is_time() {
+                let _ = write!(over, "{}", ch.over_period);
+            } else {
+                over.push('–');
+            }
+            writeln!(
+                f,
+                "{:<23} {:>5} {:>7} {:>9} {:>9} {:>9} {:>9} {:>8.1}",
+                c.tag(),
+                c.unit(),
+                ch.count,
+                value(ch.p50),
+                value(ch.p99),
+                value(ch.max),
+                over,
+                self.now_ns.saturating_sub(ch.end_ns) as f64 / 1e9
+            )?;
+        }
+        let inference = &fr.channels[Channel::Inference.index()];
+        if inference.count > 0 && fr.inference_budget_ns > 0 {
+            writeln!(
+                f,
+                "inference p99 {:.1} ms of its {:.1} ms budget ({:.0} %)",
+                inference.p99 as f64 / 1e6,
+                fr.inference_budget_ns as f64 / 1e6,
+                100.0 * inference.p99 as f64 / fr.inference_budget_ns as f64
+            )?;
+        }
+        writeln!(f)
+    }
+}

@@ -1,0 +1,76 @@
+//! `marsd top` against a running demo (mock HAL + marsd as processes) and against nothing.
+
+mod common;
+
+use std::process::Command;
+use std::time::Duration;
+
+use common::*;
+
+fn top(robot: &str, extra: &[&str], logs: &TempDir) -> Proc {
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_marsd"));
+    cmd.args(["top", "--robot", robot, "--plain"]).args(extra);
+    // Not a real-time process: an ordinary child, as a user's terminal would run it.
+    Proc::spawn(cmd, "top", logs.path())
+}
+
+/// The number in the column `col` (0 = the channel's name) of the row starting with `channel`, in one view.
+fn cell(view: &str, channel: &str, col: usize) -> Option<f64> {
+    let row = view.lines().find(|l| l.split_whitespace().next() == Some(channel))?;
+    row.split_whitespace().nth(col)?.parse().ok()
+}
+
+/// `servo ticks N` in a view's header.
+fn ticks(view: &str) -> Option<u64> {
+    let rest = view.split("servo ticks ").nth(1)?;
+    rest.split(|c: char| !c.is_ascii_digit()).next()?.parse().ok()
+}
+
+#[test]
+fn top_without_a_daemon_says_so_and_fails() {
+    let logs = TempDir::new("top-nothing");
+    let robot = robot("top-nothing");
+    let mut t = top(&robot, &["--timeout-s", "0.5"], &logs);
+    assert_eq!(t.exit_code(Duration::from_secs(30)), 1, "{}", t.logs());
+    let err = t.stderr_text();
+    assert!(err.contains(&format!("no live frame on mars/{robot}/live")) && err.contains("is marsd running"), "{err}");
+}
+
+#[test]
+fn top_follows_a_running_demo() {
+    let _rt = rt_rig_lock();
+    let logs = TempDir::new("top-demo");
+    let robot = robot("top-demo");
+    let (_hal, _rec) = hal_with_recorder(&robot, &[], &logs);
+    let mut marsd = spawn_marsd(&robot, &shipped_config(), 3, &[], &logs);
+    // 12 views: at the shipped 0.25 s intervals (servo and policy each hand one over), a few seconds of the run.
+    let mut t = top(&robot, &["--count", "12", "--timeout-s", "20"], &logs);
+    let code = t.exit_code(Duration::from_secs(60));
+    let out = t.stdout_text();
+    let _ = marsd.exit_code(Duration::from_secs(120));
+    assert_eq!(code, 0, "top failed\n{}\nmarsd:\n{}", t.logs(), marsd.logs());
+    let views: Vec<&str> = out.split("marsd on ").skip(1).collect();
+    assert_eq!(views.len(), 12, "{out}");
+    eprintln!("the last view:\nmarsd on {}", views[11]);
+    assert!(views.iter().all(|v| v.starts_with(&robot)), "{out}");
+    // The servo's channels are in every view once its first interval is in, with the samples of a whole interval.
+    let servo_views: Vec<&&str> = views.iter().filter(|v| cell(v, "wake_jitter", 2).is_some()).collect();
+    assert!(servo_views.len() >= 10, "{out}");
+    for v in &servo_views {
+        let samples = cell(v, "tick_compute", 2).unwrap();
+        assert!(samples >= 50.0, "an interval of 0.25 s at 1 kHz has ~250 ticks\n{v}");
+        assert!(cell(v, "state_age", 2).unwrap() > 0.0, "{v}");
+        let (p50, p99, max) = (
+            cell(v, "tick_compute", 3).unwrap(),
+            cell(v, "tick_compute", 4).unwrap(),
+            cell(v, "tick_compute", 5).unwrap(),
+        );
+        assert!(0.0 < p50 && p50 <= p99 && p99 <= max, "{v}");
+    }
+    // The policy ran and was shown with its budget; the servo's ticks only go forward.
+    assert!(views.iter().any(|v| cell(v, "inference", 2).is_some_and(|n| n > 0.0)), "{out}");
+    assert!(out.contains("inference p99") && out.contains("budget"), "{out}");
+    assert!(out.contains("Running") || out.contains("Resetting"), "{out}");
+    let ticks: Vec<u64> = views.iter().filter_map(|v| ticks(v)).collect();
+    assert!(ticks.windows(2).all(|w| w[0] <= w[1]) && ticks.last() > ticks.first(), "{ticks:?}");
+}
