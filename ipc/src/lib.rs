@@ -30,7 +30,7 @@ pub mod wire;
 pub use command::{CommandMode, JointCommand};
 pub use heartbeat_thread::{HeartbeatReport, HeartbeatThread};
 pub use image::{ImageEncoding, ImageHeader};
-pub use live::{LIVE_CHANNELS, LiveChannel, LiveStats};
+pub use live::{HalLive, LIVE_CHANNELS, LiveChannel, LiveStats, ServoLive};
 pub use liveness::{ControllerLiveness, HalLiveness, Heartbeat, Peer, PeerWatch, Side};
 pub use names::{NameError, RobotNamespace};
 pub use scene::{SceneAction, ScenePhase, SceneRequest, SceneState};

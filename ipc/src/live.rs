@@ -52,6 +52,43 @@ pub struct LiveStats {
     pub policy_beats: u64,
     /// Interval sets the loops kept filling because the collector had not returned one (a slow collector).
     pub starved: u64,
+    /// The servo loop's counters since the handshake, as of its newest interval (as in marsd's report).
+    pub servo: ServoLive,
+    /// The HAL's counters from its newest frame the servo read, since this controller's handshake.
+    pub hal: HalLive,
+}
+
+/// The servo loop's counters (see marsd's report for each).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, ZeroCopySend)]
+#[type_name("mars::ServoLive")]
+#[repr(C)]
+pub struct ServoLive {
+    pub commands_sent: u64,
+    /// Commands that reached the HAL after its next tick.
+    pub late_commands: u64,
+    /// Times the trajectory continued from the HAL's applied setpoint.
+    pub resyncs: u64,
+    /// Ticks with no new state frame (nothing sent).
+    pub frameless_ticks: u64,
+    /// Actions whose chunk came after they were due.
+    pub actions_dropped: u64,
+    /// Running ticks with the chunk used up.
+    pub starved_ticks: u64,
+    /// Commands the final limit check stopped (never sent; must be 0).
+    pub limit_violations: u64,
+}
+
+/// The HAL's safety counters.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, ZeroCopySend)]
+#[type_name("mars::HalLive")]
+#[repr(C)]
+pub struct HalLive {
+    pub rejected: u64,
+    pub clamped: u64,
+    pub late: u64,
+    pub position_guard_hits: u64,
+    pub infeasible_steps: u64,
+    pub backend_errors: u64,
 }
 
 impl Default for LiveStats {
@@ -68,6 +105,8 @@ impl Default for LiveStats {
             ticks: 0,
             policy_beats: 0,
             starved: 0,
+            servo: ServoLive::default(),
+            hal: HalLive::default(),
         }
     }
 }

@@ -125,6 +125,16 @@ struct Interval {
     end_ns: u64,
     /// Samples for channels the recorder does not own: a bug in the caller, counted rather than lost silently.
     stray: u64,
+    /// The loop's counters at the interval's end, if it handed them over ([`Recorder::end_interval_with`]).
+    counters: Option<LoopCounters>,
+}
+
+/// Counters the servo loop hands over with an interval (for the live view): its own, and the HAL's as its newest
+/// frame says, since the handshake. A copy of plain integers once per interval, into the set it hands over anyway.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct LoopCounters {
+    pub servo: crate::servo::ServoCounters,
+    pub hal: crate::servo::HalCounts,
 }
 
 impl Interval {
@@ -133,7 +143,7 @@ impl Interval {
         for c in channels {
             hists[c.index()] = Some(c.new_histogram());
         }
-        Box::new(Interval { hists, start_ns: 0, end_ns: 0, stray: 0 })
+        Box::new(Interval { hists, start_ns: 0, end_ns: 0, stray: 0, counters: None })
     }
 }
 
@@ -147,6 +157,11 @@ impl IntervalView<'_> {
     /// CLOCK_MONOTONIC start and end (ns).
     pub fn span_ns(&self) -> (u64, u64) {
         (self.set.start_ns, self.set.end_ns)
+    }
+
+    /// The loop's counters at the interval's end, if it handed them over.
+    pub fn counters(&self) -> Option<&LoopCounters> {
+        self.set.counters.as_ref()
     }
 
     /// The interval's histogram of `channel`; `None` if this loop does not record it.
@@ -204,11 +219,25 @@ impl Recorder {
     /// Ends the current interval at `now_ns` (on [`monotonic_ns`]): hands the filled set to the collector and
     /// continues in an empty one. Returns false if none was free; recording then continues in the same set.
     pub fn end_interval(&mut self, now_ns: u64) -> bool {
+        self.hand_over(now_ns, None)
+    }
+
+    /// [`Self::end_interval`], with the loop's counters at this moment (a copy into the set; no allocation).
+    pub fn end_interval_with(&mut self, now_ns: u64, counters: LoopCounters) -> bool {
+        self.hand_over(now_ns, Some(counters))
+    }
+
+    fn hand_over(&mut self, now_ns: u64, counters: Option<LoopCounters>) -> bool {
+        if let Some(cur) = self.current.as_mut() {
+            // Also when no fresh set is free: the set then goes on, and carries the newer counters.
+            cur.counters = counters.or(cur.counters);
+        }
         let Ok(mut fresh) = self.empty.pop() else {
             self.info.starved.fetch_add(1, Ordering::Relaxed);
             return false;
         };
         fresh.start_ns = now_ns;
+        fresh.counters = None;
         if let Some(mut filled) = self.current.replace(fresh) {
             filled.end_ns = now_ns;
             let handed = self.full.push(filled);

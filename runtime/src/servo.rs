@@ -58,7 +58,7 @@ pub struct TickOutput {
 }
 
 /// Counters for the report.
-#[derive(Debug, Clone, Copy, Default, serde::Serialize)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize)]
 pub struct ServoCounters {
     pub ticks: u64,
     pub commands_sent: u64,

@@ -16,7 +16,7 @@ use mars_ipc::{
 };
 
 use crate::chunk::TimedChunk;
-use crate::latency::{Channel, Recorder};
+use crate::latency::{Channel, LoopCounters, Recorder};
 use crate::rt::Ticker;
 use crate::servo::{HalCounts, ServoCounters, ServoTick, StopCause, TickInput};
 use crate::shared::{Observed, Phase, Request, Status};
@@ -234,7 +234,7 @@ pub fn run_servo(
         let done = monotonic_ns();
         rec.record(Channel::TickCompute, done.saturating_sub(t0));
         if done >= next_interval {
-            rec.end_interval(done);
+            rec.end_interval_with(done, LoopCounters { servo: tick.counters, hal: tick.hal_counts() });
             next_interval += interval_ns;
         }
         if tick.counters.ticks == ALLOC_WARMUP_TICKS {

@@ -1,5 +1,6 @@
 //! `marsd top`: a running daemon's loops as they run, refreshed with every interval its latency collector
-//! receives (`histograms.interval_s`, 0.25 s in the shipped config). It attaches to `mars/<robot>/live` like any
+//! receives (`histograms.interval_s`, 0.25 s in the shipped config): latency percentiles, the servo's counters and
+//! the HAL's safety counters, phase and trip. It attaches to `mars/<robot>/live` like any
 //! subscriber: no server, no request to the daemon, nothing added to its real-time loops (see `live`).
 
 use std::fmt::{self, Write as _};
@@ -150,6 +151,24 @@ impl fmt::Display for View<'_> {
                 self.now_ns.saturating_sub(ch.end_ns) as f64 / 1e9
             )?;
         }
+        let (sv, h) = (&fr.servo, &fr.hal);
+        writeln!(
+            f,
+            "servo: {} commands sent, {} late for the HAL, {} resyncs, {} ticks with no new frame, {} actions dropped, \
+             {} starved ticks, {} stopped by the final limit check",
+            sv.commands_sent,
+            sv.late_commands,
+            sv.resyncs,
+            sv.frameless_ticks,
+            sv.actions_dropped,
+            sv.starved_ticks,
+            sv.limit_violations
+        )?;
+        writeln!(
+            f,
+            "HAL: {} commands rejected, {} clamped, {} late; position guard {}, infeasible steps {}, backend errors {}",
+            h.rejected, h.clamped, h.late, h.position_guard_hits, h.infeasible_steps, h.backend_errors
+        )?;
         let inference = &fr.channels[Channel::Inference.index()];
         if inference.count > 0 && fr.inference_budget_ns > 0 {
             writeln!(

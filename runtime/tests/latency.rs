@@ -11,7 +11,7 @@ use std::time::{Duration, Instant};
 use hdrhistogram::Histogram;
 use hdrhistogram::serialization::Deserializer;
 use hdrhistogram::serialization::interval_log::{IntervalLogIterator, LogEntry};
-use mars_runtime::latency::{Channel, Collector, LOG_FILE};
+use mars_runtime::latency::{Channel, Collector, LOG_FILE, LoopCounters};
 use mars_runtime::rt::monotonic_ns;
 
 /// Counts allocator calls made by threads that opted in, so the collector thread's own work is not counted.
@@ -67,6 +67,47 @@ fn out_dir(test: &str) -> PathBuf {
     dir
 }
 
+/// Counters as the servo loop hands them over, numbered by `i`.
+fn counters(i: u64) -> LoopCounters {
+    let mut c = LoopCounters::default();
+    c.servo.commands_sent = i;
+    c.hal.clamped = 2 * i;
+    c
+}
+
+#[test]
+fn the_live_hook_sees_every_interval_with_the_counters_handed_over() {
+    let dir = out_dir("live");
+    let (tx, rx) = std::sync::mpsc::channel();
+    let hook: mars_runtime::latency::LiveHook = Box::new(move || {
+        Box::new(move |view: &mars_runtime::latency::IntervalView<'_>, _starved: u64| {
+            let wake = view.histogram(Channel::WakeJitter).map(|h| h.len());
+            let _ = tx.send((view.counters().copied(), wake, view.histogram(Channel::Inference).is_some()));
+        })
+    });
+    let collector = Collector::start_with(&dir, Duration::from_millis(1), Some(hook)).unwrap();
+    let mut rec = collector.recorder("servo", &[Channel::WakeJitter], 4);
+    for i in 1..=3u64 {
+        for v in 0..10 * i {
+            rec.record(Channel::WakeJitter, 1000 + v);
+        }
+        assert!(rec.end_interval_with(monotonic_ns(), counters(i)));
+        std::thread::sleep(Duration::from_millis(20)); // the collector returns the set
+    }
+    rec.end_interval(monotonic_ns());
+    drop(rec);
+    collector.finish();
+    let seen: Vec<_> = rx.try_iter().collect();
+    // Three intervals with their counters and samples, the one without counters, and the empty last one.
+    assert_eq!(seen.len(), 5, "{seen:?}");
+    for (i, (c, wake, inference)) in seen.iter().take(3).enumerate() {
+        assert_eq!(*c, Some(counters(i as u64 + 1)));
+        assert_eq!(*wake, Some(10 * (i as u64 + 1)));
+        assert!(!inference, "a channel this loop does not record has no histogram");
+    }
+    assert_eq!(seen[3].0, None);
+}
+
 #[test]
 fn record_and_end_interval_never_allocate() {
     // The counter works: an allocation on a watched thread is seen.
@@ -86,7 +127,11 @@ fn record_and_end_interval_never_allocate() {
                             }
                         }
                         rec.record(Channel::WakeJitter, u64::MAX); // clamped, still no allocation
-                        rec.end_interval(monotonic_ns());
+                        if i % 2 == 0 {
+                            rec.end_interval(monotonic_ns());
+                        } else {
+                            rec.end_interval_with(monotonic_ns(), counters(i));
+                        }
                         std::thread::sleep(Duration::from_micros(200));
                     }
                 })

@@ -26,6 +26,12 @@ fn ticks(view: &str) -> Option<u64> {
     rest.split(|c: char| !c.is_ascii_digit()).next()?.parse().ok()
 }
 
+/// The integer just before `label` in `text`.
+fn number_before(text: &str, label: &str) -> Option<u64> {
+    let head = &text[..text.find(label)?];
+    head.rsplit(|c: char| !c.is_ascii_digit()).next()?.parse().ok()
+}
+
 #[test]
 fn top_without_a_daemon_says_so_and_fails() {
     let logs = TempDir::new("top-nothing");
@@ -71,6 +77,12 @@ fn top_follows_a_running_demo() {
     assert!(views.iter().any(|v| cell(v, "inference", 2).is_some_and(|n| n > 0.0)), "{out}");
     assert!(out.contains("inference p99") && out.contains("budget"), "{out}");
     assert!(out.contains("Running") || out.contains("Resetting"), "{out}");
+    // The servo's and the HAL's counters: commands flow, none stopped by the final check, none refused by the HAL.
+    let last = views[11];
+    let sent = number_before(last, " commands sent").expect(last);
+    assert!(sent > 100, "{last}");
+    assert_eq!(number_before(last, " stopped by the final limit check"), Some(0), "{last}");
+    assert_eq!(number_before(last, " commands rejected"), Some(0), "{last}");
     let ticks: Vec<u64> = views.iter().filter_map(|v| ticks(v)).collect();
     assert!(ticks.windows(2).all(|w| w[0] <= w[1]) && ticks.last() > ticks.first(), "{ticks:?}");
 }
