@@ -192,7 +192,7 @@ pub fn demo(mut args: DemoArgs) -> anyhow::Result<u8> {
         }
         crate::task::HilTask::PickCup(_) => None,
     };
-    let watch = crate::stall_watch::StallWatch::start(&robot)?;
+    let watch = crate::stall_watch::StallWatch::start(&robot, profile.period_s() * 1e3)?;
     let mut marsd = Command::new(&exe);
     marsd.arg("marsd").arg("--config").arg(&args.marsd.config).args(["--robot", &robot]);
     if let Some(n) = args.marsd.episodes {
@@ -245,7 +245,7 @@ pub fn demo(mut args: DemoArgs) -> anyhow::Result<u8> {
     let trip_line = forward.join().unwrap_or(None);
     let watched = watch.finish();
     if status.code() == Some(i32::from(exit::TRIPPED)) {
-        explain_trip(&out, trip_line.as_deref(), &watched);
+        explain_trip(&out, trip_line.as_deref(), &watched, profile.period_s() * 1e3);
     }
     // marsd has ended its session with a hold command; stop the scene and the HAL the way systemd would.
     for child in scene.iter().chain([&hal]) {
@@ -282,7 +282,7 @@ fn start_franka_sim(venv: &Path, out: &Path) -> anyhow::Result<mars_hal::fci::fr
 
 /// After a trip: if marsd stopped on a timing check, says whether this machine stalled around it, with the
 /// evidence (the HAL's frame gap and the steal at that moment), rather than leaving only the watchdog's reason.
-fn explain_trip(out: &Path, trip_line: Option<&str>, watched: &crate::stall_watch::Watched) {
+fn explain_trip(out: &Path, trip_line: Option<&str>, watched: &crate::stall_watch::Watched, period_ms: f64) {
     let summary = std::fs::read_to_string(out.join("summary.json"))
         .ok()
         .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok());
@@ -291,7 +291,7 @@ fn explain_trip(out: &Path, trip_line: Option<&str>, watched: &crate::stall_watc
     let Some(trip_ns) = crate::stall::trip_time_from_log(line) else { return };
     let gaps: Vec<_> = watched.gaps.iter().copied().collect();
     let steal: Vec<_> = watched.steal.iter().copied().collect();
-    let evidence = crate::stall::around_trip(trip_ns, &gaps, &steal);
+    let evidence = crate::stall::around_trip(trip_ns, &gaps, period_ms, &steal);
     let clock = line.get(11..23).unwrap_or("the trip");
     if let Some(m) = crate::stall::demo_message(&trip, clock, &evidence) {
         eprintln!("{m}");

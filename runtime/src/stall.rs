@@ -16,6 +16,9 @@ pub const MIN_GAP_MS: f64 = 15.0;
 /// Steal in the window at least this large (ms, summed over the CPUs) counts as a stall: the hypervisor took as
 /// much CPU time as the frame-gap threshold. (The counter's resolution is 10 ms, one tick of 1/USER_HZ.)
 pub const MIN_STEAL_MS: f64 = MIN_GAP_MS;
+/// A gap in the HAL's frames of at least this many of its periods is a pause (shorter ones are jitter). Pauses that
+/// add up to [`MIN_GAP_MS`] in a trip's window count as one gap that long: the HAL froze as long, only in pieces.
+pub const PAUSE_PERIODS: f64 = 1.5;
 /// How long before the trip a stall still explains it: the slowest timing detector (stale state or the HAL's
 /// command timeout, 20 ms each) plus the 2 ms in which marsd logs a trip, with room for a stalled logger.
 pub const BEFORE_TRIP_MS: f64 = 100.0;
@@ -109,15 +112,18 @@ pub struct Evidence {
     pub trip_ns: u64,
     /// The longest HAL frame gap ≥ [`MIN_GAP_MS`] overlapping the window around the trip.
     pub gap: Option<FrameGap>,
+    /// Time in the window in which the HAL — the rig's highest-priority thread — published nothing beyond its
+    /// period, summed over its pauses (ms).
+    pub hal_frozen_ms: f64,
     /// Steal that grew in the window (ms), where the samples bracket it.
     pub steal_ms: Option<f64>,
 }
 
 impl Evidence {
-    /// Whether the machine stalled around the trip: a HAL frame gap, or at least [`MIN_STEAL_MS`] of stolen CPU
-    /// time, in the window.
+    /// Whether the machine stalled around the trip: a HAL frame gap of [`MIN_GAP_MS`], or the HAL frozen that
+    /// long in pieces, or at least [`MIN_STEAL_MS`] of stolen CPU time, in the window.
     pub fn is_stall(&self) -> bool {
-        self.gap.is_some() || self.steal_ms.is_some_and(|s| s >= MIN_STEAL_MS)
+        self.gap.is_some() || self.hal_frozen_ms >= MIN_GAP_MS || self.steal_ms.is_some_and(|s| s >= MIN_STEAL_MS)
     }
 }
 
@@ -133,6 +139,7 @@ impl fmt::Display for Evidence {
             )?,
             None => write!(f, "no HAL frame gap ≥ {MIN_GAP_MS} ms")?,
         }
+        write!(f, ", the HAL frozen {:.1} ms in all", self.hal_frozen_ms)?;
         match self.steal_ms {
             Some(s) => write!(f, ", VM steal {s:.0} ms"),
             None => write!(f, ", VM steal unknown"),
@@ -142,8 +149,9 @@ impl fmt::Display for Evidence {
 }
 
 /// The evidence in the window [trip − [`BEFORE_TRIP_MS`], trip + [`AFTER_TRIP_MS`]]: the longest of `gaps` that
-/// overlaps it, and the steal that grew across it.
-pub fn around_trip(trip_ns: u64, gaps: &[FrameGap], steal: &[StealSample]) -> Evidence {
+/// overlaps it, the HAL's frozen time in it, and the steal that grew across it. `gaps`: the HAL's pauses (frame
+/// gaps of at least [`PAUSE_PERIODS`] of its period `period_ms`).
+pub fn around_trip(trip_ns: u64, gaps: &[FrameGap], period_ms: f64, steal: &[StealSample]) -> Evidence {
     let from = trip_ns.saturating_sub((BEFORE_TRIP_MS * 1e6) as u64);
     let to = trip_ns + (AFTER_TRIP_MS * 1e6) as u64;
     let gap = gaps
@@ -151,7 +159,22 @@ pub fn around_trip(trip_ns: u64, gaps: &[FrameGap], steal: &[StealSample]) -> Ev
         .filter(|g| g.ms() >= MIN_GAP_MS && g.start_ns <= to && g.end_ns >= from)
         .max_by(|a, b| a.ms().total_cmp(&b.ms()))
         .copied();
-    Evidence { trip_ns, gap, steal_ms: steal_between(steal, from, to) }
+    Evidence {
+        trip_ns,
+        gap,
+        hal_frozen_ms: frozen_ms(gaps, from, to, period_ms),
+        steal_ms: steal_between(steal, from, to),
+    }
+}
+
+/// The HAL's time without a frame beyond its period, within from..to (ms, summed over `gaps`).
+fn frozen_ms(gaps: &[FrameGap], from_ns: u64, to_ns: u64, period_ms: f64) -> f64 {
+    gaps.iter()
+        .map(|g| {
+            let overlap = g.end_ns.min(to_ns).saturating_sub(g.start_ns.max(from_ns)) as f64 * 1e-6;
+            (overlap.min(g.ms() - period_ms)).max(0.0)
+        })
+        .sum()
 }
 
 /// What the machine did while a late chunk was computed, from the policy loop's wake-up to the chunk being ready.
@@ -198,13 +221,7 @@ pub fn around_late_chunk(
     period_ms: f64,
     steal: &[StealSample],
 ) -> LateEvidence {
-    let hal_frozen_ms = gaps
-        .iter()
-        .map(|g| {
-            let overlap = g.end_ns.min(ready_ns).saturating_sub(g.start_ns.max(woke_ns)) as f64 * 1e-6;
-            (overlap.min(g.ms() - period_ms)).max(0.0)
-        })
-        .sum();
+    let hal_frozen_ms = frozen_ms(gaps, woke_ns, ready_ns, period_ms);
     LateEvidence {
         late_ms: ready_ns.saturating_sub(need_ns) as f64 * 1e-6,
         hal_frozen_ms,
@@ -293,18 +310,34 @@ mod tests {
         let trip = 10_000 * MS;
         // A 40 ms gap 5 s earlier: the largest of the run, and no evidence for this trip.
         let far = gap(5_000, 5_040);
-        let e = around_trip(trip, &[far], &[]);
+        let e = around_trip(trip, &[far], 1.0, &[]);
         assert_eq!(e.gap, None);
         assert!(!e.is_stall());
         // A 25 ms gap ending 3 ms before the trip (stale state) or running past it (a stalled machine).
         for near in [gap(9_972, 9_997), gap(9_990, 10_015)] {
-            let e = around_trip(trip, &[far, near], &[]);
+            let e = around_trip(trip, &[far, near], 1.0, &[]);
             assert_eq!(e.gap, Some(near), "{near:?}");
             assert!(e.is_stall());
         }
         // Too short, or after the window.
-        assert_eq!(around_trip(trip, &[gap(9_990, 9_999)], &[]).gap, None);
-        assert_eq!(around_trip(trip, &[gap(10_011, 10_040)], &[]).gap, None);
+        assert_eq!(around_trip(trip, &[gap(9_990, 9_999)], 1.0, &[]).gap, None);
+        assert_eq!(around_trip(trip, &[gap(10_011, 10_040)], 1.0, &[]).gap, None);
+    }
+
+    #[test]
+    fn pauses_that_add_up_in_the_window_count_as_one_gap() {
+        let trip = 10_000 * MS;
+        // Eight 3 ms pauses (2 ms beyond the period each) in the 100 ms before the trip: 16 ms frozen, no single gap.
+        let pauses: Vec<FrameGap> = (0..8).map(|i| gap(9_910 + 10 * i, 9_913 + 10 * i)).collect();
+        let e = around_trip(trip, &pauses, 1.0, &[]);
+        assert_eq!(e.gap, None);
+        assert!((e.hal_frozen_ms - 16.0).abs() < 1e-9, "{e:?}");
+        assert!(e.is_stall(), "{e}");
+        assert!(e.to_string().contains("the HAL frozen 16.0 ms in all"), "{e}");
+        // Seven are 14 ms: less than one gap the threshold long. The same pauses far before the trip count nothing.
+        assert!(!around_trip(trip, &pauses[..7], 1.0, &[]).is_stall());
+        let early: Vec<FrameGap> = (0..8).map(|i| gap(5_000 + 10 * i, 5_003 + 10 * i)).collect();
+        assert_eq!(around_trip(trip, &early, 1.0, &[]).hal_frozen_ms, 0.0);
     }
 
     #[test]
@@ -313,25 +346,25 @@ mod tests {
         let s = |at_ms: u64, steal: f64| StealSample { at_ns: at_ms * MS, steal_ms: steal };
         // Steal grew by 50 ms at 5 s, then stayed: nothing in the window.
         let flat = [s(4_000, 100.0), s(6_000, 150.0), s(9_880, 150.0), s(10_020, 150.0)];
-        let e = around_trip(trip, &[], &flat);
+        let e = around_trip(trip, &[], 1.0, &flat);
         assert_eq!(e.steal_ms, Some(0.0));
         assert!(!e.is_stall());
         let grew = [s(9_880, 150.0), s(9_950, 160.0), s(10_020, 180.0)];
-        let e = around_trip(trip, &[], &grew);
+        let e = around_trip(trip, &[], 1.0, &grew);
         assert_eq!(e.steal_ms, Some(30.0));
         assert!(e.is_stall());
         // One tick of steal (10 ms) is less than a stall that could explain a 20 ms timing trip.
         let tick = [s(9_880, 150.0), s(10_020, 160.0)];
-        assert_eq!(around_trip(trip, &[], &tick).steal_ms, Some(10.0));
-        assert!(!around_trip(trip, &[], &tick).is_stall());
+        assert_eq!(around_trip(trip, &[], 1.0, &tick).steal_ms, Some(10.0));
+        assert!(!around_trip(trip, &[], 1.0, &tick).is_stall());
         // Samples that end before the window closes bracket nothing.
-        assert_eq!(around_trip(trip, &[], &grew[..2]).steal_ms, None);
+        assert_eq!(around_trip(trip, &[], 1.0, &grew[..2]).steal_ms, None);
     }
 
     #[test]
     fn the_demo_names_a_stall_only_with_evidence_around_the_trip() {
         let trip = "the HAL stopped following this controller (CommandTimeout)";
-        let stalled = around_trip(10_000 * MS, &[gap(9_975, 10_012)], &[]);
+        let stalled = around_trip(10_000 * MS, &[gap(9_975, 10_012)], 1.0, &[]);
         let m = demo_message(trip, "11:51:57.722", &stalled).unwrap();
         assert!(
             m.starts_with(
@@ -340,7 +373,7 @@ mod tests {
             ) && m.contains("see `marsd doctor`"),
             "{m}"
         );
-        let calm = around_trip(10_000 * MS, &[gap(1_000, 1_040)], &[]);
+        let calm = around_trip(10_000 * MS, &[gap(1_000, 1_040)], 1.0, &[]);
         let m = demo_message(trip, "11:51:57.722", &calm).unwrap();
         assert!(m.starts_with("marsd tripped on a timing check") && m.contains("no HAL frame gap"), "{m}");
         assert_eq!(demo_message("the HAL process died or left (iceoryx2 liveness)", "x", &stalled), None);

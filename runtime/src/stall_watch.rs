@@ -1,5 +1,5 @@
 //! A thread of `mars-hil demo` that watches the machine while marsd runs: it reads the HAL's state frames and
-//! keeps the gaps in them (a HAL that published nothing for 15 ms means the machine stalled), and samples the
+//! keeps the gaps in them (a HAL that published nothing for 15 ms, or as long in pauses, means the machine stalled), and samples the
 //! hypervisor's steal time every 10 ms. When marsd then trips on a timing check, the demo looks here for a
 //! stall around the trip ([`crate::stall::around_trip`]) and says so. Memory is bounded for endless runs.
 
@@ -17,8 +17,8 @@ use crate::stall::{self, FrameGap, GapFinder, StealSample};
 
 /// Steal samples kept: the last minute at one per 10 ms (a trip is looked up right after it).
 const STEAL_SAMPLES: usize = 6_000;
-/// Gaps kept: the most recent ones.
-const GAPS: usize = 1_000;
+/// Pauses kept: the most recent ones (a very noisy minute has a few thousand).
+const GAPS: usize = 10_000;
 const STEAL_EVERY: Duration = Duration::from_millis(10);
 
 #[derive(Debug, Default, Clone)]
@@ -36,8 +36,9 @@ pub struct StallWatch {
 }
 
 impl StallWatch {
-    /// Starts watching `robot`'s state service (opened by this thread: iceoryx2 ports belong to their thread).
-    pub fn start(robot: &str) -> anyhow::Result<Self> {
+    /// Starts watching `robot`'s state service (opened by this thread: iceoryx2 ports belong to their thread);
+    /// `period_ms`: the HAL's period, so that its pauses ([`stall::PAUSE_PERIODS`]) are kept.
+    pub fn start(robot: &str, period_ms: f64) -> anyhow::Result<Self> {
         let ns = RobotNamespace::new(robot)?;
         let stop = Arc::new(AtomicBool::new(false));
         let seen = Arc::new(Mutex::new(Watched::default()));
@@ -67,7 +68,7 @@ impl StallWatch {
                     let mut frames = 0;
                     while let Ok(Some(s)) = reader.receive() {
                         frames += 1;
-                        new_gaps.extend(finder.push(s.seq, s.timestamp_ns, stall::MIN_GAP_MS));
+                        new_gaps.extend(finder.push(s.seq, s.timestamp_ns, stall::PAUSE_PERIODS * period_ms));
                     }
                     let now = mars_ipc::clock::monotonic_ns();
                     let sample = (now >= next_steal)

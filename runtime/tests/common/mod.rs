@@ -713,17 +713,20 @@ pub fn steal_ms() -> f64 {
     stall::steal_ms().unwrap_or(0.0)
 }
 
-/// The HAL's frame gaps of at least [`stall::MIN_GAP_MS`] in the recorded frames.
+/// The HAL's pauses (frame gaps of at least [`stall::PAUSE_PERIODS`] periods) in the recorded frames.
 pub fn hal_gaps(r: &Recorded) -> Vec<FrameGap> {
-    stall::frame_gaps(r.states.iter().map(|(s, _)| (s.seq, s.timestamp_ns)), stall::MIN_GAP_MS)
+    stall::frame_gaps(r.states.iter().map(|(s, _)| (s.seq, s.timestamp_ns)), stall::PAUSE_PERIODS * FR3_PERIOD_MS)
 }
+
+/// The FR3 profile's period, the mock HAL's in these tests (ms).
+pub const FR3_PERIOD_MS: f64 = 1.0;
 
 /// What the machine did around marsd's watchdog trip: the time is that of marsd's "watchdog trip" log line
 /// (summary.json has none), the evidence a HAL frame gap or steal growth in the window around it. `None` if
 /// marsd logged no trip.
 pub fn trip_evidence(r: &Recorded, marsd: &Proc) -> Option<Evidence> {
     let trip_ns = stall::trip_time_from_log(&marsd.stderr_text())?;
-    Some(stall::around_trip(trip_ns, &hal_gaps(r), &r.steal))
+    Some(stall::around_trip(trip_ns, &hal_gaps(r), FR3_PERIOD_MS, &r.steal))
 }
 
 /// Generous: the first start may include iceoryx2 setup and the checkpoint's warm-up on a loaded machine.
