@@ -393,19 +393,38 @@ fn slow_engine_attempt(attempt: u32) -> bool {
 #[test]
 fn nan_frames_are_refused_and_marsd_trips_on_stale_state() {
     let _rt = rt_rig_lock();
-    let logs = TempDir::new("nan");
-    let robot = robot("nan");
+    for attempt in 1..=2 {
+        if nan_attempt(attempt) {
+            return;
+        }
+    }
+    panic!("two runs in a row were spoiled by stalls of the whole VM (see above)");
+}
+
+/// One run of test 5a; false if marsd tripped on another timing check before any NaN was refused and a stall of
+/// the machine explains that trip (first attempt only).
+fn nan_attempt(attempt: u32) -> bool {
+    let logs = TempDir::new(&format!("nan{attempt}"));
+    let robot = robot(&format!("nan{attempt}"));
     let (_hal, rec) = hal_with_recorder(&robot, &["--nan-joint", "3", "--nan-at-tick", "3000"], &logs);
     let mut marsd = spawn_marsd(&robot, &shipped_config(), 0, &[], &logs);
     let code = marsd.exit_code(Duration::from_secs(60));
     std::thread::sleep(Duration::from_millis(100));
     let r = rec.finish();
     let s = summary(&logs, "marsd");
+    let trip = "no usable state frame from the HAL within the allowed gap";
+    let refused = u64_at(&s, "/frames/non_finite") + u64_at(&s, "/frames/sensor_fault");
+    if attempt == 1
+        && refused == 0
+        && s["trip"] != trip
+        && let Some(why) = machine_stall_explains(&r, &s, &marsd, u64::MAX)
+    {
+        eprintln!("RERUN NaN frames: attempt 1 is inconclusive, it tripped before the NaNs: {why}; running it again");
+        return false;
+    }
     assert_eq!(code, 3, "{}", marsd.logs());
     assert!(u64_at(&s, "/frames/used") > 100, "marsd never handshook before the NaNs: {}", s["frames"]);
-    let refused = u64_at(&s, "/frames/non_finite") + u64_at(&s, "/frames/sensor_fault");
     assert!(refused > 0, "frames {}", s["frames"]);
-    let trip = "no usable state frame from the HAL within the allowed gap";
     assert_eq!(s["trip"], trip);
     assert!(find_line(&marsd.stderr_text(), &["watchdog trip", trip]).is_some(), "{}", marsd.logs());
     // The NaN frames were seen by the test too, and marsd's commands never carried one.
@@ -415,6 +434,7 @@ fn nan_frames_are_refused_and_marsd_trips_on_stale_state() {
     // marsd ended its session with a hold command after braking.
     let last = r.commands.last().unwrap().0;
     assert_eq!(last.mode, mars_ipc::CommandMode::Hold as u32);
+    true
 }
 
 /// Test 5b: Every frame published 5 ms late (older than stale_state_ms = 3 when read): marsd never finds a usable
