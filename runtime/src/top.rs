@@ -3,7 +3,7 @@
 //! the HAL's safety counters, phase and trip. It attaches to `mars/<robot>/live` like any
 //! subscriber: no server, no request to the daemon, nothing added to its real-time loops (see `live`).
 
-use std::fmt::{self, Write as _};
+use std::fmt;
 use std::io::{IsTerminal, Write as _};
 use std::time::{Duration, Instant};
 
@@ -132,12 +132,7 @@ impl fmt::Display for View<'_> {
                 continue; // this daemon does not record it (e.g. camera channels on a state-only task)
             }
             let value = |v: u64| if c.is_time() { format!("{:.1}", v as f64 / 1e3) } else { v.to_string() };
-            let mut over = String::new();
-            if c.is_time() {
-                let _ = write!(over, "{}", ch.over_period);
-            } else {
-                over.push('–');
-            }
+            let over = if c.is_time() { ch.over_period.to_string() } else { "–".to_string() };
             writeln!(
                 f,
                 "{:<23} {:>5} {:>7} {:>9} {:>9} {:>9} {:>9} {:>8.1}",
