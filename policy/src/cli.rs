@@ -61,10 +61,18 @@ pub fn demos(layout: &Path, n: usize, seed: u64, out: &Path) -> anyhow::Result<(
     Ok(())
 }
 
+/// What `mars train` learns from.
+pub enum TrainInput {
+    /// A demo file written by `mars demos` (or `mars-hil demos`).
+    Demos(PathBuf),
+    /// A LeRobot v3.0 dataset.
+    Dataset(crate::from_dataset::DatasetInput),
+}
+
 pub fn train(
     kind: PolicyKind,
     config: &Path,
-    demos: &Path,
+    input: &TrainInput,
     out: &Path,
     epochs: Option<usize>,
     seed: Option<u64>,
@@ -75,8 +83,15 @@ pub fn train(
     cfg.train.epochs = epochs.unwrap_or(cfg.train.epochs);
     cfg.train.seed = seed.unwrap_or(cfg.train.seed);
     cfg.validate()?;
-    let set = load_demos(demos)?;
-    train_on(&cfg, &set.demos, out, snapshot_every)
+    let demos = match input {
+        TrainInput::Demos(path) => load_demos(path)?.demos,
+        TrainInput::Dataset(d) => {
+            let (demos, report) = crate::from_dataset::load(d, &cfg.model)?;
+            println!("{}", crate::from_dataset::describe(&d.dir, &demos, &report));
+            demos
+        }
+    };
+    train_on(&cfg, &demos, out, snapshot_every)
 }
 
 /// `mars train` on demos already in memory (a task that makes its own, e.g. Push-T's with camera images): trains

@@ -16,6 +16,7 @@ pub mod dataset;
 pub mod diagnose;
 pub mod encoder;
 pub mod family;
+pub mod from_dataset;
 pub mod inference;
 pub mod jobs;
 pub mod knn;

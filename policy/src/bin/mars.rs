@@ -36,9 +36,27 @@ enum Command {
         policy: PolicyKind,
         #[arg(long, default_value = "configs/policy.toml")]
         config: PathBuf,
+        /// A demo file (`mars demos`).
         #[arg(long, default_value = "runs/nav2d/demos.json")]
         demos: PathBuf,
-        /// Checkpoint directory (default: runs/nav2d/<policy>).
+        /// Train on a LeRobot v3.0 dataset instead (its directory: meta/, data/, videos/).
+        #[arg(long, conflicts_with = "demos")]
+        dataset: Option<PathBuf>,
+        /// The dataset's state feature: the front of the observation.
+        #[arg(long, default_value = "observation.state", requires = "dataset")]
+        state_key: String,
+        /// The dataset's action feature.
+        #[arg(long, default_value = "action", requires = "dataset")]
+        action_key: String,
+        /// A camera stream (video feature) of the dataset, once per camera in the policy's order (default: every
+        /// video feature, in name order).
+        #[arg(long, requires = "dataset")]
+        image_key: Vec<String>,
+        /// What pads the action history before an episode starts: first-state or first-action (default: the
+        /// first state when state and action have the same size, else the first action).
+        #[arg(long, requires = "dataset")]
+        rest_action: Option<mars_lerobot::demos::RestAction>,
+        /// Checkpoint directory (default: runs/nav2d/<policy>, or runs/<dataset name>/<policy>).
         #[arg(long)]
         out: Option<PathBuf>,
         /// Override `train.epochs`.
@@ -203,9 +221,36 @@ fn main() -> std::process::ExitCode {
     cli::init_runtime_env(jobs);
     let result = match args.command {
         Command::Demos { layout, n, seed, out } => cli::demos(&layout, n, seed, &out),
-        Command::Train { policy, config, demos, out, epochs, seed, snapshot_every } => {
-            let out = out.unwrap_or_else(|| PathBuf::from("runs/nav2d").join(policy.name()));
-            cli::train(policy, &config, &demos, &out, epochs, seed, snapshot_every).map(|_| ())
+        Command::Train {
+            policy,
+            config,
+            demos,
+            dataset,
+            state_key,
+            action_key,
+            image_key,
+            rest_action,
+            out,
+            epochs,
+            seed,
+            snapshot_every,
+        } => {
+            let (input, runs) = match dataset {
+                None => (cli::TrainInput::Demos(demos), PathBuf::from("runs/nav2d")),
+                Some(dir) => {
+                    let name = dir.file_name().map_or_else(|| "dataset".into(), |n| n.to_owned());
+                    let input = mars_policy::from_dataset::DatasetInput {
+                        dir,
+                        state_key,
+                        action_key,
+                        image_keys: image_key,
+                        rest: rest_action,
+                    };
+                    (cli::TrainInput::Dataset(input), PathBuf::from("runs").join(name))
+                }
+            };
+            let out = out.unwrap_or_else(|| runs.join(policy.name()));
+            cli::train(policy, &config, &input, &out, epochs, seed, snapshot_every).map(|_| ())
         }
         Command::Curve { args, layout, exec_horizon } => {
             let task =

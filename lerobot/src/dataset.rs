@@ -1,0 +1,238 @@
+//! A LeRobot v3.0 dataset on disk: opened (metadata checked), then its episodes read with the features a policy
+//! takes — a state vector, an action vector, camera streams decoded to the size the policy's encoder takes.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use crate::LeRobotError;
+use crate::episodes::{self, Episode, FileIndex};
+use crate::info::{Feature, Info};
+use crate::table::Table;
+use crate::video;
+
+/// LeRobot's own reader accepts a frame this close to the timestamp it asks for (its `tolerance_s` default).
+pub const TOLERANCE_S: f64 = 1e-4;
+
+/// Which features make the policy's observation and action.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Keys {
+    pub state: String,
+    pub action: String,
+    /// Camera streams (video features), in the order the policy's encoder takes them.
+    pub images: Vec<String>,
+}
+
+/// One episode's frames: `len` rows of each.
+#[derive(Debug, Clone, PartialEq)]
+pub struct EpisodeFrames {
+    pub index: i64,
+    pub len: usize,
+    pub tasks: Vec<String>,
+    /// `len × state_dim`.
+    pub state: Vec<f32>,
+    /// `len × action_dim`.
+    pub action: Vec<f32>,
+    /// Per image key, `len` frames of `height × width × 3` bytes.
+    pub images: Vec<Vec<u8>>,
+    /// Each frame's `timestamp` column (seconds from the episode's start).
+    pub timestamps: Vec<f64>,
+}
+
+/// What reading cost (the decoder's throughput is the part a user waits for).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct ReadReport {
+    pub frames: usize,
+    pub decoded_frames: usize,
+    pub decode_s: f64,
+    pub total_s: f64,
+}
+
+pub struct LeRobotDataset {
+    pub root: PathBuf,
+    pub info: Info,
+    pub episodes: Vec<Episode>,
+}
+
+impl LeRobotDataset {
+    /// Reads and checks the metadata; no data or video yet.
+    pub fn open(root: &Path) -> Result<Self, LeRobotError> {
+        let info = Info::load(root)?;
+        let episodes = episodes::load(root, &info)?;
+        Ok(Self { root: root.to_owned(), info, episodes })
+    }
+
+    /// The values per frame of a vector feature (float32 or float64, one dimension).
+    pub fn vector_len(&self, key: &str) -> Result<usize, LeRobotError> {
+        let f = self.info.feature(key)?;
+        let bad = |problem: String| LeRobotError::Feature { key: key.to_owned(), problem };
+        if !matches!(f.dtype.as_str(), "float32" | "float64") {
+            return Err(bad(format!("dtype {}, not a float vector", f.dtype)));
+        }
+        if f.shape.len() != 1 {
+            return Err(bad(format!("shape {:?}, not a vector", f.shape)));
+        }
+        Ok(f.len())
+    }
+
+    /// A camera stream's (height, width) as the dataset stores it.
+    pub fn image_size(&self, key: &str) -> Result<(u32, u32), LeRobotError> {
+        let f: &Feature = self.info.feature(key)?;
+        let bad = |problem: String| LeRobotError::Feature { key: key.to_owned(), problem };
+        if f.dtype != "video" {
+            return Err(bad(format!(
+                "dtype {}: only camera streams stored as video are read (LeRobot's default)",
+                f.dtype
+            )));
+        }
+        match f.shape[..] {
+            [h, w, 3] => Ok((h as u32, w as u32)),
+            _ => Err(bad(format!("shape {:?}, not (height, width, 3)", f.shape))),
+        }
+    }
+
+    /// Every episode's frames, images decoded to `height × width` (each video file decoded once).
+    pub fn read(&self, keys: &Keys, image_hw: (u32, u32)) -> Result<(Vec<EpisodeFrames>, ReadReport), LeRobotError> {
+        let started = Instant::now();
+        let (state_dim, action_dim) = (self.vector_len(&keys.state)?, self.vector_len(&keys.action)?);
+        for k in &keys.images {
+            self.image_size(k)?;
+        }
+        let mut out: Vec<EpisodeFrames> = self
+            .episodes
+            .iter()
+            .map(|e| EpisodeFrames {
+                index: e.index,
+                len: e.length,
+                tasks: e.tasks.clone(),
+                state: Vec::with_capacity(e.length * state_dim),
+                action: Vec::with_capacity(e.length * action_dim),
+                images: Vec::with_capacity(keys.images.len()),
+                timestamps: Vec::with_capacity(e.length),
+            })
+            .collect();
+        self.read_vectors(keys, state_dim, action_dim, &mut out)?;
+        let mut report = ReadReport { frames: out.iter().map(|e| e.len).sum(), ..Default::default() };
+        for key in &keys.images {
+            self.read_images(key, image_hw, &mut out, &mut report)?;
+        }
+        report.total_s = started.elapsed().as_secs_f64();
+        Ok((out, report))
+    }
+
+    fn data_path(&self, f: FileIndex) -> Result<PathBuf, LeRobotError> {
+        self.info.file_path(&self.root, &self.info.data_path, None, f.chunk, f.file)
+    }
+
+    /// State, action and timestamps from the data files, each file read once.
+    fn read_vectors(
+        &self,
+        keys: &Keys,
+        state_dim: usize,
+        action_dim: usize,
+        out: &mut [EpisodeFrames],
+    ) -> Result<(), LeRobotError> {
+        let mut by_file: BTreeMap<FileIndex, Vec<usize>> = BTreeMap::new();
+        for (i, e) in self.episodes.iter().enumerate() {
+            by_file.entry(e.data).or_default().push(i);
+        }
+        let columns = ["episode_index", "frame_index", "timestamp", keys.state.as_str(), keys.action.as_str()];
+        for (file, eps) in by_file {
+            let path = self.data_path(file)?;
+            let t = Table::read(&path, Some(&columns))?;
+            let (episode, frame, time) = (t.i64s("episode_index")?, t.i64s("frame_index")?, t.f64s("timestamp")?);
+            let (state, action) = (t.vectors(&keys.state, state_dim)?, t.vectors(&keys.action, action_dim)?);
+            // Rows by (episode, frame): LeRobot writes them in order, but nothing in the format promises it.
+            let mut rows: Vec<usize> = (0..t.rows()).collect();
+            rows.sort_by_key(|&r| (episode[r], frame[r]));
+            for i in eps {
+                let e = &self.episodes[i];
+                let first = rows.partition_point(|&r| episode[r] < e.index);
+                let mine: Vec<usize> = rows[first..].iter().copied().take_while(|&r| episode[r] == e.index).collect();
+                let bad = |problem: String| LeRobotError::Episode { episode: e.index, problem };
+                if mine.len() != e.length {
+                    return Err(bad(format!(
+                        "{} rows in {}, its metadata says {}",
+                        mine.len(),
+                        path.display(),
+                        e.length
+                    )));
+                }
+                if let Some((k, &r)) = mine.iter().enumerate().find(|&(k, &r)| frame[r] != k as i64) {
+                    return Err(bad(format!(
+                        "frame_index {} where {k} was due (a missing or repeated frame)",
+                        frame[r]
+                    )));
+                }
+                let o = &mut out[i];
+                for &r in &mine {
+                    o.state.extend_from_slice(&state[r * state_dim..(r + 1) * state_dim]);
+                    o.action.extend_from_slice(&action[r * action_dim..(r + 1) * action_dim]);
+                    o.timestamps.push(time[r]);
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// One camera's frames for every episode: each of its video files decoded once, each frame looked up by
+    /// time (the episode's start in the file + the row's timestamp), as LeRobot's reader does.
+    fn read_images(
+        &self,
+        key: &str,
+        (height, width): (u32, u32),
+        out: &mut [EpisodeFrames],
+        report: &mut ReadReport,
+    ) -> Result<(), LeRobotError> {
+        let template = self.info.video_path.as_deref().ok_or_else(|| LeRobotError::Feature {
+            key: key.to_owned(),
+            problem: "a video feature, but meta/info.json has no video_path".into(),
+        })?;
+        let mut by_file: BTreeMap<FileIndex, Vec<usize>> = BTreeMap::new();
+        for (i, e) in self.episodes.iter().enumerate() {
+            let range = e.videos.get(key).ok_or_else(|| LeRobotError::Episode {
+                episode: e.index,
+                problem: format!("no video range for `{key}` in its metadata"),
+            })?;
+            by_file.entry(range.file).or_default().push(i);
+        }
+        let frame_len = (height * width * 3) as usize;
+        for (file, eps) in by_file {
+            let path = self.info.file_path(&self.root, template, Some(key), file.chunk, file.file)?;
+            let started = Instant::now();
+            let video = video::decode(&path, width, height)?;
+            report.decode_s += started.elapsed().as_secs_f64();
+            report.decoded_frames += video.times_s.len();
+            let period = 1.0 / self.info.fps;
+            let end_s = video.times_s.last().map_or(0.0, |t| t + period);
+            for i in eps {
+                let (e, o) = (&self.episodes[i], &mut out[i]);
+                let range = e.videos[key];
+                let bad = |problem: String| LeRobotError::Episode { episode: e.index, problem };
+                if range.to_s > end_s + TOLERANCE_S {
+                    return Err(bad(format!(
+                        "`{key}` runs from {} s to {} s of {}, but the file ends at {end_s:.4} s ({} frames): \
+                         the range falls outside its file (truncated video?)",
+                        range.from_s,
+                        range.to_s,
+                        path.display(),
+                        video.times_s.len()
+                    )));
+                }
+                let mut frames = Vec::with_capacity(e.length * frame_len);
+                for (t, ts) in o.timestamps.iter().enumerate() {
+                    let at = range.from_s + ts;
+                    let j = video.frame_at(at, TOLERANCE_S).map_err(|nearest| {
+                        bad(format!(
+                            "`{key}` frame {t} is due at {at:.4} s of {}; the nearest frame there is at {nearest:.4} s",
+                            path.display()
+                        ))
+                    })?;
+                    frames.extend_from_slice(video.frame(j));
+                }
+                o.images.push(frames);
+            }
+        }
+        Ok(())
+    }
+}

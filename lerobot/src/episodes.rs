@@ -1,0 +1,150 @@
+//! `meta/episodes/chunk-*/file-*.parquet`: per episode its length, which data file holds its rows and, for each
+//! camera, which video file holds its frames and from which time to which.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use crate::LeRobotError;
+use crate::info::Info;
+use crate::table::Table;
+
+/// A file named by chunk and file index (LeRobot packs many episodes into one file).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub struct FileIndex {
+    pub chunk: i64,
+    pub file: i64,
+}
+
+/// Where in a shared video file an episode's frames are.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct VideoRange {
+    pub file: FileIndex,
+    pub from_s: f64,
+    pub to_s: f64,
+}
+
+#[derive(Debug, Clone, PartialEq)]
+pub struct Episode {
+    pub index: i64,
+    pub length: usize,
+    pub tasks: Vec<String>,
+    pub data: FileIndex,
+    /// The episode's rows have global `index` from..to (exclusive).
+    pub dataset_from_index: i64,
+    pub dataset_to_index: i64,
+    /// Per video key.
+    pub videos: BTreeMap<String, VideoRange>,
+}
+
+/// Every `*.parquet` under `dir`, sorted (chunk-000/file-000 first).
+fn parquet_files(dir: &Path) -> Result<Vec<PathBuf>, LeRobotError> {
+    let mut out = Vec::new();
+    let mut stack = vec![dir.to_owned()];
+    while let Some(d) = stack.pop() {
+        let entries = std::fs::read_dir(&d).map_err(|error| LeRobotError::Read { path: d.clone(), error })?;
+        for e in entries {
+            let p = e.map_err(|error| LeRobotError::Read { path: d.clone(), error })?.path();
+            if p.is_dir() {
+                stack.push(p);
+            } else if p.extension().is_some_and(|x| x == "parquet") {
+                out.push(p);
+            }
+        }
+    }
+    out.sort();
+    Ok(out)
+}
+
+/// Reads every episode's metadata, in episode order, and checks it against `info.json`: indices 0..N once
+/// each, lengths that add up, a video range for every video feature.
+pub fn load(root: &Path, info: &Info) -> Result<Vec<Episode>, LeRobotError> {
+    let dir = root.join("meta/episodes");
+    let files = parquet_files(&dir)?;
+    if files.is_empty() {
+        return Err(LeRobotError::Read {
+            path: dir,
+            error: std::io::Error::new(std::io::ErrorKind::NotFound, "no episodes metadata (*.parquet)"),
+        });
+    }
+    let video_keys: Vec<&String> = info.features.iter().filter(|(_, f)| f.is_video()).map(|(k, _)| k).collect();
+    let video_cols: Vec<[String; 4]> = video_keys
+        .iter()
+        .map(|k| ["chunk_index", "file_index", "from_timestamp", "to_timestamp"].map(|c| format!("videos/{k}/{c}")))
+        .collect();
+    let mut columns: Vec<&str> = vec![
+        "episode_index",
+        "length",
+        "tasks",
+        "data/chunk_index",
+        "data/file_index",
+        "dataset_from_index",
+        "dataset_to_index",
+    ];
+    columns.extend(video_cols.iter().flatten().map(String::as_str));
+    let mut episodes = Vec::with_capacity(info.total_episodes);
+    for path in &files {
+        let t = Table::read(path, Some(&columns))?;
+        let (index, length, tasks) = (t.i64s("episode_index")?, t.i64s("length")?, t.string_lists("tasks")?);
+        let (chunk, file) = (t.i64s("data/chunk_index")?, t.i64s("data/file_index")?);
+        let (from, to) = (t.i64s("dataset_from_index")?, t.i64s("dataset_to_index")?);
+        let mut videos = Vec::with_capacity(video_keys.len());
+        for cols in &video_cols {
+            videos.push((t.i64s(&cols[0])?, t.i64s(&cols[1])?, t.f64s(&cols[2])?, t.f64s(&cols[3])?));
+        }
+        for r in 0..t.rows() {
+            let bad = |problem: String| LeRobotError::Episode { episode: index[r], problem };
+            if length[r] <= 0 || to[r] - from[r] != length[r] {
+                return Err(bad(format!(
+                    "length {} but dataset rows {}..{} in {}",
+                    length[r],
+                    from[r],
+                    to[r],
+                    path.display()
+                )));
+            }
+            let mut ranges = BTreeMap::new();
+            for (k, (c, f, a, b)) in video_keys.iter().zip(&videos) {
+                if !(a[r].is_finite() && b[r].is_finite() && a[r] >= 0.0 && a[r] < b[r]) {
+                    return Err(bad(format!("video `{k}` from {} s to {} s is not a time range", a[r], b[r])));
+                }
+                let range = VideoRange { file: FileIndex { chunk: c[r], file: f[r] }, from_s: a[r], to_s: b[r] };
+                ranges.insert((*k).clone(), range);
+            }
+            episodes.push(Episode {
+                index: index[r],
+                length: length[r] as usize,
+                tasks: tasks[r].clone(),
+                data: FileIndex { chunk: chunk[r], file: file[r] },
+                dataset_from_index: from[r],
+                dataset_to_index: to[r],
+                videos: ranges,
+            });
+        }
+    }
+    episodes.sort_by_key(|e| e.index);
+    for (i, e) in episodes.iter().enumerate() {
+        if e.index != i as i64 {
+            return Err(LeRobotError::Episode {
+                episode: e.index,
+                problem: format!(
+                    "episode indices must be 0..{} once each; found {} at position {i}",
+                    episodes.len(),
+                    e.index
+                ),
+            });
+        }
+    }
+    let frames: usize = episodes.iter().map(|e| e.length).sum();
+    if episodes.len() != info.total_episodes || frames != info.total_frames {
+        return Err(LeRobotError::Episode {
+            episode: -1,
+            problem: format!(
+                "meta/episodes lists {} episodes of {frames} frames, meta/info.json says {} of {}",
+                episodes.len(),
+                info.total_episodes,
+                info.total_frames
+            ),
+        });
+    }
+    Ok(episodes)
+}

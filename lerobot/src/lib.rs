@@ -1,0 +1,19 @@
+//! LeRobot v3.0 datasets, the format robot-learning engineers' demonstrations come in (LeRobot's recorders
+//! for SO-100, Franka, ALOHA, … and the Hugging Face hub):
+//!
+//! - [`info`]: `meta/info.json` — version, rate, features, path templates;
+//! - [`episodes`]: `meta/episodes/*.parquet` — per episode its length and where its rows and frames are;
+//! - [`table`]: a parquet file's columns through arrow; [`video`]: a video file's frames through FFmpeg;
+//! - [`dataset`]: the two together — open a dataset, read its episodes with the features a policy takes;
+//! - [`demos`]: episodes as the training demos every task hands to `mars train`.
+
+pub mod dataset;
+pub mod demos;
+pub mod episodes;
+mod error;
+pub mod info;
+pub mod table;
+pub mod video;
+
+pub use dataset::{EpisodeFrames, Keys, LeRobotDataset, ReadReport};
+pub use error::LeRobotError;
