@@ -49,7 +49,7 @@ impl DecodedVideo {
     }
 }
 
-fn init() {
+pub(crate) fn init() {
     static INIT: Once = Once::new();
     INIT.call_once(|| {
         // Our errors say what went wrong; FFmpeg's own log lines would only repeat it on stderr.

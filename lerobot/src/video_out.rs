@@ -1,0 +1,147 @@
+//! A camera stream encoded into one MP4 file, episode after episode (LeRobot v3.0 packs many episodes into a
+//! file; each episode's frames are found by time). AV1 through SVT-AV1 with LeRobot's own settings (crf 30,
+//! a keyframe every 2 frames so a reader can seek to any episode cheaply, yuv420p); H.264 when this FFmpeg has
+//! no AV1 encoder.
+
+use std::path::{Path, PathBuf};
+
+use ffmpeg::format::Pixel;
+use ffmpeg::software::scaling::{Context as Scaler, Flags};
+use ffmpeg::util::frame::Video as VideoFrame;
+use ffmpeg_next as ffmpeg;
+
+use crate::LeRobotError;
+
+/// Encoders tried in order: LeRobot's default, then others a Debian FFmpeg has. (name, info.json's codec,
+/// options)
+type EncoderChoice = (&'static str, &'static str, &'static [(&'static str, &'static str)]);
+const ENCODERS: [EncoderChoice; 3] = [
+    ("libsvtav1", "av1", &[("crf", "30"), ("preset", "12")]),
+    ("libaom-av1", "av1", &[("crf", "30"), ("cpu-used", "8")]),
+    ("libx264", "h264", &[("crf", "23"), ("preset", "veryfast")]),
+];
+/// LeRobot's `g`: a keyframe every 2 frames.
+const GOP: u32 = 2;
+
+pub struct VideoWriter {
+    path: PathBuf,
+    output: ffmpeg::format::context::Output,
+    encoder: ffmpeg::encoder::Video,
+    scaler: Scaler,
+    rgb: VideoFrame,
+    yuv: VideoFrame,
+    width: u32,
+    height: u32,
+    fps: i32,
+    stream_time_base: ffmpeg::Rational,
+    frames: i64,
+    /// `video.codec` as LeRobot's info.json names it.
+    pub codec: &'static str,
+}
+
+impl VideoWriter {
+    /// Opens `path` (an .mp4) for `width × height` RGB frames at `fps`.
+    pub fn create(path: &Path, width: u32, height: u32, fps: u32) -> Result<Self, LeRobotError> {
+        crate::video::init();
+        let fail = |what: &str, e: ffmpeg::Error| LeRobotError::video(path, format!("{what}: {e}"));
+        let mut last_error = String::from("no AV1 or H.264 encoder in this FFmpeg");
+        for (name, codec_name, options) in ENCODERS {
+            let Some(codec) = ffmpeg::encoder::find_by_name(name) else { continue };
+            let mut output = ffmpeg::format::output(path).map_err(|e| fail("cannot create", e))?;
+            let global_header = output.format().flags().contains(ffmpeg::format::Flags::GLOBAL_HEADER);
+            output.add_stream(codec).map_err(|e| fail("cannot add a video stream", e))?;
+            let mut enc = ffmpeg::codec::context::Context::new_with_codec(codec)
+                .encoder()
+                .video()
+                .map_err(|e| fail("not a video encoder", e))?;
+            enc.set_width(width);
+            enc.set_height(height);
+            enc.set_format(Pixel::YUV420P);
+            enc.set_time_base((1, fps as i32));
+            enc.set_frame_rate(Some((fps as i32, 1)));
+            enc.set_gop(GOP);
+            if global_header {
+                enc.set_flags(ffmpeg::codec::Flags::GLOBAL_HEADER);
+            }
+            let mut dict = ffmpeg::Dictionary::new();
+            for (k, v) in options {
+                dict.set(k, v);
+            }
+            let encoder = match enc.open_as_with(codec, dict) {
+                Ok(e) => e,
+                Err(e) => {
+                    // e.g. a size the encoder does not take: the next one may.
+                    last_error = format!("{name}: {e}");
+                    continue;
+                }
+            };
+            output.stream_mut(0).expect("the stream just added").set_parameters(&encoder);
+            output.write_header().map_err(|e| fail("cannot write the header", e))?;
+            let stream_time_base = output.stream(0).expect("the stream just added").time_base();
+            let scaler = Scaler::get(Pixel::RGB24, width, height, Pixel::YUV420P, width, height, Flags::BILINEAR)
+                .map_err(|e| fail("no RGB → YUV conversion", e))?;
+            return Ok(Self {
+                path: path.to_owned(),
+                output,
+                encoder,
+                scaler,
+                rgb: VideoFrame::new(Pixel::RGB24, width, height),
+                yuv: VideoFrame::empty(),
+                width,
+                height,
+                fps: fps as i32,
+                stream_time_base,
+                frames: 0,
+                codec: codec_name,
+            });
+        }
+        Err(LeRobotError::video(path, format!("cannot open an encoder: {last_error}")))
+    }
+
+    /// Frames written so far (the next frame's time is `frames / fps`).
+    pub fn frames(&self) -> i64 {
+        self.frames
+    }
+
+    /// Appends one frame: `height × width × 3` bytes, row-major RGB.
+    pub fn push(&mut self, rgb: &[u8]) -> Result<(), LeRobotError> {
+        let row = self.width as usize * 3;
+        if rgb.len() != row * self.height as usize {
+            return Err(LeRobotError::video(
+                &self.path,
+                format!("a frame of {} bytes, not {}×{}×3", rgb.len(), self.height, self.width),
+            ));
+        }
+        let stride = self.rgb.stride(0);
+        let data = self.rgb.data_mut(0);
+        for (y, src) in rgb.chunks_exact(row).enumerate() {
+            data[y * stride..y * stride + row].copy_from_slice(src);
+        }
+        self.scaler
+            .run(&self.rgb, &mut self.yuv)
+            .map_err(|e| LeRobotError::video(&self.path, format!("converting a frame: {e}")))?;
+        self.yuv.set_pts(Some(self.frames));
+        self.frames += 1;
+        self.encoder.send_frame(&self.yuv).map_err(|e| LeRobotError::video(&self.path, format!("encoding: {e}")))?;
+        self.write_packets()
+    }
+
+    fn write_packets(&mut self) -> Result<(), LeRobotError> {
+        let mut packet = ffmpeg::Packet::empty();
+        while self.encoder.receive_packet(&mut packet).is_ok() {
+            packet.set_stream(0);
+            packet.rescale_ts((1, self.fps), self.stream_time_base);
+            packet
+                .write_interleaved(&mut self.output)
+                .map_err(|e| LeRobotError::video(&self.path, format!("writing: {e}")))?;
+        }
+        Ok(())
+    }
+
+    /// Drains the encoder and closes the file.
+    pub fn finish(mut self) -> Result<(), LeRobotError> {
+        self.encoder.send_eof().map_err(|e| LeRobotError::video(&self.path, format!("ending the stream: {e}")))?;
+        self.write_packets()?;
+        self.output.write_trailer().map_err(|e| LeRobotError::video(&self.path, format!("closing: {e}")))
+    }
+}

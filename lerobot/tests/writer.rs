@@ -1,0 +1,127 @@
+//! What we write reads back, and has the schema LeRobot's own files have: the LeRobot-written fixture's episodes
+//! written again by `DatasetWriter`, then compared with the fixture file by file (column names and types,
+//! metadata keys, features, episode ranges, video timestamps) and value by value.
+
+use std::path::{Path, PathBuf};
+
+use arrow_schema::Schema;
+use mars_lerobot::writer::{CameraSpec, DatasetSpec, DatasetWriter, VectorSpec};
+use mars_lerobot::{Keys, LeRobotDataset};
+use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
+
+fn fixture() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/fixtures/lerobot/push_t")
+}
+
+const TASK: &str = "push the T block into its goal pose";
+const IMAGE: &str = "observation.images.top";
+
+fn keys() -> Keys {
+    Keys { state: "observation.state".into(), action: "action".into(), images: vec![IMAGE.into()] }
+}
+
+fn spec() -> DatasetSpec {
+    let xy = vec!["x".to_owned(), "y".to_owned()];
+    DatasetSpec {
+        fps: 10,
+        robot_type: "fr3".into(),
+        vectors: vec![
+            VectorSpec { key: "observation.state".into(), names: xy.clone() },
+            VectorSpec { key: "action".into(), names: xy },
+        ],
+        cameras: vec![CameraSpec { key: IMAGE.into(), height: 64, width: 64 }],
+    }
+}
+
+/// The fixture's episodes written again by us, under `dir/rewritten`.
+fn rewrite(dir: &Path) -> PathBuf {
+    let (episodes, _) = LeRobotDataset::open(&fixture()).unwrap().read(&keys(), (64, 64)).unwrap();
+    let root = dir.join("rewritten");
+    let mut w = DatasetWriter::create(&root, spec()).unwrap();
+    for e in &episodes {
+        for t in 0..e.len {
+            let img = &e.images[0][t * 12288..(t + 1) * 12288];
+            w.add_frame(&[&e.state[t * 2..t * 2 + 2], &e.action[t * 2..t * 2 + 2]], &[img]).unwrap();
+        }
+        w.end_episode(TASK).unwrap();
+    }
+    assert!(root.with_extension("partial").exists() && !root.exists(), "the dataset appears only at finish");
+    assert_eq!(w.finish().unwrap(), root);
+    assert!(!dir.join("rewritten.partial").exists());
+    root
+}
+
+fn schema(path: &Path) -> Schema {
+    let b = ParquetRecordBatchReaderBuilder::try_new(std::fs::File::open(path).unwrap()).unwrap();
+    b.schema().as_ref().clone()
+}
+
+/// Column names and types, the schema's metadata keys.
+fn shape(s: &Schema) -> (Vec<String>, Vec<String>) {
+    let cols = s.fields().iter().map(|f| format!("{}: {}", f.name(), f.data_type())).collect();
+    let mut meta: Vec<String> = s.metadata().keys().cloned().collect();
+    meta.sort();
+    (cols, meta)
+}
+
+#[test]
+fn a_written_dataset_has_lerobots_schema_and_reads_back() {
+    let dir = tempfile::tempdir().unwrap();
+    let ours = rewrite(dir.path());
+    for file in ["data/chunk-000/file-000.parquet", "meta/episodes/chunk-000/file-000.parquet", "meta/tasks.parquet"] {
+        assert_eq!(shape(&schema(&ours.join(file))), shape(&schema(&fixture().join(file))), "{file}");
+    }
+    let (a, b) = (LeRobotDataset::open(&ours).unwrap(), LeRobotDataset::open(&fixture()).unwrap());
+    let feature_shape = |ds: &LeRobotDataset| -> Vec<(String, String, Vec<usize>)> {
+        ds.info.features.iter().map(|(k, f)| (k.clone(), f.dtype.clone(), f.shape.clone())).collect()
+    };
+    assert_eq!(feature_shape(&a), feature_shape(&b));
+    let json_keys = |root: &Path, file: &str| -> Vec<String> {
+        let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(root.join(file)).unwrap()).unwrap();
+        let mut k: Vec<String> = v.as_object().unwrap().keys().cloned().collect();
+        k.sort();
+        k
+    };
+    assert_eq!(json_keys(&ours, "meta/info.json"), json_keys(&fixture(), "meta/info.json"));
+    assert_eq!(json_keys(&ours, "meta/stats.json"), json_keys(&fixture(), "meta/stats.json"));
+    // Episodes: the same lengths, rows and video ranges (timestamps to within a float's rounding).
+    for (x, y) in a.episodes.iter().zip(&b.episodes) {
+        assert_eq!(
+            (x.index, x.length, &x.tasks, x.dataset_from_index),
+            (y.index, y.length, &y.tasks, y.dataset_from_index)
+        );
+        let (rx, ry) = (x.videos[IMAGE], y.videos[IMAGE]);
+        assert!((rx.from_s - ry.from_s).abs() < 1e-9 && (rx.to_s - ry.to_s).abs() < 1e-9, "{rx:?} vs {ry:?}");
+    }
+    // Values: state and action exactly; frames within AV1's loss of the frames we wrote.
+    let (ea, _) = a.read(&keys(), (64, 64)).unwrap();
+    let (eb, _) = b.read(&keys(), (64, 64)).unwrap();
+    let (mut diff, mut n) = (0u64, 0u64);
+    for (x, y) in ea.iter().zip(&eb) {
+        assert_eq!((&x.state, &x.action, &x.timestamps), (&y.state, &y.action, &y.timestamps));
+        for (p, q) in x.images[0].iter().zip(&y.images[0]) {
+            (diff, n) = (diff + u64::from(p.abs_diff(*q)), n + 1);
+        }
+    }
+    let mean = diff as f64 / n as f64;
+    println!("our AV1 round trip: mean |difference| {mean:.3} of 255");
+    assert!(mean < 3.0, "{mean}");
+}
+
+#[test]
+fn the_writer_refuses_what_would_lose_or_overwrite_data() {
+    let dir = tempfile::tempdir().unwrap();
+    let root = dir.path().join("run");
+    std::fs::create_dir(&root).unwrap();
+    let refused = DatasetWriter::create(&root, spec()).err().expect("an existing path is refused");
+    assert!(refused.to_string().contains("never overwritten"), "{refused}");
+    let root = dir.path().join("run2");
+    let mut w = DatasetWriter::create(&root, spec()).unwrap();
+    let e = w.add_frame(&[&[0.0, 0.0], &[0.0]], &[&[0u8; 12288]]).unwrap_err();
+    assert!(e.to_string().contains("`action`: 1 values, the spec names 2"), "{e}");
+    assert!(w.end_episode(TASK).is_err(), "an episode of no frames");
+    w.add_frame(&[&[0.0, 0.0], &[0.0, 0.0]], &[&[0u8; 12288]]).unwrap();
+    let e = w.finish().unwrap_err();
+    assert!(e.to_string().contains("1 frames not in one"), "{e}");
+    assert!(!root.exists(), "nothing at the path after a refused finish");
+}
