@@ -6,6 +6,8 @@ use std::path::PathBuf;
 pub enum LeRobotError {
     #[error("{path}: cannot read: {error}")]
     Read { path: PathBuf, error: std::io::Error },
+    #[error("{path} exists; a dataset is never overwritten (give a new path)")]
+    Exists { path: PathBuf },
     #[error("{path}: not a LeRobot dataset's metadata: {error}")]
     Info { path: PathBuf, error: serde_json::Error },
     #[error(

@@ -115,6 +115,15 @@ impl Table {
                     let end = *l.value_offsets().last().unwrap_or(&0) as usize;
                     (l.values().slice(first, end - first), offsets)
                 }
+                // A feature of shape (1,) is a plain value (as LeRobot writes it).
+                DataType::Float32 if len == 1 => {
+                    out.extend_from_slice(a.as_primitive::<Float32Type>().values());
+                    continue;
+                }
+                DataType::Float64 if len == 1 => {
+                    out.extend(a.as_primitive::<Float64Type>().values().iter().map(|&v| v as f32));
+                    continue;
+                }
                 t => return Err(self.err(column, format!("{t}, not a list of floats"))),
             };
             if let Some(w) = offsets.windows(2).find(|w| w[1] - w[0] != len) {

@@ -258,6 +258,13 @@ impl DatasetWriter {
         Ok(self.root)
     }
 
+    /// Gives up: nothing is written and the staging directory is removed (a run that recorded no complete
+    /// episode leaves nothing behind).
+    pub fn abandon(mut self) {
+        drop(std::mem::take(&mut self.videos));
+        let _ = std::fs::remove_dir_all(&self.staging);
+    }
+
     fn write_parquet(&self, rel: &str, batch: &RecordBatch) -> Result<(), LeRobotError> {
         let path = self.staging.join(rel);
         let file = File::create(&path).map_err(|error| LeRobotError::Read { path: path.clone(), error })?;
@@ -278,6 +285,13 @@ impl DatasetWriter {
         let mut columns: Vec<ArrayRef> = Vec::new();
         let mut hf = serde_json::Map::new();
         for (col, s) in self.vectors.iter().zip(&self.spec.vectors) {
+            // LeRobot (through HF datasets) stores a feature of shape (1,) as a plain value, not a list of one.
+            if s.names.len() == 1 {
+                fields.push(Field::new(&s.key, DataType::Float32, true));
+                columns.push(Arc::new(Float32Array::from(col.clone())));
+                hf.insert(s.key.clone(), json!({"dtype": "float32", "_type": "Value"}));
+                continue;
+            }
             let item = Arc::new(Field::new("element", DataType::Float32, true));
             let n = s.names.len() as i32;
             let array = FixedSizeListArray::try_new(item.clone(), n, Arc::new(Float32Array::from(col.clone())), None)

@@ -34,6 +34,12 @@ pub struct MarsdArgs {
     /// Override `watchdog.max_state_gap_ms`.
     #[arg(long)]
     pub max_state_gap_ms: Option<f64>,
+    /// Record every episode as a LeRobot v3.0 dataset in this directory (it must not exist yet).
+    #[arg(long)]
+    pub record: Option<PathBuf>,
+    /// Fault injection: the recording's writer sleeps this long per frame (a writer that cannot keep up).
+    #[arg(long, requires = "record")]
+    pub record_writer_delay_ms: Option<f64>,
 }
 
 pub fn init_logging() {
@@ -56,6 +62,13 @@ pub fn marsd(args: MarsdArgs) -> ExitCode {
         if let Some(g) = args.max_state_gap_ms {
             anyhow::ensure!(g.is_finite() && g > 0.0, "--max-state-gap-ms must be a positive number of ms, got {g}");
             cfg.watchdog.max_state_gap_ms = g;
+        }
+        if let Some(r) = args.record {
+            cfg.record = Some(r);
+        }
+        if let Some(d) = args.record_writer_delay_ms {
+            anyhow::ensure!(d.is_finite() && d >= 0.0, "--record-writer-delay-ms must be ≥ 0, got {d}");
+            cfg.faults.record_writer_delay_ms = d;
         }
         daemon::prepare(cfg)
     })();
@@ -206,6 +219,12 @@ pub fn demo(mut args: DemoArgs) -> anyhow::Result<u8> {
     }
     if let Some(d) = args.marsd.engine_step_delay_ms {
         marsd.args(["--engine-step-delay-ms", &d.to_string()]);
+    }
+    if let Some(r) = &args.marsd.record {
+        marsd.arg("--record").arg(r);
+    }
+    if let Some(d) = args.marsd.record_writer_delay_ms {
+        marsd.args(["--record-writer-delay-ms", &d.to_string()]);
     }
     // franka-sim is a Python MuJoCo loop that pauses now and then on a loaded machine (it runs at 0.6–0.9× real
     // time); its states then come late all together, counted in its own cycles, with no command lost. A real FR3

@@ -49,6 +49,9 @@ pub struct DaemonConfig {
     pub histograms: HistogramConfig,
     #[serde(default)]
     pub faults: FaultConfig,
+    /// Record every episode as a LeRobot v3.0 dataset at this path (which must not exist yet).
+    #[serde(default)]
+    pub record: Option<PathBuf>,
 }
 
 #[derive(Debug, Clone, Deserialize)]
@@ -125,6 +128,9 @@ pub struct FaultConfig {
     /// Busy-wait this long in every ODE step of the engine, as a slower CPU would (ms).
     #[serde(default)]
     pub engine_step_delay_ms: f64,
+    /// The recording's writer sleeps this long per frame, as a disk or encoder that cannot keep up would (ms).
+    #[serde(default)]
+    pub record_writer_delay_ms: f64,
 }
 
 fn default_handshake_timeout_s() -> f64 {

@@ -79,6 +79,13 @@ pub fn prepare(cfg: DaemonConfig) -> anyhow::Result<Prepared> {
         engine.chunk_len(),
         engine.action_dim()
     );
+    if let Some(path) = &cfg.record {
+        anyhow::ensure!(
+            !path.exists(),
+            "record: {} exists; a recording never overwrites (give a new path)",
+            path.display()
+        );
+    }
     let rate = task.policy_rate_hz();
     anyhow::ensure!(
         (cfg.policy.rate_hz - rate).abs() < 1e-9,
@@ -131,6 +138,15 @@ pub fn run(p: Prepared) -> anyhow::Result<Outcome> {
         max_consecutive_send_errors: cfg.watchdog.max_consecutive_send_errors,
     };
 
+    // Before anything moves: a recording that cannot start (its path exists) stops marsd here.
+    let (recording, record_writer) = match &cfg.record {
+        Some(path) => {
+            let (r, w) = crate::record::start(record_setup(&cfg, &profile, &task, path))
+                .with_context(|| format!("recording to {}", path.display()))?;
+            (Some(r), Some(w))
+        }
+        None => (None, None),
+    };
     let servo_ch =
         ServoChannels { chunks: chunk_out, observed: obs_in, requests: requests_out, status: status.clone() };
     let (servo_core, servo_prio, lock) = (cfg.servo.core, cfg.servo.priority, cfg.servo.lock_memory);
@@ -204,8 +220,17 @@ pub fn run(p: Prepared) -> anyhow::Result<Outcome> {
             let _ = scene_tx.send(Ok(()));
             let rt = crate::rt::setup_realtime("policy", policy_core, Some(policy_prio), false);
             Some((
-                PolicyLoop { engine, task, ch: policy_ch, rec: policy_rec, scene, next_interval_ns: 0 }
-                    .run(&policy_cfg),
+                PolicyLoop {
+                    engine,
+                    task,
+                    ch: policy_ch,
+                    rec: policy_rec,
+                    scene,
+                    next_interval_ns: 0,
+                    recording,
+                    last_image: Vec::new(),
+                }
+                .run(&policy_cfg),
                 rt,
             ))
         })
@@ -228,12 +253,14 @@ pub fn run(p: Prepared) -> anyhow::Result<Outcome> {
         .map_err(|_| anyhow::anyhow!("the policy thread panicked"))?
         .context("the policy thread could not open the task's camera and scene")?;
     let totals = collector.finish();
+    let record = record_writer.map(crate::record::RecordWriter::finish);
 
     if let Some(v) = servo_report.first_violation {
         tracing::error!("the first command refused by the final limit check: {v:?}");
     }
     let run = crate::report::RunFacts { realtime: vec![servo_rt, policy_rt], heartbeat };
-    let summary = Summary::new(&cfg, &mode_names, &servo_report, &policy_report, totals, run);
+    let mut summary = Summary::new(&cfg, &mode_names, &servo_report, &policy_report, totals, run);
+    summary.record = record;
     let written = summary.write(&cfg.out, &policy_report, &task_view)?;
     println!("{summary}");
     println!("  wrote {}", written.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(", "));
@@ -245,6 +272,32 @@ pub fn run(p: Prepared) -> anyhow::Result<Outcome> {
         exit::OK
     };
     Ok(Outcome { exit, summary })
+}
+
+/// The recording's dataset: the policy's state and action (named per joint), Push-T's camera, the task's name.
+fn record_setup(cfg: &DaemonConfig, profile: &Profile, task: &HilTask, path: &Path) -> crate::record::RecordSetup {
+    let (state_names, action_names, camera) = match task {
+        HilTask::PickCup(t) => {
+            let mut names: Vec<String> = (0..t.joints()).map(|j| format!("joint_{j}")).collect();
+            names.push("gripper".into());
+            (names.clone(), names, None)
+        }
+        HilTask::PushT(t) => {
+            let xy = vec!["x".to_owned(), "y".to_owned()];
+            let size = t.cfg.camera.size;
+            (xy.clone(), xy, Some((format!("observation.images.{}", t.cfg.camera.name), size, size)))
+        }
+    };
+    crate::record::RecordSetup {
+        path: path.to_owned(),
+        fps: task.policy_rate_hz().round() as u32,
+        robot_type: profile.name.clone(),
+        task: task.name().to_owned(),
+        state_names,
+        action_names,
+        camera,
+        writer_delay: Duration::from_secs_f64(cfg.faults.record_writer_delay_ms * 1e-3),
+    }
 }
 
 /// The main thread's loop until the servo thread ends: signals, systemd, trip logging, handshake timeout.

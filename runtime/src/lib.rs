@@ -23,6 +23,7 @@ pub mod limits;
 pub mod live;
 pub mod plots;
 pub mod policy_loop;
+pub mod record;
 pub mod report;
 pub mod scene;
 pub mod scene_link;

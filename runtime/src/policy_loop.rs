@@ -128,6 +128,22 @@ pub struct PolicyLoop {
     /// When the recorder's interval ends (0: at the first inference), so the live view and the interval log see
     /// the policy's channels while the run goes on, not only at its end.
     pub next_interval_ns: u64,
+    /// `--record`: every policy period handed to the dataset writer (wait-free; dropped and counted if it lags).
+    pub recording: Option<crate::record::Recorder>,
+    /// While recording Push-T: the camera frame the last observation used (sized at the first episode).
+    pub last_image: Vec<u8>,
+}
+
+/// What the recording keeps of the chunk in force: its actions, where it started, our columns.
+struct InForce {
+    actions: Vec<f32>,
+    /// The period the chunk's first action belongs to.
+    first_k: u64,
+    w_inf: f32,
+    k: [f32; 2],
+    latency_ms: [f32; 2],
+    /// The camera frame the chunk was computed from (Push-T), RGB8.
+    image: Vec<u8>,
 }
 
 impl PolicyLoop {
@@ -264,6 +280,18 @@ impl PolicyLoop {
             }
         };
         let n = self.engine_joints();
+        let mut in_force = InForce {
+            actions: history.clone(),
+            first_k: 0,
+            w_inf: 0.0,
+            k: [0.0; 2],
+            latency_ms: [0.0; 2],
+            image: vec![0; self.image_len()],
+        };
+        let mut state = vec![0.0f32; self.state_dim()];
+        if self.recording.is_some() && self.last_image.len() != self.image_len() {
+            self.last_image = vec![0; self.image_len()];
+        }
         let mut trace = traces.start();
         let (mut chunks, mut k_sum, mut ep_late, mut w_inf) = (0u64, 0u64, 0u64, 0.0f32);
         let t0 = monotonic_ns();
@@ -306,6 +334,9 @@ impl PolicyLoop {
                 trace.w_inf.push(w_inf);
             }
             if let Progress::Done { success, mode, reason } = progress {
+                if let Some(r) = &mut self.recording {
+                    r.end_episode(crate::record::EpisodeEnd { episode, frames: k, success });
+                }
                 trace.mode = mode;
                 trace.success = success;
                 // The scene as the episode ended, for the camera strip (the policy's last view can be 0.8 s older).
@@ -324,7 +355,9 @@ impl PolicyLoop {
                     late_chunks: ep_late,
                 });
             }
+            self.state_of(&o, &mut state);
             if k % c as u64 != 0 {
+                self.record_period(episode, k, &state, &in_force, d);
                 continue;
             }
             // Inference for chunk k / C.
@@ -336,6 +369,7 @@ impl PolicyLoop {
                 }
                 Err(()) => {
                     // No usable image: keep executing the previous chunk, as for a call over budget.
+                    self.record_period(episode, k, &state, &in_force, d);
                     if faults.no_frame.bad() {
                         self.request(Request::Trip(Trip::NoCameraFrame));
                         return None;
@@ -373,6 +407,7 @@ impl PolicyLoop {
             if out.over_budget {
                 // Not even one step fitted: keep executing the previous chunk.
                 report.over_budget += 1;
+                self.record_period(episode, k, &state, &in_force, d);
                 if faults.over.bad() {
                     self.request(Request::Trip(Trip::InferenceOverBudget));
                     return None;
@@ -397,6 +432,13 @@ impl PolicyLoop {
             }
             history.copy_from_slice(out.chunk);
             self.ch.chunks.publish();
+            if self.recording.is_some() {
+                in_force.actions.copy_from_slice(out.chunk);
+                in_force.first_k = k;
+                in_force.w_inf = w_inf;
+                in_force.k = [out.k_requested as f32, out.k_used as f32];
+                in_force.latency_ms = [(ready - started) as f32 * 1e-6, out.encode.as_secs_f32() * 1e3];
+            }
             chunks += 1;
             k_sum += out.k_used as u64;
             if ready > need_ns {
@@ -412,8 +454,64 @@ impl PolicyLoop {
             } else {
                 faults.late.good();
             }
+            if self.recording.is_some() {
+                if let Some(pixels) = self.last_pixels() {
+                    in_force.image.copy_from_slice(pixels);
+                }
+                self.record_period(episode, k, &state, &in_force, d);
+            }
         }
         unreachable!("the episode loop only ends by returning")
+    }
+
+    /// Hands period `k` to the recording (if any): the state, the action of the chunk in force for it (its last
+    /// once the chunk has run out, as the servo holds it), our columns. Wait-free and allocation-free.
+    fn record_period(&mut self, episode: u64, k: u64, state: &[f32], f: &InForce, d: usize) {
+        let Some(r) = &mut self.recording else { return };
+        let c = f.actions.len() / d;
+        let i = ((k - f.first_k) as usize).min(c - 1);
+        r.record(|frame| {
+            frame.episode = episode;
+            frame.frame = k;
+            frame.state.copy_from_slice(state);
+            frame.action.copy_from_slice(&f.actions[i * d..(i + 1) * d]);
+            frame.image.copy_from_slice(&f.image);
+            frame.w_inf = f.w_inf;
+            frame.k = f.k;
+            frame.latency_ms = f.latency_ms;
+            frame.call = if k == f.first_k { 1.0 } else { 0.0 };
+        });
+    }
+
+    /// The observation's state part (no image) for state `o`: Pick Cup's joints and gripper, Push-T's flange (x, y).
+    fn state_of(&self, o: &Observed, out: &mut [f32]) {
+        match &self.task {
+            HilTask::PickCup(t) => t.observation(&o.position[..t.joints()], o.gripper, out),
+            HilTask::PushT(t) => {
+                let [x, y] = t.flange_xy(&o.position[..7]);
+                (out[0], out[1]) = (x as f32, y as f32);
+            }
+        }
+    }
+
+    fn state_dim(&self) -> usize {
+        match &self.task {
+            HilTask::PickCup(t) => t.obs_dim(),
+            HilTask::PushT(_) => 2,
+        }
+    }
+
+    /// Bytes of the camera's frame (0 without a camera).
+    fn image_len(&self) -> usize {
+        match &self.task {
+            HilTask::PickCup(_) => 0,
+            HilTask::PushT(t) => (t.cfg.camera.size * t.cfg.camera.size * 3) as usize,
+        }
+    }
+
+    /// The pixels of the frame the last observation used (Push-T, while recording).
+    fn last_pixels(&self) -> Option<&[u8]> {
+        (!self.last_image.is_empty()).then_some(self.last_image.as_slice())
     }
 
     /// The robot's joint count.
@@ -456,6 +554,9 @@ impl PolicyLoop {
                 };
                 let capture = frame.header().timestamp_ns;
                 PushTHil::observation(t, &o.position[..7], frame.pixels(), obs);
+                if self.last_image.len() == frame.pixels().len() {
+                    self.last_image.copy_from_slice(frame.pixels());
+                }
                 self.rec.record(Channel::CameraAge, monotonic_ns().saturating_sub(capture));
                 trace.keep_frame(frame.pixels());
                 Ok(capture)

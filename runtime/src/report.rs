@@ -141,6 +141,8 @@ pub struct Summary {
     pub camera: Option<crate::policy_loop::CameraReport>,
     /// A task acting on the table: references the servo's IK clamped or could not reach.
     pub effector: Option<crate::effector::EffectorCounts>,
+    /// `--record`: what the dataset got.
+    pub record: Option<crate::record::RecordReport>,
 }
 
 impl Summary {
@@ -217,6 +219,7 @@ impl Summary {
             traces_dropped: p.traces_dropped,
             camera: p.camera.clone(),
             effector: s.effector,
+            record: None,
         }
     }
 
@@ -279,6 +282,18 @@ impl std::fmt::Display for Summary {
         match &self.trip {
             Some(t) => writeln!(f, "  STOPPED BY THE WATCHDOG: {t}")?,
             None => writeln!(f, "  stopped: {}", self.stop)?,
+        }
+        if let Some(r) = &self.record {
+            writeln!(
+                f,
+                "  recorded {} episodes ({} frames) to {}; left out {} incomplete episodes, {} frames dropped{}",
+                r.episodes_written,
+                r.frames_written,
+                r.path.display(),
+                r.episodes_incomplete,
+                r.frames_dropped,
+                r.error.as_ref().map_or(String::new(), |e| format!("; {e}"))
+            )?;
         }
         let k = &self.k;
         writeln!(

@@ -159,6 +159,8 @@ fn run_one(args: &BackendBenchArgs, backend: DemoRobot, noisy: bool) -> Run {
             checkpoint: None,
             engine_step_delay_ms: None,
             max_state_gap_ms: None,
+            record: None,
+            record_writer_delay_ms: None,
         },
         hal_core: super::demo_hal_core(),
         hal_stall_at_tick: None,

@@ -197,6 +197,8 @@ fn run_policy(args: &BenchArgs, name: &str, robot: &str) -> PolicyRun {
             checkpoint: Some(checkpoint.clone()),
             engine_step_delay_ms: None,
             max_state_gap_ms: None,
+            record: None,
+            record_writer_delay_ms: None,
         },
         hal_core: args.hal_core.unwrap_or_else(demo_hal_core),
         hal_stall_at_tick: None,

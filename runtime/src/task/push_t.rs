@@ -152,6 +152,11 @@ impl PushTHil {
         self.cfg.world.pusher_start.to_vec()
     }
 
+    /// The flange's (x, y) on the table for joints `q` (the observation's state part).
+    pub fn flange_xy(&self, q: &[f64]) -> [f64; 2] {
+        self.effector.xy(q)
+    }
+
     /// The policy's observation for measured joints `q` and a camera frame's RGB8 pixels: the flange's (x, y) on
     /// the table, then each byte / 255 — what `mars_tasks::push_t::episode::Observer` makes of the same scene in
     /// training (tested). Allocation-free.

@@ -1,0 +1,209 @@
+//! `--record`: runs written as LeRobot v3.0 datasets. The loop's side never waits and never allocates, even with
+//! a writer that cannot keep up (it drops and counts, and leaves incomplete episodes out); a recorded demo reads
+//! back and trains a policy.
+
+mod common;
+
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::cell::Cell;
+use std::path::Path;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::time::Duration;
+
+use common::*;
+use mars_lerobot::{Keys, LeRobotDataset};
+use mars_runtime::record::{EpisodeEnd, RecordSetup, start};
+
+/// Counts allocator calls made by threads that opted in (the writer thread allocates freely; it is not watched).
+struct Counting;
+
+thread_local! {
+    static WATCHED: Cell<bool> = const { Cell::new(false) };
+}
+static CALLS: AtomicUsize = AtomicUsize::new(0);
+
+fn note() {
+    if WATCHED.try_with(Cell::get).unwrap_or(false) {
+        CALLS.fetch_add(1, Ordering::Relaxed);
+    }
+}
+
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        note();
+        unsafe { System.alloc(layout) }
+    }
+    unsafe fn alloc_zeroed(&self, layout: Layout) -> *mut u8 {
+        note();
+        unsafe { System.alloc_zeroed(layout) }
+    }
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        note();
+        unsafe { System.realloc(ptr, layout, new_size) }
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        note();
+        unsafe { System.dealloc(ptr, layout) }
+    }
+}
+
+#[global_allocator]
+static ALLOCATOR: Counting = Counting;
+
+fn setup(path: &Path, delay_ms: u64) -> RecordSetup {
+    RecordSetup {
+        path: path.to_owned(),
+        fps: 10,
+        robot_type: "fr3".into(),
+        task: "test".into(),
+        state_names: vec!["a".into(), "b".into(), "c".into()],
+        action_names: vec!["a".into(), "b".into(), "c".into()],
+        camera: None,
+        writer_delay: Duration::from_millis(delay_ms),
+    }
+}
+
+/// A writer that sleeps 50 ms per frame: episode 1 (10 frames, fewer than the pool holds) is handed over whole
+/// whatever the writer does; episode 2 (100 frames at once) cannot be, so most of its frames are dropped and it
+/// is left out. The loop's side made no allocation and never waited (every call returned at once: 110 calls).
+#[test]
+fn a_slow_writer_costs_the_loop_nothing_and_keeps_only_complete_episodes() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("run");
+    let (mut rec, writer) = start(setup(&path, 50)).unwrap();
+    let mut handed = [0u64; 2];
+    let state = |e: u64, k: u64| [e as f32, k as f32, -(k as f32)];
+    WATCHED.with(|w| w.set(true));
+    let before = CALLS.load(Ordering::SeqCst);
+    for (e, frames) in [(1u64, 10u64), (2, 100)] {
+        for k in 0..frames {
+            let kept = rec.record(|f| {
+                f.episode = e;
+                f.frame = k;
+                f.state.copy_from_slice(&state(e, k));
+                f.action.copy_from_slice(&state(e, k + 1));
+                f.call = (k % 8 == 0) as u8 as f32;
+            });
+            handed[e as usize - 1] += kept as u64;
+        }
+        rec.end_episode(EpisodeEnd { episode: e, frames, success: true });
+    }
+    let allocations = CALLS.load(Ordering::SeqCst) - before;
+    WATCHED.with(|w| w.set(false));
+    assert_eq!(allocations, 0, "the loop's side allocated");
+    assert_eq!(handed[0], 10, "episode 1 fits the pool");
+    assert!(handed[1] < 100, "the writer kept up with 100 frames at 50 ms each?");
+    let report = writer.finish();
+    assert_eq!(report.episodes_written, 1, "{report:?}");
+    assert_eq!(report.episodes_incomplete, 1, "{report:?}");
+    assert_eq!(report.frames_dropped, 100 - handed[1], "{report:?}");
+    assert_eq!(report.error, None);
+    let ds = LeRobotDataset::open(&path).unwrap();
+    let keys = Keys { state: "observation.state".into(), action: "action".into(), images: vec![] };
+    let (episodes, _) = ds.read(&keys, (0, 0)).unwrap();
+    assert_eq!(episodes.len(), 1);
+    assert_eq!(episodes[0].len, 10);
+    for k in 0..10 {
+        assert_eq!(episodes[0].state[k * 3..k * 3 + 3], state(1, k as u64));
+        assert_eq!(episodes[0].action[k * 3..k * 3 + 3], state(1, k as u64 + 1));
+    }
+    // Our one-value columns are plain float32 columns, as LeRobot stores a feature of shape (1,).
+    let keys = Keys { state: "mars.call".into(), action: "mars.w_inf".into(), images: vec![] };
+    let (episodes, _) = ds.read(&keys, (0, 0)).unwrap();
+    let calls: Vec<f32> = (0..10).map(|k| (k % 8 == 0) as u8 as f32).collect();
+    assert_eq!(episodes[0].state, calls);
+}
+
+#[test]
+fn a_recording_never_overwrites_and_leaves_nothing_when_no_episode_completed() {
+    let dir = tempfile::tempdir().unwrap();
+    let taken = dir.path().join("taken");
+    std::fs::create_dir(&taken).unwrap();
+    let e = start(setup(&taken, 0)).err().expect("an existing path is refused");
+    assert!(e.to_string().contains("never overwritten"), "{e:#}");
+    let path = dir.path().join("empty");
+    let (mut rec, writer) = start(setup(&path, 0)).unwrap();
+    rec.record(|f| f.episode = 1); // an episode that never ends (the run stopped inside it)
+    let report = writer.finish();
+    assert_eq!((report.episodes_written, report.episodes_incomplete), (0, 1));
+    assert!(!path.exists() && !dir.path().join("empty.partial").exists(), "something was left behind");
+}
+
+/// A recorded demo (mock HAL + marsd, 2 episodes of Pick Cup) is a dataset: one episode per episode run, each a
+/// frame per policy period with the policy's state and the action in force, and it trains a policy.
+#[test]
+fn a_recorded_demo_reads_back_and_trains() {
+    let _rt = rt_rig_lock();
+    let logs = TempDir::new("record");
+    let robot = robot("record");
+    let path = logs.join("dataset");
+    let _hal = spawn_hal(&robot, &[], &logs);
+    let mut marsd = spawn_marsd(&robot, &shipped_config(), 2, &["--record", path.to_str().unwrap()], &logs);
+    let code = marsd.exit_code(Duration::from_secs(120));
+    let s = summary(&logs, "marsd");
+    let out = marsd.stdout_text();
+    assert!(out.contains("recorded "), "{out}");
+    let written = u64_at(&s, "/record/episodes_written");
+    // A trip (a stalled VM) ends the run early: the episodes completed before it are still a dataset.
+    let completed = s["episode_results"].as_array().unwrap().len() as u64;
+    assert!(code == 0 || written >= 1, "marsd exited {code} before any episode was recorded\n{out}");
+    assert_eq!(written, completed, "{out}");
+    assert_eq!(u64_at(&s, "/record/frames_dropped"), 0, "{out}");
+
+    let ds = LeRobotDataset::open(&path).unwrap();
+    assert_eq!(ds.info.fps, 10.0);
+    let keys = Keys { state: "observation.state".into(), action: "action".into(), images: vec![] };
+    let (episodes, _) = ds.read(&keys, (0, 0)).unwrap();
+    for (e, r) in episodes.iter().zip(s["episode_results"].as_array().unwrap()) {
+        // A frame per period the episode ran (its duration at 10 Hz, give or take the period it ended in).
+        let periods = r["duration_s"].as_f64().unwrap() * 10.0;
+        assert!(
+            (e.len as f64 - periods).abs() <= 1.5,
+            "episode {}: {} frames for {periods:.1} periods",
+            e.index,
+            e.len
+        );
+        assert_eq!(e.state.len(), e.len * 8);
+    }
+    for key in ["mars.w_inf", "mars.k", "mars.latency_ms", "mars.call"] {
+        ds.vector_len(key).unwrap();
+    }
+
+    // `mars train --dataset` on it (in process, a small config, one epoch).
+    let cfg_path = root().join("configs/fr3_policy.toml");
+    let mut cfg = mars_policy::config::PolicyConfig::load(&cfg_path).unwrap();
+    cfg.train.epochs = 1;
+    let input = mars_policy::from_dataset::DatasetInput {
+        dir: path.clone(),
+        state_key: "observation.state".into(),
+        action_key: "action".into(),
+        image_keys: vec![],
+        rest: None,
+    };
+    let (demos, _) = mars_policy::from_dataset::load(&input, &cfg.model).unwrap();
+    assert_eq!(demos.len() as u64, written);
+    let trained = mars_policy::train::train(&cfg, &demos, false).unwrap();
+    assert!(trained.log.last().unwrap().total.is_finite());
+}
+
+/// The same through marsd with a writer that sleeps 300 ms per frame: the run goes on as without a recording
+/// (the servo tick still allocates nothing), the periods it could not hand over are counted, the episode they
+/// belong to is left out, and nothing is left at the path.
+#[test]
+fn marsd_with_a_writer_that_cannot_keep_up_drops_and_counts() {
+    let _rt = rt_rig_lock();
+    let logs = TempDir::new("record-slow");
+    let robot = robot("record-slow");
+    let path = logs.join("dataset");
+    let _hal = spawn_hal(&robot, &[], &logs);
+    let extra = ["--record", path.to_str().unwrap(), "--record-writer-delay-ms", "300"];
+    let mut marsd = spawn_marsd(&robot, &shipped_config(), 1, &extra, &logs);
+    marsd.exit_code(Duration::from_secs(120));
+    let s = summary(&logs, "marsd");
+    let out = marsd.stdout_text();
+    assert!(u64_at(&s, "/record/frames_dropped") > 0, "{out}");
+    assert_eq!(u64_at(&s, "/record/episodes_written"), 0, "{out}");
+    assert_eq!(u64_at(&s, "/record/episodes_incomplete"), 1, "{out}");
+    assert_eq!(u64_at(&s, "/servo_allocations/system"), 0, "the servo tick allocated\n{out}");
+    assert!(!path.exists() && !logs.join("dataset.partial").exists());
+}
