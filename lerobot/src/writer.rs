@@ -79,6 +79,8 @@ pub struct DatasetWriter {
     all_hist: Vec<Histogram>,
     episodes: Vec<EpisodeRow>,
     tasks: Vec<String>,
+    /// Files of our own under `meta/` (LeRobot reads only the files it knows).
+    extra_meta: Vec<(String, Value)>,
 }
 
 impl DatasetWriter {
@@ -124,6 +126,7 @@ impl DatasetWriter {
             all_hist: vec![Histogram::default(); spec.cameras.len()],
             episodes: Vec::new(),
             tasks: Vec::new(),
+            extra_meta: Vec::new(),
             spec,
         })
     }
@@ -253,9 +256,18 @@ impl DatasetWriter {
         self.write_episodes()?;
         self.write_tasks()?;
         self.write_json_files(&codecs)?;
+        for (name, value) in &self.extra_meta {
+            self.write_json(&format!("meta/{name}"), value)?;
+        }
         std::fs::rename(&self.staging, &self.root)
             .map_err(|error| LeRobotError::Read { path: self.root.clone(), error })?;
         Ok(self.root)
+    }
+
+    /// A JSON file of our own written as `meta/<name>` at `finish` (e.g. what replaying the run needs).
+    pub fn set_extra_meta(&mut self, name: &str, value: Value) {
+        self.extra_meta.retain(|(n, _)| n != name);
+        self.extra_meta.push((name.to_owned(), value));
     }
 
     /// Gives up: nothing is written and the staging directory is removed (a run that recorded no complete

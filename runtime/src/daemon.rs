@@ -297,6 +297,9 @@ fn record_setup(cfg: &DaemonConfig, profile: &Profile, task: &HilTask, path: &Pa
         action_names,
         camera,
         writer_delay: Duration::from_secs_f64(cfg.faults.record_writer_delay_ms * 1e-3),
+        seed: cfg.seed,
+        // Absolute, so `marsd replay` finds it from anywhere on this machine (`--checkpoint` elsewhere).
+        checkpoint: std::fs::canonicalize(&cfg.checkpoint).unwrap_or_else(|_| cfg.checkpoint.clone()),
     }
 }
 

@@ -24,6 +24,7 @@ pub mod live;
 pub mod plots;
 pub mod policy_loop;
 pub mod record;
+pub mod replay;
 pub mod report;
 pub mod scene;
 pub mod scene_link;

@@ -335,7 +335,15 @@ impl PolicyLoop {
             }
             if let Progress::Done { success, mode, reason } = progress {
                 if let Some(r) = &mut self.recording {
-                    r.end_episode(crate::record::EpisodeEnd { episode, frames: k, success });
+                    let mut end = crate::record::EpisodeEnd {
+                        episode,
+                        frames: k,
+                        success,
+                        rest: [0.0; crate::chunk::MAX_ACTION],
+                        rest_len: rest.len(),
+                    };
+                    end.rest[..rest.len()].copy_from_slice(rest);
+                    r.end_episode(end);
                 }
                 trace.mode = mode;
                 trace.success = success;
@@ -379,6 +387,8 @@ impl PolicyLoop {
             };
             let budget = Duration::from_nanos((need_ns - margin_ns).saturating_sub(monotonic_ns()));
             let started = monotonic_ns();
+            // A seed per call: `marsd replay` reproduces any one call from the recording alone.
+            self.engine.reseed(crate::record::call_seed(cfg.seed, episode, k));
             let result = self.engine.infer(&obs, &history, budget);
             let ready = monotonic_ns();
             self.rec.record(Channel::Inference, ready - started);

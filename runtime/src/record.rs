@@ -47,6 +47,23 @@ pub struct EpisodeEnd {
     /// Periods the loop recorded (or tried to): the writer must have all of them.
     pub frames: u64,
     pub success: bool,
+    /// The action history's padding before the first chunk (`rest[..rest_len]`): replay starts from it.
+    pub rest: [f32; crate::chunk::MAX_ACTION],
+    pub rest_len: usize,
+}
+
+/// The file of our own in the dataset's `meta/`: the run's seed, checkpoint and, per dataset episode, marsd's
+/// episode number and its history padding — with the recorded frames, what `marsd replay` needs.
+pub const META_FILE: &str = "mars.json";
+
+/// The seed of the policy's noise for the call made in period `frame` of `episode`: marsd reseeds the engine
+/// before every call, so one call can be replayed without the ones before it.
+pub fn call_seed(run_seed: u64, episode: u64, frame: u64) -> u64 {
+    // splitmix64's finaliser over the three, so nearby calls get unrelated streams.
+    let mut z = run_seed ^ episode.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ frame.wrapping_mul(0xD1B5_4A32_D192_ED03);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^ (z >> 31)
 }
 
 /// What the recording did, for the report.
@@ -76,6 +93,9 @@ pub struct RecordSetup {
     pub camera: Option<(String, u32, u32)>,
     /// Fault injection: the writer sleeps this long per frame (a disk or encoder that cannot keep up).
     pub writer_delay: Duration,
+    /// The run's seed and checkpoint, for `meta/mars.json`.
+    pub seed: u64,
+    pub checkpoint: PathBuf,
 }
 
 /// The policy loop's end: wait-free, allocation-free after `start`.
@@ -206,6 +226,7 @@ impl Job {
     fn run(mut self, stop: &AtomicBool) -> RecordReport {
         let mut report = RecordReport { path: self.setup.path.clone(), ..Default::default() };
         let mut open: Option<Gathering> = None;
+        let mut meta_episodes: Vec<serde_json::Value> = Vec::new();
         let mut ends: Vec<EpisodeEnd> = Vec::new();
         let mut failed = false;
         loop {
@@ -223,7 +244,13 @@ impl Job {
                 let g = open.get_or_insert_with(|| Gathering { episode: f.episode, frames: Vec::new(), gap: false });
                 if g.episode != f.episode {
                     let done = open.replace(Gathering { episode: f.episode, frames: Vec::new(), gap: false });
-                    self.close(done.expect("an episode was open"), &mut ends, &mut report, &mut failed);
+                    self.close(
+                        done.expect("an episode was open"),
+                        &mut ends,
+                        &mut report,
+                        &mut failed,
+                        &mut meta_episodes,
+                    );
                 }
                 let g = open.as_mut().expect("just opened");
                 g.gap |= f.frame != g.frames.len() as u64;
@@ -236,7 +263,7 @@ impl Job {
                 && ends.iter().any(|e| e.episode == g.episode && e.frames <= g.frames.len() as u64)
             {
                 let done = open.take().expect("checked");
-                self.close(done, &mut ends, &mut report, &mut failed);
+                self.close(done, &mut ends, &mut report, &mut failed, &mut meta_episodes);
             }
             if stopping && !got {
                 break;
@@ -246,10 +273,17 @@ impl Job {
             }
         }
         if let Some(g) = open.take() {
-            self.close(g, &mut ends, &mut report, &mut failed);
+            self.close(g, &mut ends, &mut report, &mut failed, &mut meta_episodes);
         }
         report.frames_dropped = self.dropped.load(Ordering::Relaxed);
         if !failed && report.episodes_written > 0 {
+            let meta = serde_json::json!({
+                "seed": self.setup.seed,
+                "checkpoint": self.setup.checkpoint,
+                "fps": self.setup.fps,
+                "episodes": meta_episodes,
+            });
+            self.writer.set_extra_meta(META_FILE, meta);
             if let Err(e) = self.writer.finish() {
                 report.error = Some(e.to_string());
             }
@@ -261,7 +295,14 @@ impl Job {
     }
 
     /// Writes a gathered episode if it is complete (its end seen, every period there), else counts it.
-    fn close(&mut self, g: Gathering, ends: &mut Vec<EpisodeEnd>, report: &mut RecordReport, failed: &mut bool) {
+    fn close(
+        &mut self,
+        g: Gathering,
+        ends: &mut Vec<EpisodeEnd>,
+        report: &mut RecordReport,
+        failed: &mut bool,
+        meta: &mut Vec<serde_json::Value>,
+    ) {
         let end = ends.iter().position(|e| e.episode == g.episode).map(|i| ends.remove(i));
         let complete = !g.gap && end.is_some_and(|e| e.frames == g.frames.len() as u64) && !g.frames.is_empty();
         if !complete || *failed {
@@ -275,6 +316,12 @@ impl Job {
         });
         match written.and_then(|()| self.writer.end_episode(&self.setup.task)) {
             Ok(()) => {
+                let end = end.expect("a complete episode has its end");
+                meta.push(serde_json::json!({
+                    "marsd_episode": end.episode,
+                    "success": end.success,
+                    "rest": &end.rest[..end.rest_len],
+                }));
                 report.episodes_written += 1;
                 report.frames_written += g.frames.len() as u64;
             }

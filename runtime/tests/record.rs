@@ -60,6 +60,8 @@ fn setup(path: &Path, delay_ms: u64) -> RecordSetup {
         action_names: vec!["a".into(), "b".into(), "c".into()],
         camera: None,
         writer_delay: Duration::from_millis(delay_ms),
+        seed: 7,
+        checkpoint: "none".into(),
     }
 }
 
@@ -86,7 +88,13 @@ fn a_slow_writer_costs_the_loop_nothing_and_keeps_only_complete_episodes() {
             });
             handed[e as usize - 1] += kept as u64;
         }
-        rec.end_episode(EpisodeEnd { episode: e, frames, success: true });
+        rec.end_episode(EpisodeEnd {
+            episode: e,
+            frames,
+            success: true,
+            rest: [0.0; mars_runtime::chunk::MAX_ACTION],
+            rest_len: 3,
+        });
     }
     let allocations = CALLS.load(Ordering::SeqCst) - before;
     WATCHED.with(|w| w.set(false));
@@ -184,6 +192,18 @@ fn a_recorded_demo_reads_back_and_trains() {
     assert_eq!(demos.len() as u64, written);
     let trained = mars_policy::train::train(&cfg, &demos, false).unwrap();
     assert!(trained.log.last().unwrap().total.is_finite());
+
+    // `marsd replay`: the run's calls again, with its seeds and step counts, equal what it executed bit for
+    // bit; another checkpoint diverges at the first call and says by how much.
+    use mars_runtime::replay::{ReplayArgs, run};
+    let args = ReplayArgs { dataset: path.clone(), episode: 0, checkpoint: None };
+    let same = run(&args).unwrap();
+    eprint!("{same}");
+    assert!(same.identical && same.calls >= 3 && same.actions_compared == episodes[0].len, "{same}");
+    let fm = root().join("assets/checkpoints/fr3_pick_cup/fm");
+    let other = run(&ReplayArgs { checkpoint: Some(fm), ..args }).unwrap();
+    eprint!("{other}");
+    assert!(!other.identical && other.first_divergence.as_ref().unwrap().frame == 0, "{other}");
 }
 
 /// The same through marsd with a writer that sleeps 300 ms per frame: the run goes on as without a recording

@@ -32,6 +32,10 @@ enum Command {
     /// budget, K, camera ages (p50/p99/max of each last interval, and how many samples took a period or more),
     /// the servo's phase, episode and trip. Reads mars/<robot>/live; costs the daemon's loops nothing.
     Top(mars_runtime::top::TopArgs),
+    /// Replay a recorded run's policy calls (a dataset from `--record`) through the engine with the seeds and
+    /// step counts the run used, and compare with the actions it executed: identical bit for bit on an unchanged
+    /// checkpoint, else the first call that differs. Exits 0 when identical, 2 when they differ.
+    Replay(mars_runtime::replay::ReplayArgs),
 }
 
 fn main() -> std::process::ExitCode {
@@ -42,6 +46,16 @@ fn main() -> std::process::ExitCode {
             Ok(report) => {
                 print!("{report}");
                 std::process::ExitCode::SUCCESS
+            }
+            Err(e) => {
+                eprintln!("error: {e:#}");
+                std::process::ExitCode::FAILURE
+            }
+        },
+        Some(Command::Replay(r)) => match mars_runtime::replay::run(&r) {
+            Ok(report) => {
+                print!("{report}");
+                std::process::ExitCode::from(if report.identical { 0 } else { 2 })
             }
             Err(e) => {
                 eprintln!("error: {e:#}");
