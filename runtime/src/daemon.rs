@@ -118,7 +118,7 @@ pub fn run(p: Prepared) -> anyhow::Result<Outcome> {
     let servo_rec = collector.recorder("servo", &servo_channels(&task), 8);
     let policy_rec = collector.recorder(
         "policy",
-        &[Channel::Inference, Channel::KRequested, Channel::KUsed, Channel::Encode, Channel::CameraAge],
+        &[Channel::Inference, Channel::KRequested, Channel::KUsed, Channel::Encode, Channel::CameraAge, Channel::WInf],
         8,
     );
 

@@ -29,6 +29,8 @@ use crate::rt::monotonic_ns;
 pub const K_MAX: u64 = 64;
 /// Largest time the time histograms hold: 10 s (a longer stall is clamped to it, and is a failure anyway).
 pub const TIME_MAX_NS: u64 = 10_000_000_000;
+/// Largest ‖w‖∞ the histograms hold, in thousandths (w is a noise scale of order 1).
+pub const W_INF_MAX: u64 = 1_000_000;
 /// The interval log's file name inside the collector's directory.
 pub const LOG_FILE: &str = "latency.hlog";
 
@@ -56,13 +58,15 @@ pub enum Channel {
     Encode,
     /// A camera frame's capture → the first servo command that follows the chunk computed from it.
     CaptureToCommand,
+    /// ‖w‖∞ of each policy call (how much noise MARS injected), recorded in thousandths.
+    WInf,
 }
 
 /// The live view (`marsd top`) carries every channel.
 const _: () = assert!(Channel::COUNT <= mars_ipc::LIVE_CHANNELS);
 
 impl Channel {
-    pub const COUNT: usize = 10;
+    pub const COUNT: usize = 11;
     pub const ALL: [Channel; Channel::COUNT] = [
         Channel::WakeJitter,
         Channel::TickCompute,
@@ -74,6 +78,7 @@ impl Channel {
         Channel::CameraAge,
         Channel::Encode,
         Channel::CaptureToCommand,
+        Channel::WInf,
     ];
 
     /// The tag of its histograms in the interval log.
@@ -89,6 +94,7 @@ impl Channel {
             Channel::CameraAge => "camera_age",
             Channel::Encode => "encode",
             Channel::CaptureToCommand => "capture_to_command",
+            Channel::WInf => "w_inf",
         }
     }
 
@@ -97,17 +103,38 @@ impl Channel {
     }
 
     pub fn is_time(self) -> bool {
-        !matches!(self, Channel::KRequested | Channel::KUsed)
+        !matches!(self, Channel::KRequested | Channel::KUsed | Channel::WInf)
     }
 
-    /// The unit of its summary values: µs for time channels (recorded in ns), K otherwise.
+    /// The unit of its summary values: µs for time channels (recorded in ns), K for step counts, w for ‖w‖∞.
     pub fn unit(self) -> &'static str {
-        if self.is_time() { "us" } else { "K" }
+        match self {
+            Channel::KRequested | Channel::KUsed => "K",
+            Channel::WInf => "w",
+            _ => "us",
+        }
+    }
+
+    /// Summary value per recorded unit: ns → µs, thousandths of w → w.
+    pub fn scale(self) -> f64 {
+        match self {
+            Channel::KRequested | Channel::KUsed => 1.0,
+            _ => 1e-3,
+        }
+    }
+
+    /// ‖w‖∞ as this channel records it (thousandths).
+    pub fn w_inf_units(w_inf: f32) -> u64 {
+        (f64::from(w_inf) * 1e3).round().max(0.0) as u64
     }
 
     /// An empty histogram with this channel's fixed bounds (3 significant digits).
     pub fn new_histogram(self) -> Histogram<u64> {
-        let high = if self.is_time() { TIME_MAX_NS } else { K_MAX };
+        let high = match self {
+            Channel::KRequested | Channel::KUsed => K_MAX,
+            Channel::WInf => W_INF_MAX,
+            _ => TIME_MAX_NS,
+        };
         Histogram::new_with_bounds(1, high, 3).expect("constant bounds are valid")
     }
 
@@ -448,7 +475,7 @@ pub struct ChannelStats {
 
 impl ChannelStats {
     pub fn of(channel: Channel, h: &Histogram<u64>) -> ChannelStats {
-        let scale = if channel.is_time() { 1e-3 } else { 1.0 };
+        let scale = channel.scale();
         let q = |p: f64| h.value_at_quantile(p) as f64 * scale;
         ChannelStats {
             channel,
@@ -558,12 +585,12 @@ impl fmt::Display for Totals {
             "channel", "unit", "count", "p50", "p90", "p99", "p99.9", "p99.99", "max"
         )?;
         for s in &self.channels {
-            let v = |x: f64| num(x, s.channel.is_time());
+            let v = |x: f64| if s.channel == Channel::WInf { format!("{x:.3}") } else { num(x, s.channel.is_time()) };
             writeln!(
                 f,
                 "{:<17} {:>4} {:>10} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9}",
                 s.channel.tag(),
-                if s.channel.is_time() { "µs" } else { "K" },
+                if s.channel.is_time() { "µs" } else { s.channel.unit() },
                 s.count,
                 v(s.p50),
                 v(s.p90),

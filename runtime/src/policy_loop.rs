@@ -426,6 +426,7 @@ impl PolicyLoop {
             }
             faults.over.good();
             w_inf = out.w.iter().fold(0.0f32, |m, w| m.max(w.abs()));
+            self.rec.record(Channel::WInf, Channel::w_inf_units(w_inf));
             seq += 1;
             let dst = self.ch.chunks.input_buffer_mut();
             dst.seq = episode << 32 | seq;

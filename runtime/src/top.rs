@@ -131,7 +131,11 @@ impl fmt::Display for View<'_> {
             if ch.end_ns == 0 {
                 continue; // this daemon does not record it (e.g. camera channels on a state-only task)
             }
-            let value = |v: u64| if c.is_time() { format!("{:.1}", v as f64 / 1e3) } else { v.to_string() };
+            let value = |v: u64| match c {
+                Channel::WInf => format!("{:.3}", v as f64 / 1e3),
+                _ if c.is_time() => format!("{:.1}", v as f64 / 1e3),
+                _ => v.to_string(),
+            };
             let over = if c.is_time() { ch.over_period.to_string() } else { "–".to_string() };
             writeln!(
                 f,

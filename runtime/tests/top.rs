@@ -75,6 +75,9 @@ fn top_follows_a_running_demo() {
     }
     // The policy ran and was shown with its budget; the servo's ticks only go forward.
     assert!(views.iter().any(|v| cell(v, "inference", 2).is_some_and(|n| n > 0.0)), "{out}");
+    // MARS's ‖w‖∞ of those calls, in [0, 1] (the scheduler's output).
+    let w = views.iter().find_map(|v| cell(v, "w_inf", 2).filter(|n| *n > 0.0).and(cell(v, "w_inf", 5)));
+    assert!(w.is_some_and(|w| (0.0..=1.0).contains(&w)), "{out}");
     assert!(out.contains("inference p99") && out.contains("budget"), "{out}");
     assert!(out.contains("Running") || out.contains("Resetting"), "{out}");
     // The servo's and the HAL's counters: commands flow, none stopped by the final check, none refused by the HAL.
