@@ -363,9 +363,11 @@ impl PolicyLoop {
                     late_chunks: ep_late,
                 });
             }
-            self.state_of(&o, &mut state);
+            if self.recording.is_some() {
+                self.state_of(&o, &mut state);
+            }
             if k % c as u64 != 0 {
-                self.record_period(episode, k, &state, &in_force, d);
+                self.record_period(episode, k, false, &state, &in_force, d);
                 continue;
             }
             // Inference for chunk k / C.
@@ -377,7 +379,7 @@ impl PolicyLoop {
                 }
                 Err(()) => {
                     // No usable image: keep executing the previous chunk, as for a call over budget.
-                    self.record_period(episode, k, &state, &in_force, d);
+                    self.record_period(episode, k, false, &state, &in_force, d);
                     if faults.no_frame.bad() {
                         self.request(Request::Trip(Trip::NoCameraFrame));
                         return None;
@@ -417,7 +419,7 @@ impl PolicyLoop {
             if out.over_budget {
                 // Not even one step fitted: keep executing the previous chunk.
                 report.over_budget += 1;
-                self.record_period(episode, k, &state, &in_force, d);
+                self.record_period(episode, k, false, &state, &in_force, d);
                 if faults.over.bad() {
                     self.request(Request::Trip(Trip::InferenceOverBudget));
                     return None;
@@ -469,7 +471,7 @@ impl PolicyLoop {
                 if let Some(pixels) = self.last_pixels() {
                     in_force.image.copy_from_slice(pixels);
                 }
-                self.record_period(episode, k, &state, &in_force, d);
+                self.record_period(episode, k, true, &state, &in_force, d);
             }
         }
         unreachable!("the episode loop only ends by returning")
@@ -477,7 +479,7 @@ impl PolicyLoop {
 
     /// Hands period `k` to the recording (if any): the state, the action of the chunk in force for it (its last
     /// once the chunk has run out, as the servo holds it), our columns. Wait-free and allocation-free.
-    fn record_period(&mut self, episode: u64, k: u64, state: &[f32], f: &InForce, d: usize) {
+    fn record_period(&mut self, episode: u64, k: u64, call: bool, state: &[f32], f: &InForce, d: usize) {
         let Some(r) = &mut self.recording else { return };
         let c = f.actions.len() / d;
         let i = ((k - f.first_k) as usize).min(c - 1);
@@ -490,7 +492,7 @@ impl PolicyLoop {
             frame.w_inf = f.w_inf;
             frame.k = f.k;
             frame.latency_ms = f.latency_ms;
-            frame.call = if k == f.first_k { 1.0 } else { 0.0 };
+            frame.call = if call { 1.0 } else { 0.0 };
         });
     }
 
