@@ -261,6 +261,7 @@ pub fn run(p: Prepared) -> anyhow::Result<Outcome> {
     let run = crate::report::RunFacts { realtime: vec![servo_rt, policy_rt], heartbeat };
     let mut summary = Summary::new(&cfg, &mode_names, &servo_report, &policy_report, totals, run);
     summary.record = record;
+    summary.trip_seen_ns = Some(status.trip_seen_ns.load(Ordering::Acquire)).filter(|&t| t != 0);
     let written = summary.write(&cfg.out, &policy_report, &task_view)?;
     println!("{summary}");
     println!("  wrote {}", written.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(", "));
@@ -344,6 +345,7 @@ fn supervise(
             && logged_trip != Some(trip)
         {
             logged_trip = Some(trip);
+            status.trip_seen_ns.store(crate::rt::monotonic_ns(), Ordering::Release);
             error!(reason = %trip, "watchdog trip: stopping the arm with a jerk-limited brake and holding");
         }
         // systemd's watchdog is fed only while the servo loop makes progress and nothing tripped.

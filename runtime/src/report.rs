@@ -143,6 +143,8 @@ pub struct Summary {
     pub effector: Option<crate::effector::EffectorCounts>,
     /// `--record`: what the dataset got.
     pub record: Option<crate::record::RecordReport>,
+    /// When marsd's main thread saw the trip (CLOCK_MONOTONIC ns): the moment a stall's evidence is sought around.
+    pub trip_seen_ns: Option<u64>,
 }
 
 impl Summary {
@@ -220,6 +222,7 @@ impl Summary {
             camera: p.camera.clone(),
             effector: s.effector,
             record: None,
+            trip_seen_ns: None,
         }
     }
 

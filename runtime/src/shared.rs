@@ -86,6 +86,8 @@ pub struct Status {
     pub stop_requested: AtomicBool,
     /// The HAL handshake happened: a valid state frame of the right robot arrived.
     pub hal_ready: AtomicBool,
+    /// When the daemon's main thread saw the trip (CLOCK_MONOTONIC ns; 0 = none), for the report.
+    pub trip_seen_ns: AtomicU64,
 }
 
 impl Status {

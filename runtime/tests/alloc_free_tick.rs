@@ -77,8 +77,16 @@ fn the_counter_sees_allocations_made_on_purpose() {
 #[test]
 fn servo_tick_and_hal_loop_make_no_heap_allocation_over_two_episodes() {
     let _rt = mars_runtime::rt::rig_lock::rt_rig_lock().expect("taking the real-time rig lock");
+    if !alloc_attempt(1) && !alloc_attempt(2) {
+        panic!("two runs in a row were stopped by stalls of the whole VM (see above)");
+    }
+}
+
+/// One run; false if marsd tripped on a timing check and a stall of the machine explains it (first attempt only:
+/// the HAL's frames paused, or the hypervisor took the CPU, around the trip — printed).
+fn alloc_attempt(attempt: u32) -> bool {
     let root = root();
-    let robot = format!("t{}-alloc", std::process::id());
+    let robot = format!("t{}-alloc{attempt}", std::process::id());
     let profile = Profile::load(&root.join("configs/fr3.toml")).unwrap();
     profile.validate().unwrap();
     let stop_hal = Arc::new(AtomicBool::new(false));
@@ -111,9 +119,29 @@ fn servo_tick_and_hal_loop_make_no_heap_allocation_over_two_episodes() {
     cfg.out = out.clone();
     cfg.robot = robot;
     cfg.episodes = 2;
+    let period_ms = profile.period_s() * 1e3;
+    let watch = mars_runtime::stall_watch::StallWatch::start(&cfg.robot, period_ms).unwrap();
     let prepared = daemon::prepare(cfg).unwrap();
     let outcome = daemon::run(prepared).unwrap();
+    let watched = watch.finish();
     let s = &outcome.summary; // (daemon::run printed it)
+    if attempt == 1
+        && outcome.exit == daemon::exit::TRIPPED
+        && let (Some(trip), Some(trip_ns)) = (&s.trip, s.trip_seen_ns)
+        && mars_runtime::stall::is_timing_trip(trip)
+    {
+        let gaps: Vec<_> = watched.gaps.iter().copied().collect();
+        let steal: Vec<_> = watched.steal.iter().copied().collect();
+        let e = mars_runtime::stall::around_trip(trip_ns, &gaps, period_ms, &steal);
+        eprintln!("around the trip ({trip}): {e}");
+        if e.is_stall() {
+            eprintln!("RERUN alloc: attempt 1 is inconclusive (the machine stalled around the trip); running it again");
+            stop_hal.store(true, Ordering::Release);
+            let _ = hal.join();
+            let _ = std::fs::remove_dir_all(out);
+            return false;
+        }
+    }
     assert_eq!(outcome.exit, daemon::exit::OK, "trip {:?}", s.trip);
     assert_eq!(s.episodes, 2);
     assert!(s.servo_ticks_counted > 5000, "only {} ticks counted", s.servo_ticks_counted);
@@ -152,4 +180,5 @@ fn servo_tick_and_hal_loop_make_no_heap_allocation_over_two_episodes() {
         "after warm-up the HAL loop may take exactly one pooled block per frame published ({frames}) and nothing else"
     );
     assert_eq!(report.errors.total(), 0);
+    true
 }
