@@ -6,8 +6,7 @@ use mars_tasks::demo::Demo;
 use crate::EpisodeFrames;
 
 /// What pads the action history before an episode's first action (`Demo::rest_action`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
-#[serde(rename_all = "kebab-case")]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum RestAction {
     /// The first frame's state: right when the actions are position targets in the state's space (a joint
     /// position policy, Push-T's (x, y)), the robot's "stay where you are".

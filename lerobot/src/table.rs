@@ -52,10 +52,6 @@ impl Table {
         self.batches.iter().map(RecordBatch::num_rows).sum()
     }
 
-    pub fn has(&self, column: &str) -> bool {
-        self.batches.first().is_some_and(|b| b.schema().index_of(column).is_ok())
-    }
-
     fn err(&self, column: &str, problem: impl Into<String>) -> LeRobotError {
         LeRobotError::Column { path: self.path.clone(), column: column.to_owned(), problem: problem.into() }
     }

@@ -15,8 +15,6 @@ use crate::LeRobotError;
 pub struct DecodedVideo {
     pub width: u32,
     pub height: u32,
-    /// The file's own size (before resizing).
-    pub source_size: (u32, u32),
     /// Presentation time of each frame, seconds from the file's start.
     pub times_s: Vec<f64>,
     /// `times_s.len()` frames of `height × width × 3` bytes, row-major, no padding.
@@ -76,7 +74,7 @@ pub fn decode(path: &Path, width: u32, height: u32) -> Result<DecodedVideo, LeRo
     let flags = if width < source_size.0 || height < source_size.1 { Flags::AREA } else { Flags::BILINEAR };
     let mut scaler = Scaler::get(decoder.format(), source_size.0, source_size.1, Pixel::RGB24, width, height, flags)
         .map_err(|e| fail("cannot convert its frames to RGB", e))?;
-    let mut out = DecodedVideo { width, height, source_size, times_s: Vec::new(), rgb: Vec::new() };
+    let mut out = DecodedVideo { width, height, times_s: Vec::new(), rgb: Vec::new() };
     let (mut frame, mut rgb) = (VideoFrame::empty(), VideoFrame::empty());
     let mut drain = |decoder: &mut ffmpeg::decoder::Video, out: &mut DecodedVideo| -> Result<(), LeRobotError> {
         while decoder.receive_frame(&mut frame).is_ok() {

@@ -131,10 +131,6 @@ impl DatasetWriter {
         })
     }
 
-    pub fn spec(&self) -> &DatasetSpec {
-        &self.spec
-    }
-
     /// Appends a frame to the open episode: one slice per vector feature and per camera, in the spec's order.
     pub fn add_frame(&mut self, vectors: &[&[f32]], images: &[&[u8]]) -> Result<(), LeRobotError> {
         let bad = |key: &str, problem: String| LeRobotError::Feature { key: key.to_owned(), problem };

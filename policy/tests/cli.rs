@@ -1,16 +1,9 @@
 //! The `mars` binary end to end on a tiny setting, and its refusal of bad input before any work is done.
 
-use std::path::{Path, PathBuf};
-use std::process::Command;
+mod mars_cli;
 
-fn mars(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_mars"))
-        .args(args)
-        .current_dir(concat!(env!("CARGO_MANIFEST_DIR"), "/.."))
-        .env("RAYON_NUM_THREADS", "1")
-        .output()
-        .expect("mars runs")
-}
+use mars_cli::mars;
+use std::path::{Path, PathBuf};
 
 fn tmp(name: &str) -> PathBuf {
     let d = std::env::temp_dir().join(format!("mars-cli-{}-{name}", std::process::id()));

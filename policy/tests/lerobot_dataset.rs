@@ -2,22 +2,15 @@
 //! on it and its checkpoint loads and acts; a policy the dataset does not fit is refused before anything is
 //! written.
 
-use std::path::{Path, PathBuf};
-use std::process::Command;
+mod mars_cli;
 
+use std::path::{Path, PathBuf};
+
+use mars_cli::mars;
 use mars_policy::inference::MarsPolicy;
 use mars_tasks::rollout::ChunkPolicy;
 
 const FIXTURE: &str = "tests/fixtures/lerobot/push_t";
-
-fn mars(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_mars"))
-        .args(args)
-        .current_dir(concat!(env!("CARGO_MANIFEST_DIR"), "/.."))
-        .env("RAYON_NUM_THREADS", "1")
-        .output()
-        .expect("mars runs")
-}
 
 /// configs/push_t_policy.toml made small (a 1-epoch test), with `edit` applied to its text.
 fn config(dir: &Path, edit: impl Fn(String) -> String) -> PathBuf {

@@ -189,7 +189,18 @@ pub fn start(setup: RecordSetup) -> anyhow::Result<(Recorder, RecordWriter)> {
                 return RecordReport { error: Some("not started".into()), ..Default::default() };
             }
         };
-        Job { setup, writer, free: free_in, filled: filled_out, ends: ends_out, dropped: dropped2 }.run(&stop2)
+        let job = Job {
+            setup,
+            writer,
+            free: free_in,
+            filled: filled_out,
+            ends: ends_out,
+            dropped: dropped2,
+            arrived: Vec::new(),
+            meta_episodes: Vec::new(),
+            report: RecordReport::default(),
+        };
+        job.run(&stop2)
     })?;
     made_rx.recv().map_err(|_| anyhow::anyhow!("the recording thread died at start"))??;
     Ok((Recorder { free: free_out, filled: filled_in, ends: ends_in, dropped }, RecordWriter { stop, thread }))
@@ -212,6 +223,12 @@ struct Job {
     filled: rtrb::Consumer<Box<RecordFrame>>,
     ends: rtrb::Consumer<EpisodeEnd>,
     dropped: Arc<AtomicU64>,
+    /// Ends received whose episode is not closed yet.
+    arrived: Vec<EpisodeEnd>,
+    /// Per written episode, what `meta/mars.json` keeps of it.
+    meta_episodes: Vec<serde_json::Value>,
+    /// `error` set: writing failed, nothing more is written.
+    report: RecordReport,
 }
 
 /// The episode being gathered (the writer thread may allocate: it is not a real-time thread).
@@ -224,16 +241,13 @@ struct Gathering {
 
 impl Job {
     fn run(mut self, stop: &AtomicBool) -> RecordReport {
-        let mut report = RecordReport { path: self.setup.path.clone(), ..Default::default() };
+        self.report.path = self.setup.path.clone();
         let mut open: Option<Gathering> = None;
-        let mut meta_episodes: Vec<serde_json::Value> = Vec::new();
-        let mut ends: Vec<EpisodeEnd> = Vec::new();
-        let mut failed = false;
         loop {
             // Read the stop flag before draining: everything pushed before it was set is then seen.
             let stopping = stop.load(Ordering::Acquire);
             while let Ok(end) = self.ends.pop() {
-                ends.push(end);
+                self.arrived.push(end);
             }
             let mut got = false;
             while let Ok(f) = self.filled.pop() {
@@ -241,29 +255,21 @@ impl Job {
                 if !self.setup.writer_delay.is_zero() {
                     std::thread::sleep(self.setup.writer_delay);
                 }
-                let g = open.get_or_insert_with(|| Gathering { episode: f.episode, frames: Vec::new(), gap: false });
-                if g.episode != f.episode {
-                    let done = open.replace(Gathering { episode: f.episode, frames: Vec::new(), gap: false });
-                    self.close(
-                        done.expect("an episode was open"),
-                        &mut ends,
-                        &mut report,
-                        &mut failed,
-                        &mut meta_episodes,
-                    );
+                if let Some(done) = open.take_if(|g| g.episode != f.episode) {
+                    self.close(done);
                 }
-                let g = open.as_mut().expect("just opened");
+                let g = open.get_or_insert_with(|| Gathering { episode: f.episode, frames: Vec::new(), gap: false });
                 g.gap |= f.frame != g.frames.len() as u64;
                 g.frames.push((*f).clone());
                 // Back to the loop's pool.
                 let _ = self.free.push(f);
             }
             // An episode whose end has arrived and whose frames are all here is written now, not at the next one.
-            if let Some(g) = &open
-                && ends.iter().any(|e| e.episode == g.episode && e.frames <= g.frames.len() as u64)
+            let arrived = &self.arrived;
+            if let Some(done) =
+                open.take_if(|g| arrived.iter().any(|e| e.episode == g.episode && e.frames <= g.frames.len() as u64))
             {
-                let done = open.take().expect("checked");
-                self.close(done, &mut ends, &mut report, &mut failed, &mut meta_episodes);
+                self.close(done);
             }
             if stopping && !got {
                 break;
@@ -273,15 +279,16 @@ impl Job {
             }
         }
         if let Some(g) = open.take() {
-            self.close(g, &mut ends, &mut report, &mut failed, &mut meta_episodes);
+            self.close(g);
         }
+        let mut report = std::mem::take(&mut self.report);
         report.frames_dropped = self.dropped.load(Ordering::Relaxed);
-        if !failed && report.episodes_written > 0 {
+        if report.error.is_none() && report.episodes_written > 0 {
             let meta = serde_json::json!({
                 "seed": self.setup.seed,
                 "checkpoint": self.setup.checkpoint,
                 "fps": self.setup.fps,
-                "episodes": meta_episodes,
+                "episodes": self.meta_episodes,
             });
             self.writer.set_extra_meta(META_FILE, meta);
             if let Err(e) = self.writer.finish() {
@@ -294,18 +301,13 @@ impl Job {
         report
     }
 
-    /// Writes a gathered episode if it is complete (its end seen, every period there), else counts it.
-    fn close(
-        &mut self,
-        g: Gathering,
-        ends: &mut Vec<EpisodeEnd>,
-        report: &mut RecordReport,
-        failed: &mut bool,
-        meta: &mut Vec<serde_json::Value>,
-    ) {
-        let end = ends.iter().position(|e| e.episode == g.episode).map(|i| ends.remove(i));
+    /// Writes a gathered episode if it is complete (its end seen, every period there) and writing has not failed,
+    /// else counts it.
+    fn close(&mut self, g: Gathering) {
+        let end = self.arrived.iter().position(|e| e.episode == g.episode).map(|i| self.arrived.remove(i));
         let complete = !g.gap && end.is_some_and(|e| e.frames == g.frames.len() as u64) && !g.frames.is_empty();
-        if !complete || *failed {
+        let report = &mut self.report;
+        if !complete || report.error.is_some() {
             report.episodes_incomplete += 1;
             return;
         }
@@ -317,7 +319,7 @@ impl Job {
         match written.and_then(|()| self.writer.end_episode(&self.setup.task)) {
             Ok(()) => {
                 let end = end.expect("a complete episode has its end");
-                meta.push(serde_json::json!({
+                self.meta_episodes.push(serde_json::json!({
                     "marsd_episode": end.episode,
                     "success": end.success,
                     "rest": &end.rest[..end.rest_len],
@@ -328,7 +330,6 @@ impl Job {
             Err(e) => {
                 tracing::error!("recording {}: {e}; nothing more is recorded", self.setup.path.display());
                 report.error = Some(e.to_string());
-                *failed = true;
             }
         }
     }

@@ -4,51 +4,16 @@
 
 mod common;
 
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::cell::Cell;
 use std::path::Path;
-use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Duration;
 
 use common::*;
 use mars_lerobot::{Keys, LeRobotDataset};
 use mars_runtime::record::{EpisodeEnd, RecordSetup, start};
 
-/// Counts allocator calls made by threads that opted in (the writer thread allocates freely; it is not watched).
-struct Counting;
-
-thread_local! {
-    static WATCHED: Cell<bool> = const { Cell::new(false) };
-}
-static CALLS: AtomicUsize = AtomicUsize::new(0);
-
-fn note() {
-    if WATCHED.try_with(Cell::get).unwrap_or(false) {
-        CALLS.fetch_add(1, Ordering::Relaxed);
-    }
-}
-
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        note();
-        unsafe { System.alloc(layout) }
-    }
-    unsafe fn alloc_zeroed(&self, layout: Layout) -> *mut u8 {
-        note();
-        unsafe { System.alloc_zeroed(layout) }
-    }
-    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        note();
-        unsafe { System.realloc(ptr, layout, new_size) }
-    }
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        note();
-        unsafe { System.dealloc(ptr, layout) }
-    }
-}
-
+// The project's counting allocator: per-thread counts, so the writer thread's own allocations are not counted.
 #[global_allocator]
-static ALLOCATOR: Counting = Counting;
+static ALLOC: mars_runtime::alloc_count::CountingAlloc = mars_runtime::alloc_count::CountingAlloc;
 
 fn setup(path: &Path, delay_ms: u64) -> RecordSetup {
     RecordSetup {
@@ -75,8 +40,7 @@ fn a_slow_writer_costs_the_loop_nothing_and_keeps_only_complete_episodes() {
     let (mut rec, writer) = start(setup(&path, 50)).unwrap();
     let mut handed = [0u64; 2];
     let state = |e: u64, k: u64| [e as f32, k as f32, -(k as f32)];
-    WATCHED.with(|w| w.set(true));
-    let before = CALLS.load(Ordering::SeqCst);
+    let before = mars_runtime::alloc_count::thread_counts().expect("the counting allocator is installed");
     for (e, frames) in [(1u64, 10u64), (2, 100)] {
         for k in 0..frames {
             let kept = rec.record(|f| {
@@ -96,9 +60,8 @@ fn a_slow_writer_costs_the_loop_nothing_and_keeps_only_complete_episodes() {
             rest_len: 3,
         });
     }
-    let allocations = CALLS.load(Ordering::SeqCst) - before;
-    WATCHED.with(|w| w.set(false));
-    assert_eq!(allocations, 0, "the loop's side allocated");
+    let after = mars_runtime::alloc_count::thread_counts().unwrap();
+    assert_eq!((after.system - before.system, after.pooled - before.pooled), (0, 0), "the loop's side allocated");
     assert_eq!(handed[0], 10, "episode 1 fits the pool");
     assert!(handed[1] < 100, "the writer kept up with 100 frames at 50 ms each?");
     let report = writer.finish();
