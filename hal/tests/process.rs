@@ -41,6 +41,8 @@ struct Rig {
     commands: CommandWriter,
     profile: Profile,
     hal: Proc,
+    /// When [`Rig::stream`] last sent a command (CLOCK_MONOTONIC ns, the clock of the HAL's frame stamps).
+    last_sent_ns: std::cell::Cell<u64>,
     /// Declared last: released after the HAL was killed.
     _rt: RtRigLock,
 }
@@ -73,7 +75,7 @@ impl Rig {
             .spawn()
             .unwrap();
         let profile = Profile::load(Path::new(path)).unwrap();
-        let rig = Rig { ns, _node: node, states, commands, profile, hal: Proc(hal), _rt: rt };
+        let rig = Rig { ns, _node: node, states, commands, profile, hal: Proc(hal), last_sent_ns: 0.into(), _rt: rt };
         rig.wait_for("the first state frame", Duration::from_secs(10), |_| true);
         rig
     }
@@ -114,6 +116,7 @@ impl Rig {
                 seq += 1;
                 let q = q_of_t(start.elapsed().as_secs_f64());
                 self.commands.send(&JointCommand::position(session, seq, s.seq, &q)).unwrap();
+                self.last_sent_ns.set(clock::monotonic_ns());
                 last = s;
             }
             std::thread::sleep(Duration::from_micros(100));
@@ -183,17 +186,60 @@ fn every_bad_command_is_refused_and_never_applied() {
 
 #[test]
 fn brakes_and_holds_when_commands_stop_and_resumes_only_on_a_new_session() {
+    for attempt in 1..=2 {
+        if command_timeout_scenario(attempt) {
+            return;
+        }
+    }
+}
+
+/// One run of the command-timeout scenario; false if the HAL was frozen (published no frame) long enough between
+/// the last command and its hold to explain a hold later than its bound (first attempt only; the evidence printed).
+fn command_timeout_scenario(attempt: u32) -> bool {
     let rig = Rig::start("fr3.toml");
     let home = rig.profile.home.clone();
     // Moving at ~0.3 rad/s when the stream stops.
     let moving = rig.stream(1, 0.5, |t| home.iter().map(|h| h - 0.3 * t).collect());
     assert!(moving.is(status::ACTIVE));
-    let stopped_at = moving.timestamp_ns;
-    let held = rig.wait_for("hold after timeout", Duration::from_secs(2), |s| s.is(status::HOLDING));
+    let stopped_at = rig.last_sent_ns.get();
+    let frames = collect(&rig, Duration::from_secs(2), |s| s.is(status::HOLDING));
+    let held = *frames.last().filter(|s| s.is(status::HOLDING)).expect("no hold within 2 s of the last command");
     let timeout_ns = rig.profile.timeout_ns();
     assert_eq!(HoldReason::from_u32(held.hold_reason), Some(HoldReason::CommandTimeout));
-    // Detected within the timeout plus a few ticks of slack for our own last send.
-    assert!(held.timestamp_ns - stopped_at <= timeout_ns + 10_000_000, "{} ns", held.timestamp_ns - stopped_at);
+    // Detected within the timeout of our last send plus a few of the HAL's ticks (the command reaches it on its next
+    // tick; the hold is published on the tick after the timeout).
+    let took_ns = held.timestamp_ns.saturating_sub(stopped_at);
+    let bound_ns = timeout_ns + 10_000_000;
+    if took_ns > bound_ns {
+        // The HAL is a process of its own: on a loaded machine it may not run. Time in which it published no frame
+        // (beyond its period) between our last command and the hold is time it could not have held in.
+        let period_ns = (1e9 / rig.profile.rate_hz) as u64;
+        let mut frozen_ns = 0;
+        let mut prev: Option<&RobotState> = Some(&moving);
+        for s in &frames {
+            // Frames this reader missed (a seq jump) say nothing of whether the HAL ran.
+            if let Some(p) = prev.filter(|p| s.seq == p.seq + 1) {
+                let gap = s.timestamp_ns.saturating_sub(p.timestamp_ns);
+                if gap * 2 > period_ns * 3 {
+                    frozen_ns += gap - period_ns;
+                }
+            }
+            prev = Some(s);
+        }
+        let evidence = format!(
+            "the hold came {:.1} ms after the last command (bound {:.1} ms); the HAL published no frame for {:.1} ms \
+             of that beyond its period ({} frames between)",
+            took_ns as f64 * 1e-6,
+            bound_ns as f64 * 1e-6,
+            frozen_ns as f64 * 1e-6,
+            frames.len()
+        );
+        if attempt == 1 && took_ns - frozen_ns <= bound_ns {
+            eprintln!("RERUN command timeout: attempt 1 is inconclusive: {evidence}");
+            return false;
+        }
+        panic!("{evidence}");
+    }
     let rest = rig.wait_for("rest", Duration::from_secs(2), |s| s.is(status::AT_REST));
     assert!(rest.timestamp_ns - held.timestamp_ns < 500_000_000, "braking took too long");
     for i in 0..7 {
@@ -211,6 +257,7 @@ fn brakes_and_holds_when_commands_stop_and_resumes_only_on_a_new_session() {
     let after_new = rig.stream(2, 0.3, |_| far.clone());
     assert!(after_new.is(status::ACTIVE) && after_new.session == 2);
     assert!(after_new.applied_position[0] < held_at[0] - 0.01);
+    true
 }
 
 #[test]

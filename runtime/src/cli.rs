@@ -300,7 +300,8 @@ fn start_franka_sim(venv: &Path, out: &Path) -> anyhow::Result<mars_hal::fci::fr
 }
 
 /// After a trip: if marsd stopped on a timing check, says whether this machine stalled around it, with the
-/// evidence (the HAL's frame gap and the steal at that moment), rather than leaving only the watchdog's reason.
+/// evidence (the HAL's frame gap and the steal at that moment), rather than leaving only the watchdog's reason;
+/// and writes the same to `trip.json` in `out`, for tools (the tests' rerun rule) rather than people.
 fn explain_trip(out: &Path, trip_line: Option<&str>, watched: &crate::stall_watch::Watched, period_ms: f64) {
     let summary = std::fs::read_to_string(out.join("summary.json"))
         .ok()
@@ -314,5 +315,17 @@ fn explain_trip(out: &Path, trip_line: Option<&str>, watched: &crate::stall_watc
     let clock = line.get(11..23).unwrap_or("the trip");
     if let Some(m) = crate::stall::demo_message(&trip, clock, &evidence) {
         eprintln!("{m}");
+    }
+    let record = serde_json::json!({
+        "trip": trip,
+        "logged_at": clock,
+        "timing_check": crate::stall::is_timing_trip(&trip),
+        "machine_stalled": evidence.is_stall(),
+        "evidence": evidence,
+        "said": evidence.to_string(),
+    });
+    let path = out.join("trip.json");
+    if let Err(e) = std::fs::write(&path, format!("{record:#}\n")) {
+        eprintln!("could not write {}: {e}", path.display());
     }
 }

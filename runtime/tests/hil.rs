@@ -668,6 +668,14 @@ fn a_demo_stopped_by_a_machine_stall_says_so_with_the_evidence() {
     eprintln!("the demo said: {}", said.unwrap_or("(nothing)"));
     let said = said.unwrap_or_else(|| panic!("the demo did not name the stall\n{}", demo.logs()));
     assert!(said.contains("see `marsd doctor`"), "{said}");
+    // The same account for tools: trip.json, with the injected freeze as the HAL's frame gap.
+    let t: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(logs.join("out/trip.json")).unwrap()).unwrap();
+    assert_eq!((&t["timing_check"], &t["machine_stalled"]), (&true.into(), &true.into()), "{t}");
+    let gap_ms = (t["evidence"]["gap"]["end_ns"].as_u64().unwrap() - t["evidence"]["gap"]["start_ns"].as_u64().unwrap())
+        as f64
+        * 1e-6;
+    assert!(gap_ms >= 55.0, "trip.json's gap {gap_ms} ms is not the 60 ms freeze: {t}");
 }
 
 /// The rig lock is exclusive across processes (an flock on a file any other test binary opens too), re-entrant
