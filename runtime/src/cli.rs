@@ -40,6 +40,13 @@ pub struct MarsdArgs {
     /// Fault injection: the recording's writer sleeps this long per frame (a writer that cannot keep up).
     #[arg(long, requires = "record")]
     pub record_writer_delay_ms: Option<f64>,
+    /// Run a recorded episode's chunks instead of the policy's (a dataset `--record` wrote; see `mars-hil
+    /// replay`): one episode, with the recording's seed, so from the same start pose.
+    #[arg(long, requires = "replay_episode")]
+    pub replay_actions: Option<PathBuf>,
+    /// The episode of `--replay-actions` (0-based, as LeRobot numbers them).
+    #[arg(long, requires = "replay_actions")]
+    pub replay_episode: Option<usize>,
 }
 
 pub fn init_logging() {
@@ -70,7 +77,11 @@ pub fn marsd(args: MarsdArgs) -> ExitCode {
             anyhow::ensure!(d.is_finite() && d >= 0.0, "--record-writer-delay-ms must be ≥ 0, got {d}");
             cfg.faults.record_writer_delay_ms = d;
         }
-        daemon::prepare(cfg)
+        let prepared = daemon::prepare(cfg)?;
+        match (&args.replay_actions, args.replay_episode) {
+            (Some(dataset), Some(n)) => prepared.replaying(dataset, n),
+            _ => Ok(prepared),
+        }
     })();
     let prepared = match prepared {
         Ok(p) => p,
@@ -225,6 +236,9 @@ pub fn demo(mut args: DemoArgs) -> anyhow::Result<u8> {
     }
     if let Some(d) = args.marsd.record_writer_delay_ms {
         marsd.args(["--record-writer-delay-ms", &d.to_string()]);
+    }
+    if let (Some(dataset), Some(n)) = (&args.marsd.replay_actions, args.marsd.replay_episode) {
+        marsd.arg("--replay-actions").arg(dataset).args(["--replay-episode", &n.to_string()]);
     }
     // franka-sim is a Python MuJoCo loop that pauses now and then on a loaded machine (it runs at 0.6–0.9× real
     // time); its states then come late all together, counted in its own cycles, with no command lost. A real FR3

@@ -52,6 +52,10 @@ pub struct DaemonConfig {
     /// Record every episode as a LeRobot v3.0 dataset at this path (which must not exist yet).
     #[serde(default)]
     pub record: Option<PathBuf>,
+    /// The file this configuration was read from (empty when parsed from text): a recording names it, so a
+    /// replay runs with the same configuration.
+    #[serde(skip)]
+    pub source: PathBuf,
 }
 
 #[derive(Debug, Clone, Deserialize)]
@@ -159,7 +163,9 @@ impl DaemonConfig {
     pub fn load(path: &Path) -> Result<Self, ConfigError> {
         let text = std::fs::read_to_string(path)
             .map_err(|error| ConfigError::Read { path: path.display().to_string(), error })?;
-        Self::parse(&text, &path.display().to_string())
+        let mut cfg = Self::parse(&text, &path.display().to_string())?;
+        cfg.source = path.to_owned();
+        Ok(cfg)
     }
 
     /// Parses and validates; relative paths inside the file are kept as written (relative to the working

@@ -22,6 +22,7 @@ use crate::chunk::{MAX_ACTION, MAX_CHUNK, TimedChunk};
 use crate::config::DaemonConfig;
 use crate::latency::{Channel, Collector};
 use crate::policy_loop::{PolicyChannels, PolicyLoop};
+use crate::recorded_actions::RecordedActions;
 use crate::report::Summary;
 use crate::rt::RtStatus;
 use crate::scene_link::SceneLink;
@@ -50,6 +51,27 @@ pub struct Prepared {
     pub profile: Profile,
     pub task: HilTask,
     pub engine: Engine,
+    /// A recorded episode's chunks to run instead of the engine's ([`Prepared::replaying`]).
+    pub replay: Option<RecordedActions>,
+}
+
+impl Prepared {
+    /// Runs episode `n` of a dataset marsd recorded with the run's chunks instead of the engine's: one episode,
+    /// the run's seed (so the same start pose).
+    pub fn replaying(mut self, dataset: &Path, n: usize) -> anyhow::Result<Self> {
+        let r = RecordedActions::load(dataset, n).with_context(|| format!("replaying {}", dataset.display()))?;
+        anyhow::ensure!(
+            r.action_dim() == self.engine.action_dim(),
+            "{}: its actions have {} values, the task's {}",
+            dataset.display(),
+            r.action_dim(),
+            self.engine.action_dim()
+        );
+        self.cfg.seed = r.seed;
+        self.cfg.episodes = 1;
+        self.replay = Some(r);
+        Ok(self)
+    }
 }
 
 /// Loads and cross-checks the profile, task and checkpoint. Any error here means nothing moved.
@@ -92,7 +114,7 @@ pub fn prepare(cfg: DaemonConfig) -> anyhow::Result<Prepared> {
         "policy.rate_hz = {} but the task's demos were recorded at {rate} Hz",
         cfg.policy.rate_hz
     );
-    Ok(Prepared { cfg, profile, task, engine })
+    Ok(Prepared { cfg, profile, task, engine, replay: None })
 }
 
 pub struct Outcome {
@@ -102,7 +124,7 @@ pub struct Outcome {
 
 /// Runs the loops to the end and writes the report into `cfg.out`.
 pub fn run(p: Prepared) -> anyhow::Result<Outcome> {
-    let Prepared { cfg, profile, task, engine } = p;
+    let Prepared { cfg, profile, task, engine, replay } = p;
     let mode_names = task.mode_names();
     // The report draws with the task's geometry (Push-T's camera view); the task itself moves to the policy thread.
     let task_view = task.clone();
@@ -229,6 +251,7 @@ pub fn run(p: Prepared) -> anyhow::Result<Outcome> {
                     next_interval_ns: 0,
                     recording,
                     last_image: Vec::new(),
+                    replay,
                 }
                 .run(&policy_cfg),
                 rt,
@@ -301,6 +324,7 @@ fn record_setup(cfg: &DaemonConfig, profile: &Profile, task: &HilTask, path: &Pa
         seed: cfg.seed,
         // Absolute, so `marsd replay` finds it from anywhere on this machine (`--checkpoint` elsewhere).
         checkpoint: std::fs::canonicalize(&cfg.checkpoint).unwrap_or_else(|_| cfg.checkpoint.clone()),
+        config: std::fs::canonicalize(&cfg.source).unwrap_or_else(|_| cfg.source.clone()),
     }
 }
 

@@ -40,6 +40,8 @@ pub struct EpisodeResult {
     pub chunks: u64,
     pub mean_k_used: f64,
     pub late_chunks: u64,
+    /// Servo periods missed while the episode ran (a stalled machine: the robot's commands came late).
+    pub servo_missed_periods: u64,
 }
 
 /// How many late chunks a report times.
@@ -132,6 +134,18 @@ pub struct PolicyLoop {
     pub recording: Option<crate::record::Recorder>,
     /// While recording Push-T: the camera frame the last observation used (sized at the first episode).
     pub last_image: Vec<u8>,
+    /// `--replay-actions`: a recorded episode's chunks instead of the engine's (see [`crate::recorded_actions`]).
+    pub replay: Option<crate::recorded_actions::RecordedActions>,
+}
+
+/// Where and when a chunk's actions are due, and when it was made (see [`TimedChunk`]).
+struct ChunkStamp {
+    episode: u64,
+    seq: u64,
+    period_ns: u64,
+    first_due_ns: u64,
+    ready_ns: u64,
+    capture_ns: u64,
 }
 
 /// What the recording keeps of the chunk in force: its actions, where it started, our columns.
@@ -163,7 +177,12 @@ impl PolicyLoop {
             no_frame: Streak::new(cfg.watchdog.max_consecutive_late_chunks),
         };
         let mut traces = TraceRing::new(cfg.traces_kept);
-        for episode in 1..=episodes {
+        // A replay runs the recorded episode alone, under its own number (its start pose comes from it).
+        let numbers = match &self.replay {
+            Some(r) => r.marsd_episode..=r.marsd_episode,
+            None => 1..=episodes,
+        };
+        for episode in numbers {
             let seed = cfg.seed.wrapping_add(episode);
             let Some((pose_v, gripper, rest)) = self.set_up(episode, seed) else { break };
             let mut pose = [0.0; MAX_JOINTS];
@@ -289,12 +308,14 @@ impl PolicyLoop {
             image: vec![0; self.image_len()],
         };
         let mut state = vec![0.0f32; self.state_dim()];
+        let mut replayed = vec![0.0f32; if self.replay.is_some() { c * d } else { 0 }];
         if self.recording.is_some() && self.last_image.len() != self.image_len() {
             self.last_image = vec![0; self.image_len()];
         }
         let mut trace = traces.start();
         let (mut chunks, mut k_sum, mut ep_late, mut w_inf) = (0u64, 0u64, 0u64, 0.0f32);
         let t0 = monotonic_ns();
+        let missed_at_start = self.ch.status.missed_periods.load(Ordering::Relaxed);
         let mut ticker = Ticker::starting_at(t0, Duration::from_nanos(period_ns));
         let mut seq = 0u64;
         for k in 0u64.. {
@@ -339,6 +360,7 @@ impl PolicyLoop {
                         episode,
                         frames: k,
                         success,
+                        mode,
                         rest: [0.0; crate::chunk::MAX_ACTION],
                         rest_len: rest.len(),
                     };
@@ -361,17 +383,36 @@ impl PolicyLoop {
                     chunks,
                     mean_k_used: if chunks > 0 { k_sum as f64 / chunks as f64 } else { 0.0 },
                     late_chunks: ep_late,
+                    servo_missed_periods: self.ch.status.missed_periods.load(Ordering::Relaxed) - missed_at_start,
                 });
             }
             if self.recording.is_some() {
                 self.state_of(&o, &mut state);
             }
             if k % c as u64 != 0 {
-                self.record_period(episode, k, false, &state, &in_force, d);
+                self.record_period(episode, k, false, &state, &o, t0, &in_force, d);
                 continue;
             }
             // Inference for chunk k / C.
             let need_ns = t0 + lead_ns + k * period_ns;
+            if let Some(published) = self.replay.as_ref().map(|r| r.chunk_at(k, &mut replayed)) {
+                // A replay: the run's own chunk, or none where the run made none.
+                if published {
+                    seq += 1;
+                    let ready_ns = monotonic_ns();
+                    let first_due_ns = need_ns + period_ns;
+                    let stamp = ChunkStamp { episode, seq, period_ns, first_due_ns, ready_ns, capture_ns: ready_ns };
+                    Self::publish(&mut self.ch.chunks, &stamp, &replayed, d);
+                    history.copy_from_slice(&replayed);
+                    if self.recording.is_some() {
+                        in_force.actions.copy_from_slice(&replayed);
+                        in_force.first_k = k;
+                    }
+                    chunks += 1;
+                }
+                self.record_period(episode, k, published, &state, &o, t0, &in_force, d);
+                continue;
+            }
             let capture_ns = match self.observe(&o, &mut obs, &mut trace, report) {
                 Ok(c) => {
                     faults.no_frame.good();
@@ -379,7 +420,7 @@ impl PolicyLoop {
                 }
                 Err(()) => {
                     // No usable image: keep executing the previous chunk, as for a call over budget.
-                    self.record_period(episode, k, false, &state, &in_force, d);
+                    self.record_period(episode, k, false, &state, &o, t0, &in_force, d);
                     if faults.no_frame.bad() {
                         self.request(Request::Trip(Trip::NoCameraFrame));
                         return None;
@@ -419,7 +460,7 @@ impl PolicyLoop {
             if out.over_budget {
                 // Not even one step fitted: keep executing the previous chunk.
                 report.over_budget += 1;
-                self.record_period(episode, k, false, &state, &in_force, d);
+                self.record_period(episode, k, false, &state, &o, t0, &in_force, d);
                 if faults.over.bad() {
                     self.request(Request::Trip(Trip::InferenceOverBudget));
                     return None;
@@ -430,21 +471,10 @@ impl PolicyLoop {
             w_inf = out.w.iter().fold(0.0f32, |m, w| m.max(w.abs()));
             self.rec.record(Channel::WInf, Channel::w_inf_units(w_inf));
             seq += 1;
-            let dst = self.ch.chunks.input_buffer_mut();
-            dst.seq = episode << 32 | seq;
-            dst.episode = episode;
-            dst.period_ns = period_ns;
-            dst.first_due_ns = need_ns + period_ns;
-            dst.len = c;
-            dst.ready_ns = ready;
-            dst.capture_ns = capture_ns;
-            for (i, a) in out.actions().enumerate() {
-                for (j, v) in a.iter().enumerate() {
-                    dst.actions[i][j] = *v as f64;
-                }
-            }
+            let stamp =
+                ChunkStamp { episode, seq, period_ns, first_due_ns: need_ns + period_ns, ready_ns: ready, capture_ns };
+            Self::publish(&mut self.ch.chunks, &stamp, out.chunk, d);
             history.copy_from_slice(out.chunk);
-            self.ch.chunks.publish();
             if self.recording.is_some() {
                 in_force.actions.copy_from_slice(out.chunk);
                 in_force.first_k = k;
@@ -471,15 +501,44 @@ impl PolicyLoop {
                 if let Some(pixels) = self.last_pixels() {
                     in_force.image.copy_from_slice(pixels);
                 }
-                self.record_period(episode, k, true, &state, &in_force, d);
+                self.record_period(episode, k, true, &state, &o, t0, &in_force, d);
             }
         }
         unreachable!("the episode loop only ends by returning")
     }
 
+    /// Hands a chunk (`C × d` actions) to the servo thread, without locks.
+    fn publish(chunks: &mut triple_buffer::Input<TimedChunk>, s: &ChunkStamp, chunk: &[f32], d: usize) {
+        let dst = chunks.input_buffer_mut();
+        dst.seq = s.episode << 32 | s.seq;
+        dst.episode = s.episode;
+        dst.period_ns = s.period_ns;
+        dst.first_due_ns = s.first_due_ns;
+        dst.len = chunk.len() / d;
+        dst.ready_ns = s.ready_ns;
+        dst.capture_ns = s.capture_ns;
+        for (i, a) in chunk.chunks_exact(d).enumerate() {
+            for (j, v) in a.iter().enumerate() {
+                dst.actions[i][j] = *v as f64;
+            }
+        }
+        chunks.publish();
+    }
+
     /// Hands period `k` to the recording (if any): the state, the action of the chunk in force for it (its last
     /// once the chunk has run out, as the servo holds it), our columns. Wait-free and allocation-free.
-    fn record_period(&mut self, episode: u64, k: u64, call: bool, state: &[f32], f: &InForce, d: usize) {
+    #[allow(clippy::too_many_arguments)]
+    fn record_period(
+        &mut self,
+        episode: u64,
+        k: u64,
+        call: bool,
+        state: &[f32],
+        o: &Observed,
+        t0: u64,
+        f: &InForce,
+        d: usize,
+    ) {
         let Some(r) = &mut self.recording else { return };
         let c = f.actions.len() / d;
         let i = ((k - f.first_k) as usize).min(c - 1);
@@ -493,6 +552,8 @@ impl PolicyLoop {
             frame.k = f.k;
             frame.latency_ms = f.latency_ms;
             frame.call = if call { 1.0 } else { 0.0 };
+            frame.hal = [o.status as f32, o.fault as f32, o.hold_reason as f32];
+            frame.state_time_s = (o.timestamp_ns as i64 - t0 as i64) as f32 * 1e-9;
         });
     }
 

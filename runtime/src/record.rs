@@ -38,6 +38,12 @@ pub struct RecordFrame {
     pub k: [f32; 2],
     pub latency_ms: [f32; 2],
     pub call: f32,
+    /// The HAL's word on the period's state frame: its status bits, fault bits and hold reason
+    /// (`mars_ipc::status`, `mars_ipc::fault`, `HoldReason`; whole numbers, exact in float32).
+    pub hal: [f32; 3],
+    /// When the HAL stamped the state frame, from the episode's start (s): the period's state is the robot's
+    /// at this time, which the loop's wake-up moves by a few ms (what `mars-hil replay` aligns on).
+    pub state_time_s: f32,
 }
 
 /// How an episode ended, sent when it does.
@@ -47,6 +53,8 @@ pub struct EpisodeEnd {
     /// Periods the loop recorded (or tried to): the writer must have all of them.
     pub frames: u64,
     pub success: bool,
+    /// The grasp (or approach) the episode took, by the task's monitor, if it took one.
+    pub mode: Option<usize>,
     /// The action history's padding before the first chunk (`rest[..rest_len]`): replay starts from it.
     pub rest: [f32; crate::chunk::MAX_ACTION],
     pub rest_len: usize,
@@ -93,9 +101,10 @@ pub struct RecordSetup {
     pub camera: Option<(String, u32, u32)>,
     /// Fault injection: the writer sleeps this long per frame (a disk or encoder that cannot keep up).
     pub writer_delay: Duration,
-    /// The run's seed and checkpoint, for `meta/mars.json`.
+    /// The run's seed, checkpoint and configuration file, for `meta/mars.json`.
     pub seed: u64,
     pub checkpoint: PathBuf,
+    pub config: PathBuf,
 }
 
 /// The policy loop's end: wait-free, allocation-free after `start`.
@@ -146,11 +155,13 @@ pub fn start(setup: RecordSetup) -> anyhow::Result<(Recorder, RecordWriter)> {
         ],
         cameras: Vec::new(),
     };
-    let ours: [(&str, &[&str]); 4] = [
+    let ours: [(&str, &[&str]); 6] = [
         ("mars.w_inf", &["w_inf"]),
         ("mars.k", &["requested", "used"]),
         ("mars.latency_ms", &["inference", "encode"]),
         ("mars.call", &["call"]),
+        ("mars.hal", &["status_bits", "fault_bits", "hold_reason"]),
+        ("mars.state_time_s", &["s"]),
     ];
     spec.vectors.extend(
         ours.iter().map(|(k, n)| VectorSpec { key: (*k).into(), names: n.iter().map(|s| (*s).to_owned()).collect() }),
@@ -287,6 +298,7 @@ impl Job {
             let meta = serde_json::json!({
                 "seed": self.setup.seed,
                 "checkpoint": self.setup.checkpoint,
+                "config": self.setup.config,
                 "fps": self.setup.fps,
                 "episodes": self.meta_episodes,
             });
@@ -312,7 +324,8 @@ impl Job {
             return;
         }
         let written = g.frames.iter().try_for_each(|f| {
-            let vectors: [&[f32]; 6] = [&f.state, &f.action, &[f.w_inf], &f.k, &f.latency_ms, &[f.call]];
+            let vectors: [&[f32]; 8] =
+                [&f.state, &f.action, &[f.w_inf], &f.k, &f.latency_ms, &[f.call], &f.hal, &[f.state_time_s]];
             let images: Vec<&[u8]> = if f.image.is_empty() { vec![] } else { vec![&f.image] };
             self.writer.add_frame(&vectors, &images)
         });
@@ -322,6 +335,7 @@ impl Job {
                 self.meta_episodes.push(serde_json::json!({
                     "marsd_episode": end.episode,
                     "success": end.success,
+                    "mode": end.mode,
                     "rest": &end.rest[..end.rest_len],
                 }));
                 report.episodes_written += 1;

@@ -294,8 +294,15 @@ impl ServoTick {
             self.refused_for_content = false;
             let f = input.frame.expect("usable implies a frame");
             self.last_state = *f;
-            let mut obs =
-                Observed { seq: f.seq, timestamp_ns: f.timestamp_ns, gripper: f.gripper, ..Default::default() };
+            let mut obs = Observed {
+                seq: f.seq,
+                timestamp_ns: f.timestamp_ns,
+                gripper: f.gripper,
+                status: f.status,
+                fault: f.fault,
+                hold_reason: f.hold_reason,
+                ..Default::default()
+            };
             obs.position[..self.n].copy_from_slice(&f.position[..self.n]);
             out.observed = Some(obs);
             if self.phase == Phase::WaitingForHal {

@@ -224,6 +224,7 @@ pub fn run_servo(
         st.set_phase(tick.phase());
         st.episode.store(tick.episode(), std::sync::atomic::Ordering::Release);
         st.ticks.store(tick.counters.ticks, std::sync::atomic::Ordering::Release);
+        st.missed_periods.store(ticker.missed_total(), std::sync::atomic::Ordering::Relaxed);
         if let Some(StopCause::Trip(t)) = tick.stop_cause() {
             st.set_trip(t);
         }

@@ -32,6 +32,11 @@ pub struct Observed {
     pub timestamp_ns: u64,
     pub position: [f64; MAX_JOINTS],
     pub gripper: f64,
+    /// The frame's HAL status bits, fault bits and hold reason (`mars_ipc::status`, `mars_ipc::fault`,
+    /// `HoldReason`), for the recording.
+    pub status: u32,
+    pub fault: u32,
+    pub hold_reason: u32,
 }
 
 /// The servo loop's phase, as seen from outside.
@@ -77,6 +82,8 @@ pub struct Status {
     /// The episode the phase refers to.
     pub episode: AtomicU64,
     pub ticks: AtomicU64,
+    /// Servo periods missed so far (the ticker's total), so the policy loop can say how many fell in an episode.
+    pub missed_periods: AtomicU64,
     /// Bumped by the policy thread on every pass of its loops (also while it waits), so the daemon can tell
     /// a live policy thread from a stuck one.
     pub policy_beats: AtomicU64,

@@ -73,6 +73,7 @@ mod tests {
             chunks: 1,
             mean_k_used: 1.0,
             late_chunks: 0,
+            servo_missed_periods: 0,
         }
     }
 

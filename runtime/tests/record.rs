@@ -27,6 +27,7 @@ fn setup(path: &Path, delay_ms: u64) -> RecordSetup {
         writer_delay: Duration::from_millis(delay_ms),
         seed: 7,
         checkpoint: "none".into(),
+        config: "none".into(),
     }
 }
 
@@ -56,6 +57,7 @@ fn a_slow_writer_costs_the_loop_nothing_and_keeps_only_complete_episodes() {
             episode: e,
             frames,
             success: true,
+            mode: None,
             rest: [0.0; mars_runtime::chunk::MAX_ACTION],
             rest_len: 3,
         });
@@ -101,12 +103,23 @@ fn a_recording_never_overwrites_and_leaves_nothing_when_no_episode_completed() {
 }
 
 /// A recorded demo (mock HAL + marsd, 2 episodes of Pick Cup) is a dataset: one episode per episode run, each a
-/// frame per policy period with the policy's state and the action in force, and it trains a policy.
+/// frame per policy period with the policy's state and the action in force, and it trains a policy; `marsd
+/// replay` makes its calls again bit for bit, and `mars-hil replay` its trajectory through the mock HAL.
 #[test]
-fn a_recorded_demo_reads_back_and_trains() {
+fn a_recorded_demo_reads_back_trains_and_replays() {
+    for attempt in 1..=2 {
+        if recorded_demo(attempt) {
+            return;
+        }
+    }
+}
+
+/// One run of the test above; false if a stall of this machine explains why the HAL replay did not reproduce the
+/// run (first attempt only; the evidence printed).
+fn recorded_demo(attempt: u32) -> bool {
     let _rt = rt_rig_lock();
-    let logs = TempDir::new("record");
-    let robot = robot("record");
+    let logs = TempDir::new(&format!("record{attempt}"));
+    let robot = robot(&format!("record{attempt}"));
     let path = logs.join("dataset");
     let _hal = spawn_hal(&robot, &[], &logs);
     let mut marsd = spawn_marsd(&robot, &shipped_config(), 2, &["--record", path.to_str().unwrap()], &logs);
@@ -136,8 +149,17 @@ fn a_recorded_demo_reads_back_and_trains() {
         );
         assert_eq!(e.state.len(), e.len * 8);
     }
-    for key in ["mars.w_inf", "mars.k", "mars.latency_ms", "mars.call"] {
+    for key in ["mars.w_inf", "mars.k", "mars.latency_ms", "mars.call", "mars.hal"] {
         ds.vector_len(key).unwrap();
+    }
+    // The HAL's word on every period: following marsd's session (ACTIVE), no fault bit, no hold.
+    let keys = Keys { state: "mars.hal".into(), action: "mars.call".into(), images: vec![] };
+    let (hal, _) = ds.read(&keys, (0, 0)).unwrap();
+    for e in &hal {
+        for (t, bits) in e.state.chunks_exact(3).enumerate() {
+            let (status, fault) = (bits[0] as u32, bits[1] as u32);
+            assert!(status & mars_ipc::status::ACTIVE != 0 && fault == 0, "episode {} frame {t}: {bits:?}", e.index);
+        }
     }
 
     // `mars train --dataset` on it (in process, a small config, one epoch).
@@ -167,6 +189,66 @@ fn a_recorded_demo_reads_back_and_trains() {
     let other = run(&ReplayArgs { checkpoint: Some(fm), ..args }).unwrap();
     eprint!("{other}");
     assert!(!other.identical && other.first_divergence.as_ref().unwrap().frame == 0, "{other}");
+
+    // `mars-hil replay`: episode 0's chunks through the mock HAL again, from the same start pose, recorded in
+    // turn: the plant's trajectory comes back within the tolerance and the episode ends the same way.
+    let out = logs.join("hil-replay");
+    let mut cmd = std::process::Command::new(env!("CARGO_BIN_EXE_mars-hil"));
+    cmd.arg("replay").arg(&path).args(["--episode", "0"]).arg("--out").arg(&out);
+    let mut replay = spawn_named(cmd, "hil-replay", &logs);
+    let code = replay.exit_code(Duration::from_secs(120));
+    eprintln!(
+        "{}",
+        replay.stdout_text().lines().skip_while(|l| !l.starts_with("replay of")).collect::<Vec<_>>().join("\n")
+    );
+    if attempt == 1 && code == 3 && replay_tripped_on_a_machine_stall(&out.join("trip.json")) {
+        return false;
+    }
+    if attempt == 1 && code == 2 {
+        // The recording's own timing: a chunk late, or servo periods missed, moved the recorded trajectory off
+        // the one its commands make on time.
+        let first = &s["episode_results"][0];
+        let (late, missed) = (u64_at(first, "/late_chunks"), u64_at(first, "/servo_missed_periods"));
+        // Or the replay's: its servo periods missed.
+        let replay_summary: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+        let replay_missed = u64_at(&replay_summary["episode_results"][0], "/servo_missed_periods");
+        if late > 0 || missed > 0 || replay_missed > 0 {
+            eprintln!(
+                "RERUN the recorded demo: attempt 1 is inconclusive: in episode 0 the recorded run had {late} late \
+                 chunks and {missed} missed servo periods, the replay {replay_missed} missed servo periods"
+            );
+            return false;
+        }
+    }
+    assert_eq!(code, 0, "{}", replay.logs());
+    let r: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("replay.json")).unwrap()).unwrap();
+    assert_eq!(r["reproduced"], true, "{r:#}");
+    assert_eq!(r["recorded_outcome"], r["replayed_outcome"], "{r:#}");
+    let t = &r["trajectory"];
+    assert_eq!(t["recorded_frames"], t["replayed_frames"], "{r:#}");
+    let (worst, tolerance) = (r["trajectory"]["worst"].as_f64().unwrap(), r["tolerance"].as_f64().unwrap());
+    assert!(worst <= tolerance, "{r:#}");
+    // The comparison tells episodes apart: the replay against the other recorded episode is far off.
+    if written >= 2 {
+        let other = mars_runtime::hil_replay::compare(&path, 1, &out.join("replayed"), 0).unwrap();
+        eprintln!("the replay of episode 0 against episode 1: worst {:.3}", other.worst);
+        assert!(other.worst > 10.0 * worst.max(tolerance / 10.0), "{other:?}");
+    }
+    true
+}
+
+/// Whether the replay's marsd tripped on a timing check during a stall of this machine (the demo's `trip.json`),
+/// printed as the evidence.
+fn replay_tripped_on_a_machine_stall(trip_json: &Path) -> bool {
+    let Ok(text) = std::fs::read_to_string(trip_json) else { return false };
+    let t: serde_json::Value = serde_json::from_str(&text).unwrap();
+    let stalled = t["timing_check"] == true && t["machine_stalled"] == true;
+    if stalled {
+        eprintln!("RERUN the recorded demo: the replay's marsd tripped ({}) and {}", t["trip"], t["said"]);
+    }
+    stalled
 }
 
 /// The same through marsd with a writer that sleeps 300 ms per frame: the run goes on as without a recording

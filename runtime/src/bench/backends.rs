@@ -161,6 +161,8 @@ fn run_one(args: &BackendBenchArgs, backend: DemoRobot, noisy: bool) -> Run {
             max_state_gap_ms: None,
             record: None,
             record_writer_delay_ms: None,
+            replay_actions: None,
+            replay_episode: None,
         },
         hal_core: super::demo_hal_core(),
         hal_stall_at_tick: None,

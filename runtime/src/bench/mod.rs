@@ -199,6 +199,8 @@ fn run_policy(args: &BenchArgs, name: &str, robot: &str) -> PolicyRun {
             max_state_gap_ms: None,
             record: None,
             record_writer_delay_ms: None,
+            replay_actions: None,
+            replay_episode: None,
         },
         hal_core: args.hal_core.unwrap_or_else(demo_hal_core),
         hal_stall_at_tick: None,

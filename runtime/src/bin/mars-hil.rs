@@ -35,6 +35,13 @@ enum Command {
         #[command(flatten)]
         args: mars_runtime::cli::DemoArgs,
     },
+    /// A recorded episode's commands through the HAL again (marsd runs the recording's chunks from the same
+    /// start pose, recorded in turn): how closely the plant's trajectory and the episode's outcome come back.
+    /// Exit status 0 when reproduced within --tolerance, 2 when not, marsd's when the run failed.
+    Replay {
+        #[command(flatten)]
+        args: mars_runtime::hil_replay::HilReplayArgs,
+    },
     /// The benchmark, in one run: servo wake-up jitter next to cyclictest, tick compute and allocations per
     /// tick, MARS vs FM on the task; prints a markdown table and writes it to <out>/results.md.
     Bench {
@@ -149,6 +156,15 @@ fn main() -> std::process::ExitCode {
     let result = match args.command {
         Command::Demo { args } => match mars_runtime::cli::demo(args) {
             Ok(code) => return std::process::ExitCode::from(code),
+            Err(e) => Err(e),
+        },
+        Command::Replay { args } => match mars_runtime::hil_replay::run(&args) {
+            Ok((report, code)) => {
+                if let Some(r) = report {
+                    print!("{r}");
+                }
+                return std::process::ExitCode::from(code);
+            }
             Err(e) => Err(e),
         },
         Command::Bench { args } => mars_runtime::bench::run(args),
