@@ -1,11 +1,13 @@
 //! A LeRobot v3.0 dataset on disk: opened (metadata checked), then its episodes read with the features a policy
-//! takes — a state vector, an action vector, camera streams decoded to the size the policy's encoder takes.
+//! takes — a state vector, an action vector, camera streams decoded to the size the policy's encoder takes (or
+//! taken from the decoded-frame [`cache`](crate::cache) when an earlier read decoded them).
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use crate::LeRobotError;
+use crate::cache::{self, FrameCache, Source};
 use crate::episodes::{self, Episode, FileIndex};
 use crate::info::{Feature, Info};
 use crate::table::Table;
@@ -39,13 +41,78 @@ pub struct EpisodeFrames {
     pub timestamps: Vec<f64>,
 }
 
-/// What reading cost (the decoder's throughput is the part a user waits for).
+/// What reading cost (the decoder's throughput is the part a user waits for, the cache the part that spares it).
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct ReadReport {
     pub frames: usize,
+    /// Video frames decoded, and the decoder's time for them: only files not taken from the cache, so that
+    /// `decoded_frames / decode_s` stays the decoder's throughput.
     pub decoded_frames: usize,
     pub decode_s: f64,
+    /// Video files decoded (every camera has files of its own; each is read once per read).
+    pub decoded_files: usize,
+    /// Video files whose frames came from the decoded-frame cache, their frames, and the time they took (opening,
+    /// checking, and copying the frames out).
+    pub cached_files: usize,
+    pub cached_frames: usize,
+    pub cache_read_s: f64,
+    /// The time spent writing decoded frames to the cache for next time.
+    pub cache_write_s: f64,
+    /// Why the cache could not be used or written, when it could not (reading went on, decoding): each also a
+    /// `tracing` warning.
+    pub cache_warnings: Vec<String>,
     pub total_s: f64,
+}
+
+/// How to read.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ReadOptions {
+    /// Take decoded frames from the cache when it has them, and keep what is decoded there for next time.
+    pub cache: bool,
+    /// The cache's folder; `None`: [`cache::default_dir`] (`$MARS_CACHE_DIR`, else `$XDG_CACHE_HOME/mars/lerobot`,
+    /// else `$HOME/.cache/mars/lerobot`).
+    pub cache_dir: Option<PathBuf>,
+}
+
+impl Default for ReadOptions {
+    /// The cache on, in its default folder.
+    fn default() -> Self {
+        Self { cache: true, cache_dir: None }
+    }
+}
+
+impl ReadOptions {
+    /// No cache: every video file decoded, nothing written.
+    pub fn no_cache() -> Self {
+        Self { cache: false, cache_dir: None }
+    }
+
+    /// The cache in `dir`.
+    pub fn cache_in(dir: &Path) -> Self {
+        Self { cache: true, cache_dir: Some(dir.to_owned()) }
+    }
+}
+
+/// A video file's frames, decoded now or mapped from the cache.
+enum Frames {
+    Decoded(video::DecodedVideo),
+    Cached(cache::CachedFrames),
+}
+
+impl Frames {
+    fn times_s(&self) -> &[f64] {
+        match self {
+            Self::Decoded(v) => &v.times_s,
+            Self::Cached(c) => &c.times_s,
+        }
+    }
+
+    fn rgb(&self) -> &[u8] {
+        match self {
+            Self::Decoded(v) => &v.rgb,
+            Self::Cached(c) => c.rgb(),
+        }
+    }
 }
 
 pub struct LeRobotDataset {
@@ -91,8 +158,19 @@ impl LeRobotDataset {
         }
     }
 
-    /// Every episode's frames, images decoded to `height × width` (each video file decoded once).
+    /// Every episode's frames, images decoded to `height × width` (each video file decoded once), through the
+    /// decoded-frame cache in its default folder ([`ReadOptions::default`]).
     pub fn read(&self, keys: &Keys, image_hw: (u32, u32)) -> Result<(Vec<EpisodeFrames>, ReadReport), LeRobotError> {
+        self.read_with(keys, image_hw, &ReadOptions::default())
+    }
+
+    /// [`LeRobotDataset::read`] as `options` say.
+    pub fn read_with(
+        &self,
+        keys: &Keys,
+        image_hw: (u32, u32),
+        options: &ReadOptions,
+    ) -> Result<(Vec<EpisodeFrames>, ReadReport), LeRobotError> {
         let started = Instant::now();
         let (state_dim, action_dim) = (self.vector_len(&keys.state)?, self.vector_len(&keys.action)?);
         for k in &keys.images {
@@ -113,11 +191,67 @@ impl LeRobotDataset {
             .collect();
         self.read_vectors(keys, state_dim, action_dim, &mut out)?;
         let mut report = ReadReport { frames: out.iter().map(|e| e.len).sum(), ..Default::default() };
+        let cache =
+            if options.cache && !keys.images.is_empty() { self.frame_cache(options, &mut report) } else { None };
         for key in &keys.images {
-            self.read_images(key, image_hw, &mut out, &mut report)?;
+            self.read_images(key, image_hw, cache.as_ref(), &mut out, &mut report)?;
         }
         report.total_s = started.elapsed().as_secs_f64();
         Ok((out, report))
+    }
+
+    /// This dataset's folder in the cache, or `None` with a warning saying why not.
+    fn frame_cache(&self, options: &ReadOptions, report: &mut ReadReport) -> Option<FrameCache> {
+        let opened = options
+            .cache_dir
+            .clone()
+            .or_else(cache::default_dir)
+            .ok_or_else(|| "no folder for it: set MARS_CACHE_DIR, XDG_CACHE_HOME or HOME".to_owned())
+            .and_then(|dir| FrameCache::open(&dir, &self.root));
+        opened.map_err(|why| warn(report, format!("decoded-frame cache off for this read: {why}"))).ok()
+    }
+
+    /// A video file's frames at `height × width`: from the cache when it holds exactly these, else decoded (and
+    /// then written to the cache for next time).
+    fn video_frames(
+        &self,
+        path: &Path,
+        (height, width): (u32, u32),
+        cache: Option<&FrameCache>,
+        report: &mut ReadReport,
+    ) -> Result<Frames, LeRobotError> {
+        let started = Instant::now();
+        let rel = path.strip_prefix(&self.root).unwrap_or(path);
+        let source = cache.and_then(|_| Source::of(&self.root, rel, (height, width)));
+        if let (Some(c), Some(s)) = (cache, &source) {
+            match c.load(s) {
+                Ok(Some(frames)) => {
+                    report.cached_files += 1;
+                    report.cached_frames += frames.times_s.len();
+                    report.cache_read_s += started.elapsed().as_secs_f64();
+                    return Ok(Frames::Cached(frames));
+                }
+                Ok(None) => {}
+                // Stale or damaged: decoded again and replaced below.
+                Err(why) => tracing::info!("decoded-frame cache: {why}; decoding again"),
+            }
+        }
+        let started = Instant::now();
+        let video = video::decode(path, width, height)?;
+        report.decode_s += started.elapsed().as_secs_f64();
+        report.decoded_frames += video.times_s.len();
+        report.decoded_files += 1;
+        if let (Some(c), Some(s)) = (cache, source) {
+            let started = Instant::now();
+            // A file changed while it was decoded would be cached under the old file's facts: not cached then.
+            if Source::of(&self.root, rel, (height, width)).as_ref() == Some(&s)
+                && let Err(why) = c.store(&s, &video)
+            {
+                warn(report, why);
+            }
+            report.cache_write_s += started.elapsed().as_secs_f64();
+        }
+        Ok(Frames::Decoded(video))
     }
 
     fn data_path(&self, f: FileIndex) -> Result<PathBuf, LeRobotError> {
@@ -175,12 +309,14 @@ impl LeRobotDataset {
         Ok(())
     }
 
-    /// One camera's frames for every episode: each of its video files decoded once, each frame looked up by
-    /// time (the episode's start in the file + the row's timestamp), as LeRobot's reader does.
+    /// One camera's frames for every episode: each of its video files decoded once (or taken from the cache),
+    /// each frame looked up by time (the episode's start in the file + the row's timestamp), as LeRobot's reader
+    /// does.
     fn read_images(
         &self,
         key: &str,
         (height, width): (u32, u32),
+        cache: Option<&FrameCache>,
         out: &mut [EpisodeFrames],
         report: &mut ReadReport,
     ) -> Result<(), LeRobotError> {
@@ -199,12 +335,11 @@ impl LeRobotDataset {
         let frame_len = (height * width * 3) as usize;
         for (file, eps) in by_file {
             let path = self.info.file_path(&self.root, template, Some(key), file.chunk, file.file)?;
-            let started = Instant::now();
-            let video = video::decode(&path, width, height)?;
-            report.decode_s += started.elapsed().as_secs_f64();
-            report.decoded_frames += video.times_s.len();
+            let video = self.video_frames(&path, (height, width), cache, report)?;
+            let copied = Instant::now();
+            let (times, rgb) = (video.times_s(), video.rgb());
             let period = 1.0 / self.info.fps;
-            let end_s = video.times_s.last().map_or(0.0, |t| t + period);
+            let end_s = times.last().map_or(0.0, |t| t + period);
             for i in eps {
                 let (e, o) = (&self.episodes[i], &mut out[i]);
                 let range = e.videos[key];
@@ -216,23 +351,32 @@ impl LeRobotDataset {
                         range.from_s,
                         range.to_s,
                         path.display(),
-                        video.times_s.len()
+                        times.len()
                     )));
                 }
                 let mut frames = Vec::with_capacity(e.length * frame_len);
                 for (t, ts) in o.timestamps.iter().enumerate() {
                     let at = range.from_s + ts;
-                    let j = video.frame_at(at, TOLERANCE_S).map_err(|nearest| {
+                    let j = video::frame_at(times, at, TOLERANCE_S).map_err(|nearest| {
                         bad(format!(
                             "`{key}` frame {t} is due at {at:.4} s of {}; the nearest frame there is at {nearest:.4} s",
                             path.display()
                         ))
                     })?;
-                    frames.extend_from_slice(video.frame(j));
+                    frames.extend_from_slice(&rgb[j * frame_len..(j + 1) * frame_len]);
                 }
                 o.images.push(frames);
+            }
+            if matches!(video, Frames::Cached(_)) {
+                report.cache_read_s += copied.elapsed().as_secs_f64();
             }
         }
         Ok(())
     }
+}
+
+/// A cache problem: said in the report and as a warning, never an error (reading goes on, decoding).
+fn warn(report: &mut ReadReport, why: String) {
+    tracing::warn!("{why}");
+    report.cache_warnings.push(why);
 }

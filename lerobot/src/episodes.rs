@@ -15,6 +15,18 @@ pub struct FileIndex {
     pub file: i64,
 }
 
+impl FileIndex {
+    /// The file after this one: the file index counts up to `chunks_size - 1`, then the chunk index goes up and
+    /// the file index starts again at 0 (LeRobot's `update_chunk_file_indices`).
+    pub fn next(self, chunks_size: usize) -> Self {
+        if self.file + 1 >= chunks_size as i64 {
+            Self { chunk: self.chunk + 1, file: 0 }
+        } else {
+            Self { chunk: self.chunk, file: self.file + 1 }
+        }
+    }
+}
+
 /// Where in a shared video file an episode's frames are.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct VideoRange {

@@ -5,10 +5,12 @@
 //! - [`episodes`]: `meta/episodes/*.parquet` — per episode its length and where its rows and frames are;
 //! - [`table`]: a parquet file's columns through arrow; [`video`]: a video file's frames through FFmpeg;
 //! - [`dataset`]: the two together — open a dataset, read its episodes with the features a policy takes;
+//! - [`cache`]: decoded frames kept on disk, so that reading a dataset again does not decode its videos again;
 //! - [`demos`]: episodes as the training demos every task hands to `mars train`;
 //! - [`writer`]: our runs written as a dataset (with [`video_out`] for the cameras and [`stats`]), so LeRobot's
 //!   tools and `mars train --dataset` read them.
 
+pub mod cache;
 pub mod dataset;
 pub mod demos;
 pub mod episodes;
@@ -20,5 +22,5 @@ pub mod video;
 pub mod video_out;
 pub mod writer;
 
-pub use dataset::{EpisodeFrames, Keys, LeRobotDataset, ReadReport};
+pub use dataset::{EpisodeFrames, Keys, LeRobotDataset, ReadOptions, ReadReport};
 pub use error::LeRobotError;

@@ -31,19 +31,25 @@ impl DecodedVideo {
         &self.rgb[i * n..(i + 1) * n]
     }
 
-    /// The frame shown at `t_s`: the one whose time is nearest, if within `tolerance_s` of it (LeRobot's own
-    /// reader asks the same of a timestamp, 1e-4 s by default).
+    /// The frame shown at `t_s` ([`frame_at`]).
     pub fn frame_at(&self, t_s: f64, tolerance_s: f64) -> Result<usize, f64> {
-        let i = self.times_s.partition_point(|&t| t < t_s);
-        let best = [i.checked_sub(1), (i < self.times_s.len()).then_some(i)]
-            .into_iter()
-            .flatten()
-            .min_by(|&a, &b| (self.times_s[a] - t_s).abs().total_cmp(&(self.times_s[b] - t_s).abs()));
-        match best {
-            Some(j) if (self.times_s[j] - t_s).abs() <= tolerance_s => Ok(j),
-            Some(j) => Err(self.times_s[j]),
-            None => Err(f64::NAN),
-        }
+        frame_at(&self.times_s, t_s, tolerance_s)
+    }
+}
+
+/// Of frames at `times_s` (ascending), the one shown at `t_s`: the one whose time is nearest, if within
+/// `tolerance_s` of it (LeRobot's own reader asks the same of a timestamp, 1e-4 s by default); else the nearest
+/// time there is (NaN for no frames).
+pub fn frame_at(times_s: &[f64], t_s: f64, tolerance_s: f64) -> Result<usize, f64> {
+    let i = times_s.partition_point(|&t| t < t_s);
+    let best = [i.checked_sub(1), (i < times_s.len()).then_some(i)]
+        .into_iter()
+        .flatten()
+        .min_by(|&a, &b| (times_s[a] - t_s).abs().total_cmp(&(times_s[b] - t_s).abs()));
+    match best {
+        Some(j) if (times_s[j] - t_s).abs() <= tolerance_s => Ok(j),
+        Some(j) => Err(times_s[j]),
+        None => Err(f64::NAN),
     }
 }
 

@@ -1,10 +1,12 @@
-//! A camera stream encoded into one MP4 file, episode after episode (LeRobot v3.0 packs many episodes into a
-//! file; each episode's frames are found by time). AV1 through SVT-AV1 with LeRobot's own settings (crf 30,
-//! a keyframe every 2 frames so a reader can seek to any episode cheaply, yuv420p); H.264 when this FFmpeg has
-//! no AV1 encoder.
+//! A camera stream written as LeRobot v3.0 writes it: each episode encoded into an MP4 file of its own
+//! ([`VideoWriter`]), then its packets copied to the end of the dataset's current video file ([`VideoFile`]; many
+//! episodes share a file and each one's frames are found by time). AV1 through SVT-AV1 with LeRobot's own settings
+//! (crf 30, a keyframe every 2 frames so a reader can seek to any episode cheaply, yuv420p); H.264 when this FFmpeg
+//! has no AV1 encoder.
 
 use std::path::{Path, PathBuf};
 
+use ffmpeg::Rescale;
 use ffmpeg::format::Pixel;
 use ffmpeg::software::scaling::{Context as Scaler, Flags};
 use ffmpeg::util::frame::Video as VideoFrame;
@@ -142,6 +144,101 @@ impl VideoWriter {
     pub fn finish(mut self) -> Result<(), LeRobotError> {
         self.encoder.send_eof().map_err(|e| LeRobotError::video(&self.path, format!("ending the stream: {e}")))?;
         self.write_packets()?;
+        self.output.write_trailer().map_err(|e| LeRobotError::video(&self.path, format!("closing: {e}")))
+    }
+}
+
+/// One of the dataset's video files, open while episodes are appended to it: each episode's own file copied in
+/// packet by packet (no re-encode), its times shifted to follow the frames already there. LeRobot concatenates
+/// the same way (`concatenate_video_files`, a stream copy), but rewrites the whole file for every episode; this
+/// keeps the file open and writes its index once, at [`VideoFile::finish`].
+pub struct VideoFile {
+    path: PathBuf,
+    output: ffmpeg::format::context::Output,
+    time_base: ffmpeg::Rational,
+    fps: i32,
+    frames: i64,
+    bytes: u64,
+}
+
+impl VideoFile {
+    /// Starts `path` with the stream parameters of `episode`, an episode's file (every episode is encoded with the
+    /// same settings, so the first one's parameters are every one's).
+    pub fn create(path: &Path, episode: &Path, fps: u32) -> Result<Self, LeRobotError> {
+        crate::video::init();
+        let fail = |what: &str, e: ffmpeg::Error| LeRobotError::video(path, format!("{what}: {e}"));
+        let input =
+            ffmpeg::format::input(episode).map_err(|e| LeRobotError::video(episode, format!("cannot open: {e}")))?;
+        let stream = input
+            .streams()
+            .best(ffmpeg::media::Type::Video)
+            .ok_or_else(|| LeRobotError::video(episode, "has no video stream"))?;
+        let mut output = ffmpeg::format::output(path).map_err(|e| fail("cannot create", e))?;
+        {
+            let mut out = output
+                .add_stream(ffmpeg::encoder::find(ffmpeg::codec::Id::None))
+                .map_err(|e| fail("cannot add a video stream", e))?;
+            out.set_parameters(stream.parameters());
+            out.set_time_base(stream.time_base());
+            out.set_rate(stream.rate());
+            out.set_avg_frame_rate(stream.avg_frame_rate());
+        }
+        output.write_header().map_err(|e| fail("cannot write the header", e))?;
+        let time_base = output.stream(0).expect("the stream just added").time_base();
+        Ok(Self { path: path.to_owned(), output, time_base, fps: fps as i32, frames: 0, bytes: 0 })
+    }
+
+    /// Frames in the file so far (the next episode starts at `frames / fps` seconds).
+    pub fn frames(&self) -> i64 {
+        self.frames
+    }
+
+    /// The appended episodes' own files' bytes, summed: what LeRobot's rule weighs as the file's size (its file
+    /// has one header and index for all its episodes, a few hundred bytes per episode less than this).
+    pub fn bytes(&self) -> u64 {
+        self.bytes
+    }
+
+    /// Copies `episode` (a file of `frames` frames, as [`VideoWriter`] wrote it) to the end of this file.
+    pub fn append(&mut self, episode: &Path, frames: i64) -> Result<(), LeRobotError> {
+        let fail = |what: &str, e: ffmpeg::Error| LeRobotError::video(episode, format!("{what}: {e}"));
+        let bytes =
+            std::fs::metadata(episode).map_err(|error| LeRobotError::Read { path: episode.to_owned(), error })?.len();
+        let mut input = ffmpeg::format::input(episode).map_err(|e| fail("cannot open", e))?;
+        let (index, time_base) = {
+            let s = input
+                .streams()
+                .best(ffmpeg::media::Type::Video)
+                .ok_or_else(|| LeRobotError::video(episode, "has no video stream"))?;
+            (s.index(), s.time_base())
+        };
+        let shift = self.frames.rescale((1, self.fps), self.time_base);
+        let mut packet = ffmpeg::Packet::empty();
+        loop {
+            match packet.read(&mut input) {
+                Ok(()) => {}
+                Err(ffmpeg::Error::Eof) => break,
+                Err(e) => return Err(fail("reading", e)),
+            }
+            if packet.stream() != index {
+                continue;
+            }
+            packet.rescale_ts(time_base, self.time_base);
+            packet.set_pts(packet.pts().map(|t| t + shift));
+            packet.set_dts(packet.dts().map(|t| t + shift));
+            packet.set_position(-1);
+            packet.set_stream(0);
+            packet
+                .write_interleaved(&mut self.output)
+                .map_err(|e| LeRobotError::video(&self.path, format!("writing: {e}")))?;
+        }
+        self.frames += frames;
+        self.bytes += bytes;
+        Ok(())
+    }
+
+    /// Writes the file's index and closes it.
+    pub fn finish(mut self) -> Result<(), LeRobotError> {
         self.output.write_trailer().map_err(|e| LeRobotError::video(&self.path, format!("closing: {e}")))
     }
 }

@@ -1,10 +1,12 @@
-//! Writing a LeRobot v3.0 dataset: frames in, episode by episode; at `finish` the data parquet, the episodes'
-//! metadata (with their statistics), the tasks, `info.json` and `stats.json` are written and the dataset appears
-//! at its path in one rename. Until then it lives beside it in `<name>.partial/`, so a crash never leaves
-//! something at the path that looks like a dataset.
+//! Writing a LeRobot v3.0 dataset: frames in, episode by episode; each episode's rows go to the current data
+//! file and each camera's frames to its current video file when the episode ends; at `finish` the files are
+//! closed, the episodes' metadata (with their statistics), the tasks, `info.json` and `stats.json` are written
+//! and the dataset appears at its path in one rename. Until then it lives beside it in `<name>.partial/`, so a
+//! crash never leaves something at the path that looks like a dataset.
 //!
-//! One data file and one video file per camera (chunk 0, file 0): LeRobot's own limits (100 MB of data, 200 MB of
-//! video per file) are far above a recorded run's size; a writer that splits files is future work.
+//! Files are split as LeRobot splits them ([`FileLimits`]): a new data or video file once the current one would
+//! reach its size limit, decided at episode boundaries, so an episode is always in one data file and one video
+//! file per camera.
 
 use std::collections::BTreeMap;
 use std::fs::File;
@@ -13,14 +15,15 @@ use std::sync::Arc;
 
 use arrow_array::builder::{Float64Builder, Int64Builder, ListBuilder, StringBuilder};
 use arrow_array::{ArrayRef, FixedSizeListArray, Float32Array, Float64Array, Int64Array, RecordBatch, StringArray};
-use arrow_schema::{DataType, Field, Schema};
+use arrow_schema::{DataType, Field, Schema, SchemaRef};
 use parquet::arrow::ArrowWriter;
 use serde_json::{Value, json};
 
 use crate::LeRobotError;
+use crate::episodes::FileIndex;
 use crate::info::{CODEBASE_VERSION, Feature, Info};
 use crate::stats::{FeatureStats, Histogram};
-use crate::video_out::VideoWriter;
+use crate::video_out::{VideoFile, VideoWriter};
 
 /// A float32 vector feature (state, action, or one of our own columns).
 #[derive(Debug, Clone, PartialEq)]
@@ -46,33 +49,105 @@ pub struct DatasetSpec {
     pub cameras: Vec<CameraSpec>,
 }
 
-const DATA_FILE: &str = "data/chunk-000/file-000.parquet";
+/// When a new file starts: LeRobot's `data_files_size_in_mb`, `video_files_size_in_mb` (MiB, 1024² bytes, as
+/// LeRobot counts them) and `chunks_size` (files per chunk directory), written to `info.json` as set.
+///
+/// The rule is LeRobot 0.6.1's (`DatasetWriter._save_episode_data` and `_save_episode_video` in
+/// `lerobot/datasets/dataset_writer.py`, with `update_chunk_file_indices` from `utils.py`), checked as each episode
+/// ends, before it is written:
+/// - data: the current file's bytes so far plus the episode's rows at the file's bytes per row so far reach
+///   `data_files_size_in_mb` → the episode starts the next file;
+/// - video, per camera: the current file's bytes plus the episode's own encoded file's bytes reach
+///   `video_files_size_in_mb` → the episode starts the next file (its times from 0 again).
+///
+/// Where ours differs: the current video file's size is the sum of its episodes' own files (LeRobot measures the
+/// concatenated file, a few hundred bytes of headers per episode smaller); and `meta/episodes` stays one file,
+/// which LeRobot splits at `data_files_size_in_mb` too (a row of metadata per episode: a dataset would need tens
+/// of thousands of episodes to reach 100 MB; both readers read any number of these files).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FileLimits {
+    pub data_files_size_in_mb: f64,
+    pub video_files_size_in_mb: f64,
+    pub chunks_size: usize,
+}
+
+impl Default for FileLimits {
+    /// LeRobot's defaults (`DEFAULT_DATA_FILE_SIZE_IN_MB`, `DEFAULT_VIDEO_FILE_SIZE_IN_MB`, `DEFAULT_CHUNK_SIZE`).
+    fn default() -> Self {
+        Self { data_files_size_in_mb: 100.0, video_files_size_in_mb: 200.0, chunks_size: 1000 }
+    }
+}
+
+const MIB: f64 = 1024.0 * 1024.0;
+
+/// LeRobot's data rule: the file so far plus `episode_rows` at its bytes per row so far reach the limit.
+fn data_rolls_over(file_bytes: u64, file_rows: usize, episode_rows: usize, limit_mb: f64) -> bool {
+    let size_mb = file_bytes as f64 / MIB;
+    let per_row = if file_rows > 0 { size_mb / file_rows as f64 } else { 0.0 };
+    size_mb + per_row * episode_rows as f64 >= limit_mb
+}
+
+/// LeRobot's video rule: the file so far plus the episode's own file reach the limit.
+fn video_rolls_over(file_bytes: u64, episode_bytes: u64, limit_mb: f64) -> bool {
+    file_bytes as f64 / MIB + episode_bytes as f64 / MIB >= limit_mb
+}
+
 const EPISODES_FILE: &str = "meta/episodes/chunk-000/file-000.parquet";
 const DATA_PATH: &str = "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet";
 const VIDEO_PATH: &str = "videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4";
 /// The columns every LeRobot frame has besides its features, in LeRobot's order.
 const INDEX_COLUMNS: [&str; 4] = ["frame_index", "episode_index", "index", "task_index"];
 
+fn data_file(f: FileIndex) -> String {
+    format!("data/chunk-{:03}/file-{:03}.parquet", f.chunk, f.file)
+}
+
+fn video_file(key: &str, f: FileIndex) -> String {
+    format!("videos/{key}/chunk-{:03}/file-{:03}.mp4", f.chunk, f.file)
+}
+
 struct EpisodeRow {
     length: usize,
     task_index: i64,
     from_index: i64,
-    /// Per camera: from, to (s) in its video file.
-    video_ranges: Vec<(f64, f64)>,
+    data: FileIndex,
+    /// Per camera: its video file, and from, to (s) in it.
+    videos: Vec<(FileIndex, f64, f64)>,
     /// Per feature, in `feature_order`.
     stats: Vec<FeatureStats>,
+}
+
+/// The data file episodes are written to now: one row group per episode, as LeRobot's writer does.
+struct DataFile {
+    index: FileIndex,
+    path: PathBuf,
+    writer: ArrowWriter<File>,
+    rows: usize,
+}
+
+/// A camera's output: the open episode's own file, and the dataset's video file episodes are appended to now.
+struct CameraOut {
+    episode: Option<VideoWriter>,
+    /// Where the open episode is encoded (inside the staging directory, removed once copied).
+    episode_path: PathBuf,
+    file: Option<(FileIndex, VideoFile)>,
+    /// `video.codec` for info.json, from the first episode's encoder.
+    codec: Option<&'static str>,
 }
 
 pub struct DatasetWriter {
     root: PathBuf,
     staging: PathBuf,
     spec: DatasetSpec,
-    /// Per vector feature, every frame's values.
+    limits: FileLimits,
+    /// Per vector feature, every frame's values (for `stats.json`).
     vectors: Vec<Vec<f32>>,
     timestamps: Vec<f32>,
     /// Per frame: frame_index, episode_index, index, task_index.
     indices: [Vec<i64>; 4],
-    videos: Vec<VideoWriter>,
+    data_schema: SchemaRef,
+    data: Option<DataFile>,
+    cameras: Vec<CameraOut>,
     /// The open episode's frames so far and its images' histograms.
     open_frames: usize,
     open_hist: Vec<Histogram>,
@@ -81,11 +156,19 @@ pub struct DatasetWriter {
     tasks: Vec<String>,
     /// Files of our own under `meta/` (LeRobot reads only the files it knows).
     extra_meta: Vec<(String, Value)>,
+    /// A write that failed half-way: the files no longer agree with each other, so `finish` refuses.
+    failed: Option<String>,
 }
 
 impl DatasetWriter {
-    /// Starts a dataset that will appear at `root` (which must not exist yet: a recording never overwrites).
+    /// Starts a dataset that will appear at `root` (which must not exist yet: a recording never overwrites), its
+    /// files split at LeRobot's default sizes.
     pub fn create(root: &Path, spec: DatasetSpec) -> Result<Self, LeRobotError> {
+        Self::create_with_limits(root, spec, FileLimits::default())
+    }
+
+    /// [`DatasetWriter::create`], with files split at `limits`.
+    pub fn create_with_limits(root: &Path, spec: DatasetSpec, limits: FileLimits) -> Result<Self, LeRobotError> {
         let exists = |path: &Path| LeRobotError::Read {
             path: path.to_owned(),
             error: std::io::Error::new(
@@ -99,34 +182,55 @@ impl DatasetWriter {
         if spec.fps == 0 || spec.vectors.iter().any(|v| v.names.is_empty()) {
             return Err(LeRobotError::Feature { key: "spec".into(), problem: "fps 0 or a vector of no values".into() });
         }
+        let positive = |mb: f64| mb.is_finite() && mb > 0.0;
+        if !positive(limits.data_files_size_in_mb)
+            || !positive(limits.video_files_size_in_mb)
+            || limits.chunks_size == 0
+        {
+            return Err(LeRobotError::Feature {
+                key: "limits".into(),
+                problem: format!("{limits:?}: file sizes must be above 0 MB and a chunk must hold a file"),
+            });
+        }
         let mut staging = root.as_os_str().to_owned();
         staging.push(".partial");
         let staging = PathBuf::from(staging);
         if staging.exists() {
             return Err(exists(&staging));
         }
-        let mk = |p: PathBuf| std::fs::create_dir_all(&p).map_err(|error| LeRobotError::Read { path: p, error });
-        mk(staging.join("data/chunk-000"))?;
-        mk(staging.join("meta/episodes/chunk-000"))?;
-        let mut videos = Vec::with_capacity(spec.cameras.len());
-        for c in &spec.cameras {
-            let dir = staging.join(format!("videos/{}/chunk-000", c.key));
-            mk(dir.clone())?;
-            videos.push(VideoWriter::create(&dir.join("file-000.mp4"), c.width, c.height, spec.fps)?);
+        mkdir(&staging.join("meta/episodes/chunk-000"))?;
+        mkdir(&staging.join("tmp"))?;
+        // The first episode's encoders now, so that one this FFmpeg cannot open fails here, before any frame.
+        let mut cameras = Vec::with_capacity(spec.cameras.len());
+        for (k, c) in spec.cameras.iter().enumerate() {
+            let episode_path = staging.join(format!("tmp/camera-{k}-episode.mp4"));
+            let episode = match VideoWriter::create(&episode_path, c.width, c.height, spec.fps) {
+                Ok(v) => v,
+                Err(e) => {
+                    drop(cameras);
+                    let _ = std::fs::remove_dir_all(&staging);
+                    return Err(e);
+                }
+            };
+            cameras.push(CameraOut { episode: Some(episode), episode_path, file: None, codec: None });
         }
         Ok(Self {
             root: root.to_owned(),
             staging,
+            limits,
             vectors: vec![Vec::new(); spec.vectors.len()],
             timestamps: Vec::new(),
             indices: Default::default(),
-            videos,
+            data_schema: Arc::new(data_schema(&spec)),
+            data: None,
+            cameras,
             open_frames: 0,
             open_hist: vec![Histogram::default(); spec.cameras.len()],
             all_hist: vec![Histogram::default(); spec.cameras.len()],
             episodes: Vec::new(),
             tasks: Vec::new(),
             extra_meta: Vec::new(),
+            failed: None,
             spec,
         })
     }
@@ -156,9 +260,10 @@ impl DatasetWriter {
                 return Err(bad(&c.key, format!("{} bytes, not {}×{}×3", img.len(), c.height, c.width)));
             }
         }
-        for ((img, video), hist) in images.iter().zip(&mut self.videos).zip(&mut self.open_hist) {
-            video.push(img)?;
-            hist.add(img);
+        self.check_not_failed()?;
+        if let Err(e) = self.encode(images) {
+            self.failed = Some(e.to_string());
+            return Err(e);
         }
         for (col, v) in self.vectors.iter_mut().zip(vectors) {
             col.extend_from_slice(v);
@@ -173,12 +278,40 @@ impl DatasetWriter {
         Ok(())
     }
 
-    /// Closes the open episode (at least one frame) under `task`, its instruction in words.
+    /// Each camera's image into its episode's file (opened at the episode's first frame, the first episode's at
+    /// `create`).
+    fn encode(&mut self, images: &[&[u8]]) -> Result<(), LeRobotError> {
+        for ((img, (out, c)), hist) in
+            images.iter().zip(self.cameras.iter_mut().zip(&self.spec.cameras)).zip(&mut self.open_hist)
+        {
+            let video = match &mut out.episode {
+                Some(v) => v,
+                None => out.episode.insert(VideoWriter::create(&out.episode_path, c.width, c.height, self.spec.fps)?),
+            };
+            video.push(img)?;
+            hist.add(img);
+        }
+        Ok(())
+    }
+
+    fn check_not_failed(&self) -> Result<(), LeRobotError> {
+        match &self.failed {
+            None => Ok(()),
+            Some(e) => Err(LeRobotError::Episode {
+                episode: self.episodes.len() as i64,
+                problem: format!("an earlier write failed ({e}); nothing more is written (abandon the dataset)"),
+            }),
+        }
+    }
+
+    /// Closes the open episode (at least one frame) under `task`, its instruction in words: its rows go to the
+    /// current data file and its frames to each camera's current video file (or to new ones: [`FileLimits`]).
     pub fn end_episode(&mut self, task: &str) -> Result<(), LeRobotError> {
         let length = self.open_frames;
         if length == 0 {
             return Err(LeRobotError::Episode { episode: self.episodes.len() as i64, problem: "no frames".into() });
         }
+        self.check_not_failed()?;
         let task_index = match self.tasks.iter().position(|t| t == task) {
             Some(i) => i as i64,
             None => {
@@ -189,12 +322,14 @@ impl DatasetWriter {
         let from_index = (self.timestamps.len() - length) as i64;
         let rows = from_index as usize..self.timestamps.len();
         self.indices[3][rows.clone()].iter_mut().for_each(|t| *t = task_index);
-        let fps = f64::from(self.spec.fps);
-        let video_ranges = self
-            .videos
-            .iter()
-            .map(|v| ((v.frames() as usize - length) as f64 / fps, v.frames() as f64 / fps))
-            .collect();
+        let written = self.write_rows(rows.clone()).and_then(|data| Ok((data, self.write_videos(length)?)));
+        let (data, videos) = match written {
+            Ok(w) => w,
+            Err(e) => {
+                self.failed = Some(e.to_string());
+                return Err(e);
+            }
+        };
         let mut stats = Vec::new();
         for (col, s) in self.vectors.iter().zip(&self.spec.vectors) {
             let d = s.names.len();
@@ -207,9 +342,75 @@ impl DatasetWriter {
             *open = Histogram::default();
         }
         stats.extend(self.index_stats(rows));
-        self.episodes.push(EpisodeRow { length, task_index, from_index, video_ranges, stats });
+        self.episodes.push(EpisodeRow { length, task_index, from_index, data, videos, stats });
         self.open_frames = 0;
         Ok(())
+    }
+
+    /// The episode's rows (`rows`) as a row group of the current data file, or of the next one when they would
+    /// bring the current one to the limit.
+    fn write_rows(&mut self, rows: std::ops::Range<usize>) -> Result<FileIndex, LeRobotError> {
+        let batch = self.data_batch(rows.clone())?;
+        let next = match &self.data {
+            None => Some(FileIndex { chunk: 0, file: 0 }),
+            Some(d) => {
+                data_rolls_over(d.writer.bytes_written() as u64, d.rows, rows.len(), self.limits.data_files_size_in_mb)
+                    .then(|| d.index.next(self.limits.chunks_size))
+            }
+        };
+        if let Some(index) = next {
+            if let Some(d) = self.data.take() {
+                d.writer.close().map_err(|e| LeRobotError::parquet(&d.path, e))?;
+            }
+            let path = self.staging.join(data_file(index));
+            mkdir(path.parent().expect("a file in a chunk directory"))?;
+            let file = File::create(&path).map_err(|error| LeRobotError::Read { path: path.clone(), error })?;
+            let writer = ArrowWriter::try_new(file, self.data_schema.clone(), Some(parquet_properties()))
+                .map_err(|e| LeRobotError::parquet(&path, e))?;
+            self.data = Some(DataFile { index, path, writer, rows: 0 });
+        }
+        let d = self.data.as_mut().expect("a data file is open");
+        d.writer.write(&batch).map_err(|e| LeRobotError::parquet(&d.path, e))?;
+        // The row group goes to the file now, so that its size on disk is the file's size so far.
+        d.writer.flush().map_err(|e| LeRobotError::parquet(&d.path, e))?;
+        d.rows += rows.len();
+        Ok(d.index)
+    }
+
+    /// Each camera's episode file closed and copied to the end of the camera's current video file, or into the
+    /// next one when it would bring the current one to the limit: per camera its file and from, to (s) in it.
+    fn write_videos(&mut self, length: usize) -> Result<Vec<(FileIndex, f64, f64)>, LeRobotError> {
+        let fps = f64::from(self.spec.fps);
+        let mut out = Vec::with_capacity(self.cameras.len());
+        for (cam, spec) in self.cameras.iter_mut().zip(&self.spec.cameras) {
+            let episode = cam.episode.take().expect("an episode of frames has each camera's file open");
+            cam.codec.get_or_insert(episode.codec);
+            let frames = episode.frames();
+            debug_assert_eq!(frames as usize, length);
+            episode.finish()?;
+            let path = &cam.episode_path;
+            let bytes =
+                std::fs::metadata(path).map_err(|error| LeRobotError::Read { path: path.clone(), error })?.len();
+            let next = match &cam.file {
+                None => Some(FileIndex { chunk: 0, file: 0 }),
+                Some((index, file)) => video_rolls_over(file.bytes(), bytes, self.limits.video_files_size_in_mb)
+                    .then(|| index.next(self.limits.chunks_size)),
+            };
+            if let Some(index) = next {
+                if let Some((_, file)) = cam.file.take() {
+                    file.finish()?;
+                }
+                let target = self.staging.join(video_file(&spec.key, index));
+                mkdir(target.parent().expect("a file in a chunk directory"))?;
+                cam.file = Some((index, VideoFile::create(&target, path, self.spec.fps)?));
+            }
+            let (index, file) = cam.file.as_mut().expect("a video file is open");
+            let from = file.frames();
+            file.append(path, frames)?;
+            std::fs::remove_file(path).map_err(|error| LeRobotError::Read { path: path.clone(), error })?;
+            out.push((*index, from as f64 / fps, (from + frames) as f64 / fps));
+        }
+        Ok(out)
     }
 
     /// Statistics of timestamp, frame_index, episode_index, index, task_index over `rows`.
@@ -234,6 +435,7 @@ impl DatasetWriter {
 
     /// Writes every file and moves the dataset into place. An episode still open is an error (end it first).
     pub fn finish(mut self) -> Result<PathBuf, LeRobotError> {
+        self.check_not_failed()?;
         if self.open_frames > 0 || self.episodes.is_empty() {
             return Err(LeRobotError::Episode {
                 episode: self.episodes.len() as i64,
@@ -244,11 +446,18 @@ impl DatasetWriter {
                 ),
             });
         }
-        let codecs: Vec<&'static str> = self.videos.iter().map(|v| v.codec).collect();
-        for v in std::mem::take(&mut self.videos) {
-            v.finish()?;
+        if let Some(d) = self.data.take() {
+            d.writer.close().map_err(|e| LeRobotError::parquet(&d.path, e))?;
         }
-        self.write_data()?;
+        let mut codecs = Vec::with_capacity(self.cameras.len());
+        for cam in &mut self.cameras {
+            if let Some((_, file)) = cam.file.take() {
+                file.finish()?;
+            }
+            codecs.push(cam.codec.expect("a camera with an episode has a codec"));
+        }
+        let tmp = self.staging.join("tmp");
+        std::fs::remove_dir_all(&tmp).map_err(|error| LeRobotError::Read { path: tmp, error })?;
         self.write_episodes()?;
         self.write_tasks()?;
         self.write_json_files(&codecs)?;
@@ -269,61 +478,42 @@ impl DatasetWriter {
     /// Gives up: nothing is written and the staging directory is removed (a run that recorded no complete
     /// episode leaves nothing behind).
     pub fn abandon(mut self) {
-        drop(std::mem::take(&mut self.videos));
+        self.data = None;
+        self.cameras.clear();
         let _ = std::fs::remove_dir_all(&self.staging);
     }
 
     fn write_parquet(&self, rel: &str, batch: &RecordBatch) -> Result<(), LeRobotError> {
         let path = self.staging.join(rel);
         let file = File::create(&path).map_err(|error| LeRobotError::Read { path: path.clone(), error })?;
-        let props = parquet::file::properties::WriterProperties::builder()
-            .set_compression(parquet::basic::Compression::SNAPPY)
-            .build();
-        let mut w =
-            ArrowWriter::try_new(file, batch.schema(), Some(props)).map_err(|e| LeRobotError::parquet(&path, e))?;
+        let mut w = ArrowWriter::try_new(file, batch.schema(), Some(parquet_properties()))
+            .map_err(|e| LeRobotError::parquet(&path, e))?;
         w.write(batch).map_err(|e| LeRobotError::parquet(&path, e))?;
         w.close().map_err(|e| LeRobotError::parquet(&path, e))?;
         Ok(())
     }
 
-    /// One row per frame: the vector features as fixed-size lists of float32, then timestamp and the indices, with
-    /// the `huggingface` schema metadata LeRobot's loader (through HF datasets) reads the features from.
-    fn write_data(&self) -> Result<(), LeRobotError> {
-        let mut fields = Vec::new();
+    /// The rows `rows` as the data file has them: the vector features, then timestamp and the indices.
+    fn data_batch(&self, rows: std::ops::Range<usize>) -> Result<RecordBatch, LeRobotError> {
         let mut columns: Vec<ArrayRef> = Vec::new();
-        let mut hf = serde_json::Map::new();
         for (col, s) in self.vectors.iter().zip(&self.spec.vectors) {
-            // LeRobot (through HF datasets) stores a feature of shape (1,) as a plain value, not a list of one.
-            if s.names.len() == 1 {
-                fields.push(Field::new(&s.key, DataType::Float32, true));
-                columns.push(Arc::new(Float32Array::from(col.clone())));
-                hf.insert(s.key.clone(), json!({"dtype": "float32", "_type": "Value"}));
+            let n = s.names.len();
+            let values = Float32Array::from(col[rows.start * n..rows.end * n].to_vec());
+            if n == 1 {
+                columns.push(Arc::new(values));
                 continue;
             }
             let item = Arc::new(Field::new("element", DataType::Float32, true));
-            let n = s.names.len() as i32;
-            let array = FixedSizeListArray::try_new(item.clone(), n, Arc::new(Float32Array::from(col.clone())), None)
-                .map_err(|e| LeRobotError::parquet(&self.staging.join(DATA_FILE), e))?;
-            fields.push(Field::new(&s.key, DataType::FixedSizeList(item, n), true));
+            let array = FixedSizeListArray::try_new(item, n as i32, Arc::new(values), None)
+                .map_err(|e| LeRobotError::parquet(&self.staging.join("data"), e))?;
             columns.push(Arc::new(array));
-            hf.insert(
-                s.key.clone(),
-                json!({"feature": {"dtype": "float32", "_type": "Value"}, "length": n, "_type": "List"}),
-            );
         }
-        fields.push(Field::new("timestamp", DataType::Float32, true));
-        columns.push(Arc::new(Float32Array::from(self.timestamps.clone())));
-        hf.insert("timestamp".into(), json!({"dtype": "float32", "_type": "Value"}));
-        for (name, col) in INDEX_COLUMNS.iter().zip(&self.indices) {
-            fields.push(Field::new(*name, DataType::Int64, true));
-            columns.push(Arc::new(Int64Array::from(col.clone())));
-            hf.insert((*name).into(), json!({"dtype": "int64", "_type": "Value"}));
+        columns.push(Arc::new(Float32Array::from(self.timestamps[rows.clone()].to_vec())));
+        for col in &self.indices {
+            columns.push(Arc::new(Int64Array::from(col[rows.clone()].to_vec())));
         }
-        let meta = json!({ "info": { "features": Value::Object(hf) } }).to_string();
-        let schema = Schema::new(fields).with_metadata([("huggingface".to_owned(), meta)].into());
-        let batch = RecordBatch::try_new(Arc::new(schema), columns)
-            .map_err(|e| LeRobotError::parquet(&self.staging.join(DATA_FILE), e))?;
-        self.write_parquet(DATA_FILE, &batch)
+        RecordBatch::try_new(self.data_schema.clone(), columns)
+            .map_err(|e| LeRobotError::parquet(&self.staging.join("data"), e))
     }
 
     fn write_episodes(&self) -> Result<(), LeRobotError> {
@@ -343,15 +533,15 @@ impl DatasetWriter {
         }
         cols.push(("tasks".into(), Arc::new(tasks.finish())));
         cols.push(("length".into(), int(&|_, e| e.length as i64)));
-        cols.push(("data/chunk_index".into(), int(&|_, _| 0)));
-        cols.push(("data/file_index".into(), int(&|_, _| 0)));
+        cols.push(("data/chunk_index".into(), int(&|_, e| e.data.chunk)));
+        cols.push(("data/file_index".into(), int(&|_, e| e.data.file)));
         cols.push(("dataset_from_index".into(), int(&|_, e| e.from_index)));
         cols.push(("dataset_to_index".into(), int(&|_, e| e.from_index + e.length as i64)));
         for (k, c) in self.spec.cameras.iter().enumerate() {
-            cols.push((format!("videos/{}/chunk_index", c.key), int(&|_, _| 0)));
-            cols.push((format!("videos/{}/file_index", c.key), int(&|_, _| 0)));
-            cols.push((format!("videos/{}/from_timestamp", c.key), float(&|e| e.video_ranges[k].0)));
-            cols.push((format!("videos/{}/to_timestamp", c.key), float(&|e| e.video_ranges[k].1)));
+            cols.push((format!("videos/{}/chunk_index", c.key), int(&|_, e| e.videos[k].0.chunk)));
+            cols.push((format!("videos/{}/file_index", c.key), int(&|_, e| e.videos[k].0.file)));
+            cols.push((format!("videos/{}/from_timestamp", c.key), float(&|e| e.videos[k].1)));
+            cols.push((format!("videos/{}/to_timestamp", c.key), float(&|e| e.videos[k].2)));
         }
         for (f, key) in self.feature_order().iter().enumerate() {
             let image = self.episodes[0].stats[f].image;
@@ -436,17 +626,25 @@ impl DatasetWriter {
             total_episodes: self.episodes.len(),
             total_frames: frames,
             total_tasks: self.tasks.len(),
-            chunks_size: 1000,
-            data_files_size_in_mb: Some(100.0),
-            video_files_size_in_mb: Some(200.0),
+            chunks_size: self.limits.chunks_size,
+            data_files_size_in_mb: Some(self.limits.data_files_size_in_mb),
+            video_files_size_in_mb: Some(self.limits.video_files_size_in_mb),
             data_path: DATA_PATH.into(),
             video_path: (!self.spec.cameras.is_empty()).then(|| VIDEO_PATH.into()),
             robot_type: Some(self.spec.robot_type.clone()),
             splits: [("train".to_owned(), format!("0:{}", self.episodes.len()))].into(),
         };
         let mut info_json = serde_json::to_value(&info).expect("info serialises");
-        // LeRobot's info.json has fps as an integer.
+        // LeRobot's info.json has fps and its default sizes as integers.
         info_json["fps"] = json!(self.spec.fps);
+        for (key, mb) in [
+            ("data_files_size_in_mb", self.limits.data_files_size_in_mb),
+            ("video_files_size_in_mb", self.limits.video_files_size_in_mb),
+        ] {
+            if mb.fract() == 0.0 && mb <= u32::MAX as f64 {
+                info_json[key] = json!(mb as u32);
+            }
+        }
         self.write_json("meta/info.json", &info_json)?;
         let mut stats = serde_json::Map::new();
         let all = 0..frames;
@@ -468,6 +666,44 @@ impl DatasetWriter {
         let text = serde_json::to_string_pretty(v).expect("json serialises");
         std::fs::write(&path, text).map_err(|error| LeRobotError::Read { path, error })
     }
+}
+
+fn mkdir(path: &Path) -> Result<(), LeRobotError> {
+    std::fs::create_dir_all(path).map_err(|error| LeRobotError::Read { path: path.to_owned(), error })
+}
+
+fn parquet_properties() -> parquet::file::properties::WriterProperties {
+    parquet::file::properties::WriterProperties::builder().set_compression(parquet::basic::Compression::SNAPPY).build()
+}
+
+/// The data files' schema: the vector features as fixed-size lists of float32, then timestamp and the indices,
+/// with the `huggingface` metadata LeRobot's loader (through HF datasets) reads the features from.
+fn data_schema(spec: &DatasetSpec) -> Schema {
+    let mut fields = Vec::new();
+    let mut hf = serde_json::Map::new();
+    for s in &spec.vectors {
+        // LeRobot (through HF datasets) stores a feature of shape (1,) as a plain value, not a list of one.
+        if s.names.len() == 1 {
+            fields.push(Field::new(&s.key, DataType::Float32, true));
+            hf.insert(s.key.clone(), json!({"dtype": "float32", "_type": "Value"}));
+            continue;
+        }
+        let item = Arc::new(Field::new("element", DataType::Float32, true));
+        let n = s.names.len() as i32;
+        fields.push(Field::new(&s.key, DataType::FixedSizeList(item, n), true));
+        hf.insert(
+            s.key.clone(),
+            json!({"feature": {"dtype": "float32", "_type": "Value"}, "length": n, "_type": "List"}),
+        );
+    }
+    fields.push(Field::new("timestamp", DataType::Float32, true));
+    hf.insert("timestamp".into(), json!({"dtype": "float32", "_type": "Value"}));
+    for name in INDEX_COLUMNS {
+        fields.push(Field::new(name, DataType::Int64, true));
+        hf.insert(name.into(), json!({"dtype": "int64", "_type": "Value"}));
+    }
+    let meta = json!({ "info": { "features": Value::Object(hf) } }).to_string();
+    Schema::new(fields).with_metadata([("huggingface".to_owned(), meta)].into())
 }
 
 /// One statistic of one feature for every episode: list<double>, or for a camera list<list<list<double>>>
@@ -496,4 +732,33 @@ fn stats_column(rows: impl Iterator<Item = Vec<f64>>, image: bool) -> ArrayRef {
         b.append(true);
     }
     Arc::new(b.finish())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn files_count_up_and_a_full_chunk_starts_the_next() {
+        let f = |chunk, file| FileIndex { chunk, file };
+        assert_eq!(f(0, 0).next(1000), f(0, 1));
+        assert_eq!(f(0, 998).next(1000), f(0, 999));
+        assert_eq!(f(0, 999).next(1000), f(1, 0));
+        assert_eq!(f(3, 1).next(2), f(4, 0));
+        assert_eq!(f(0, 0).next(1), f(1, 0));
+    }
+
+    /// The numbers LeRobot's formulas give (sizes in MiB, `>=`: reaching the limit is enough).
+    #[test]
+    fn the_rollover_rules_are_lerobots() {
+        let mib = 1024 * 1024;
+        // Data: 60 MiB in 600 rows so far, 0.1 MiB a row; 400 more rows reach 100, 399 do not.
+        assert!(data_rolls_over(60 * mib, 600, 400, 100.0));
+        assert!(!data_rolls_over(60 * mib, 600, 399, 100.0));
+        // A file of no rows yet weighs only its bytes.
+        assert!(!data_rolls_over(4, 0, 1_000_000, 100.0));
+        // Video: the file plus the episode's own file.
+        assert!(video_rolls_over(150 * mib, 50 * mib, 200.0));
+        assert!(!video_rolls_over(150 * mib, 50 * mib - 1, 200.0));
+    }
 }

@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use arrow_array::{ArrayRef, Float64Array, RecordBatch};
-use mars_lerobot::{Keys, LeRobotDataset, LeRobotError};
+use mars_lerobot::{Keys, LeRobotDataset, LeRobotError, ReadOptions};
 use parquet::arrow::ArrowWriter;
 use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
 
@@ -39,7 +39,7 @@ fn keys() -> Keys {
 
 fn read(root: &Path) -> Result<usize, LeRobotError> {
     let ds = LeRobotDataset::open(root)?;
-    Ok(ds.read(&keys(), (64, 64))?.1.frames)
+    Ok(ds.read_with(&keys(), (64, 64), &ReadOptions::no_cache())?.1.frames)
 }
 
 fn edit_info(root: &Path, edit: impl FnOnce(&mut serde_json::Value)) {
@@ -73,7 +73,7 @@ fn an_older_layout_is_refused_with_the_converter_named() {
 fn a_missing_key_names_the_keys_there_are() {
     let ds = LeRobotDataset::open(&fixture()).unwrap();
     let keys = Keys { state: "observation.joints".into(), ..keys() };
-    let e = ds.read(&keys, (64, 64)).unwrap_err();
+    let e = ds.read_with(&keys, (64, 64), &ReadOptions::no_cache()).unwrap_err();
     let msg = e.to_string();
     assert!(matches!(e, LeRobotError::MissingKey { .. }) && msg.contains("observation.state"), "{msg}");
 }
@@ -92,7 +92,7 @@ fn a_shape_or_dtype_that_does_not_match_the_rows_is_refused() {
 
     let ds = LeRobotDataset::open(&fixture()).unwrap();
     let keys = Keys { images: vec!["action".into()], ..keys() };
-    let msg = ds.read(&keys, (64, 64)).unwrap_err().to_string();
+    let msg = ds.read_with(&keys, (64, 64), &ReadOptions::no_cache()).unwrap_err().to_string();
     assert!(msg.contains("only camera streams stored as video"), "{msg}");
 }
 

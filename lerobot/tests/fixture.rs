@@ -3,7 +3,7 @@
 
 use std::path::{Path, PathBuf};
 
-use mars_lerobot::{Keys, LeRobotDataset};
+use mars_lerobot::{Keys, LeRobotDataset, ReadOptions};
 use serde_json::Value;
 
 fn fixture() -> PathBuf {
@@ -29,7 +29,7 @@ fn episodes_and_vectors_equal_what_lerobot_reads_bit_for_bit() {
     let ds = LeRobotDataset::open(&fixture()).unwrap();
     assert_eq!(ds.info.fps, want["fps"].as_f64().unwrap());
     assert_eq!(ds.episodes.len(), want["total_episodes"].as_u64().unwrap() as usize);
-    let (episodes, report) = ds.read(&keys(), (64, 64)).unwrap();
+    let (episodes, report) = ds.read_with(&keys(), (64, 64), &ReadOptions::no_cache()).unwrap();
     assert_eq!(report.frames, want["total_frames"].as_u64().unwrap() as usize);
     let frames = want["frames"].as_array().unwrap();
     let mut i = 0;
@@ -55,7 +55,7 @@ fn episodes_and_vectors_equal_what_lerobot_reads_bit_for_bit() {
 fn video_frames_equal_what_lerobot_decodes() {
     let want = expected();
     let ds = LeRobotDataset::open(&fixture()).unwrap();
-    let (episodes, report) = ds.read(&keys(), (64, 64)).unwrap();
+    let (episodes, report) = ds.read_with(&keys(), (64, 64), &ReadOptions::no_cache()).unwrap();
     assert_eq!(report.decoded_frames, 180, "one file, every frame decoded once");
     let frames = want["frames"].as_array().unwrap();
     let (mut i, mut worst_full, mut worst_mean, mut full_frames) = (0, 0u8, 0f64, 0);
