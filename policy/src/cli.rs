@@ -83,15 +83,19 @@ pub fn train(
     cfg.train.epochs = epochs.unwrap_or(cfg.train.epochs);
     cfg.train.seed = seed.unwrap_or(cfg.train.seed);
     cfg.validate()?;
-    let demos = match input {
-        TrainInput::Demos(path) => load_demos(path)?.demos,
+    let (demos, given) = match input {
+        TrainInput::Demos(path) => (load_demos(path)?.demos, None),
         TrainInput::Dataset(d) => {
             let (demos, report) = crate::from_dataset::load(d, &cfg.model)?;
             println!("{}", crate::from_dataset::describe(&d.dir, &demos, &report));
-            demos
+            let given = crate::from_dataset::given_normalizer(d, &cfg.model)?;
+            if given.is_some() {
+                println!("normalised by the dataset's meta/stats.json (mean, std of the state and action)");
+            }
+            (demos, given)
         }
     };
-    train_on(&cfg, &demos, out, snapshot_every)
+    train_on_normalised(&cfg, &demos, given.as_ref(), out, snapshot_every)
 }
 
 /// `mars train` on demos already in memory (a task that makes its own, e.g. Push-T's with camera images): trains
@@ -102,10 +106,22 @@ pub fn train_on(
     out: &Path,
     snapshot_every: Option<usize>,
 ) -> anyhow::Result<Trained> {
+    train_on_normalised(cfg, demos, None, out, snapshot_every)
+}
+
+/// [`train_on`] normalised by `given` statistics (None: the demos').
+pub fn train_on_normalised(
+    cfg: &PolicyConfig,
+    demos: &[Demo],
+    given: Option<&crate::normalize::Normalizer>,
+    out: &Path,
+    snapshot_every: Option<usize>,
+) -> anyhow::Result<Trained> {
     let kind = cfg.kind;
     let started = Instant::now();
     let snapshots = snapshot_every.map(|every| crate::train::Snapshots { every, dir: out.join("snapshots") });
-    let trained = crate::train::train_with_snapshots(cfg, demos, progress_bar(kind), snapshots.as_ref())?;
+    let bar = progress_bar(kind);
+    let trained = crate::train::train_normalised_by(cfg, demos, given, bar, snapshots.as_ref())?;
     checkpoint::save(out, &trained)?;
     let last = trained.log.last().context("training ran no epoch")?;
     println!(

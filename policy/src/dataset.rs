@@ -15,6 +15,8 @@ pub enum DatasetError {
     Empty,
     #[error("demo {demo}: {problem}")]
     BadDemo { demo: usize, problem: String },
+    #[error("normalisation: {0}")]
+    Stats(String),
     #[error(transparent)]
     Knn(#[from] knn::KnnError),
     #[error(transparent)]
@@ -103,11 +105,38 @@ pub fn future_window(actions: &[Vec<f32>], t: usize, c: usize, out: &mut Vec<f32
 
 impl Dataset {
     pub fn from_demos(demos: &[Demo], cfg: &ModelConfig, m: usize) -> Result<Self, DatasetError> {
+        Self::from_demos_with(demos, cfg, m, None)
+    }
+
+    /// [`Dataset::from_demos`] normalised with `given` statistics (a dataset's own stats.json) instead of those of
+    /// `demos`; the camera dimensions stay raw either way.
+    pub fn from_demos_with(
+        demos: &[Demo],
+        cfg: &ModelConfig,
+        m: usize,
+        given: Option<&Normalizer>,
+    ) -> Result<Self, DatasetError> {
         validate(demos, cfg)?;
-        let mut normalizer = Normalizer {
-            obs: Stats::fit(demos.iter().flat_map(|d| d.observations.iter().map(|o| o.as_slice())), cfg.obs_dim),
-            action: Stats::fit(demos.iter().flat_map(|d| d.actions.iter().map(|a| a.as_slice())), cfg.action_dim),
+        let mut normalizer = match given {
+            Some(n) => n.clone(),
+            None => Normalizer {
+                obs: Stats::fit(demos.iter().flat_map(|d| d.observations.iter().map(|o| o.as_slice())), cfg.obs_dim),
+                action: Stats::fit(demos.iter().flat_map(|d| d.actions.iter().map(|a| a.as_slice())), cfg.action_dim),
+            },
         };
+        if normalizer.obs.dim() != cfg.obs_dim
+            || normalizer.action.dim() != cfg.action_dim
+            || !normalizer.obs.is_valid()
+            || !normalizer.action.is_valid()
+        {
+            return Err(DatasetError::Stats(format!(
+                "statistics for {} observation and {} action values (finite, std > 0) are needed, got {} and {}",
+                cfg.obs_dim,
+                cfg.action_dim,
+                normalizer.obs.dim(),
+                normalizer.action.dim()
+            )));
+        }
         // Camera images are the encoder's input as they are (values in [0, 1]): per-pixel statistics would make
         // a pixel's meaning depend on where the block usually sits.
         for d in crate::encoder::raw_dims(&cfg.encoder, cfg.obs_dim) {

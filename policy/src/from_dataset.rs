@@ -10,6 +10,7 @@ use mars_lerobot::{Keys, LeRobotDataset, ReadReport};
 use mars_tasks::demo::Demo;
 
 use crate::config::{EncoderConfig, ModelConfig};
+use crate::normalize::{Normalizer, Stats};
 
 /// Which features of the dataset to train on.
 #[derive(Debug, Clone)]
@@ -22,6 +23,56 @@ pub struct DatasetInput {
     /// What pads the history before an episode's first action; `None`: the first state when state and action
     /// have the same size (position targets), else the first action.
     pub rest: Option<RestAction>,
+    /// Where the normalisation's mean and std come from.
+    pub normalize: Normalization,
+}
+
+/// `--normalize-from`: the statistics of the frames read (as for any demos), or those the dataset ships in
+/// `meta/stats.json` (LeRobot's, computed by whoever wrote it: a policy trained on a subset of a dataset, or
+/// fine-tuned on a small one, can keep the whole dataset's scale).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, clap::ValueEnum)]
+pub enum Normalization {
+    #[default]
+    Data,
+    Stats,
+}
+
+/// The normalisation `--normalize-from stats` asks for: the state's and the action's mean and std from
+/// `meta/stats.json`, cameras left raw (the encoder takes pixels / 255 as they are); `None` for `data`.
+pub fn given_normalizer(input: &DatasetInput, cfg: &ModelConfig) -> anyhow::Result<Option<Normalizer>> {
+    if input.normalize == Normalization::Data {
+        return Ok(None);
+    }
+    let path = input.dir.join("meta/stats.json");
+    let text = std::fs::read_to_string(&path).with_context(|| {
+        format!("{}: --normalize-from stats needs it (or use --normalize-from data)", path.display())
+    })?;
+    let stats: serde_json::Value = serde_json::from_str(&text).with_context(|| format!("{}", path.display()))?;
+    let of = |key: &str, dim: usize| -> anyhow::Result<(Vec<f32>, Vec<f32>)> {
+        let field = |name: &str| -> anyhow::Result<Vec<f32>> {
+            let v = stats
+                .get(key)
+                .and_then(|f| f.get(name))
+                .and_then(|v| v.as_array())
+                .with_context(|| format!("{}: no {key}.{name}", path.display()))?;
+            let v: Option<Vec<f32>> = v.iter().map(|x| x.as_f64().map(|x| x as f32)).collect();
+            let v = v.with_context(|| format!("{}: {key}.{name} is not a list of numbers", path.display()))?;
+            anyhow::ensure!(
+                v.len() == dim && v.iter().all(|x| x.is_finite()),
+                "{}: {key}.{name} has {} values, the dataset's {key} {dim}",
+                path.display(),
+                v.len()
+            );
+            Ok(v)
+        };
+        Ok((field("mean")?, field("std")?))
+    };
+    let action = of(&input.action_key, cfg.action_dim)?;
+    let state_dim = cfg.obs_dim - crate::encoder::raw_dims(&cfg.encoder, cfg.obs_dim).len();
+    let (mut mean, mut std) = of(&input.state_key, state_dim)?;
+    mean.resize(cfg.obs_dim, 0.0);
+    std.resize(cfg.obs_dim, 1.0);
+    Ok(Some(Normalizer { obs: Stats::given(mean, std), action: Stats::given(action.0, action.1) }))
 }
 
 /// Reads the dataset's episodes as demos for a policy of `cfg`; the demos carry no mode (a dataset does not say).
@@ -93,5 +144,17 @@ pub fn describe(dir: &Path, demos: &[Demo], r: &ReadReport) -> String {
     } else {
         String::new()
     };
-    format!("{}: {} episodes, {} frames read in {:.2} s{decode}", dir.display(), demos.len(), r.frames, r.total_s)
+    let cached = if r.cached_frames > 0 {
+        format!(", {} video frames from the decoded-frame cache in {:.3} s", r.cached_frames, r.cache_read_s)
+    } else {
+        String::new()
+    };
+    let warnings: String = r.cache_warnings.iter().map(|w| format!("\n  cache: {w}")).collect();
+    format!(
+        "{}: {} episodes, {} frames read in {:.2} s{decode}{cached}{warnings}",
+        dir.display(),
+        demos.len(),
+        r.frames,
+        r.total_s
+    )
 }

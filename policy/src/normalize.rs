@@ -34,6 +34,11 @@ impl Stats {
         }
     }
 
+    /// Statistics given from elsewhere (a dataset's stats.json), with the same floor on std as [`Stats::fit`].
+    pub fn given(mean: Vec<f32>, std: Vec<f32>) -> Self {
+        Self { mean, std: std.into_iter().map(|s| if s < MIN_STD { 1.0 } else { s }).collect() }
+    }
+
     pub fn dim(&self) -> usize {
         self.mean.len()
     }

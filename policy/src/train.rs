@@ -200,12 +200,23 @@ pub fn train_with_snapshots(
     bar: indicatif::ProgressBar,
     snapshots: Option<&Snapshots>,
 ) -> anyhow::Result<Trained> {
+    train_normalised_by(cfg, demos, None, bar, snapshots)
+}
+
+/// `train_with_snapshots` with the normalisation `given` (a dataset's own statistics) rather than the demos'.
+pub fn train_normalised_by(
+    cfg: &PolicyConfig,
+    demos: &[Demo],
+    given: Option<&Normalizer>,
+    bar: indicatif::ProgressBar,
+    snapshots: Option<&Snapshots>,
+) -> anyhow::Result<Trained> {
     cfg.validate()?;
     if let Some(s) = snapshots {
         anyhow::ensure!(s.every > 0, "snapshots every 0 epochs: give at least 1");
     }
     let device = Device::Cpu;
-    let mut data = Dataset::from_demos(demos, &cfg.model, cfg.train.knn_m)?;
+    let mut data = Dataset::from_demos_with(demos, &cfg.model, cfg.train.knn_m, given)?;
     if let (Some(q), PolicyKind::Mars) = (cfg.train.div_target_quantile, cfg.kind) {
         let factor = data.rescale_target_spread(q);
         tracing::info!(policy = %cfg.kind, quantile = q, factor, "diversity target S_next rescaled");

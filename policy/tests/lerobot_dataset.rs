@@ -6,7 +6,7 @@ mod mars_cli;
 
 use std::path::{Path, PathBuf};
 
-use mars_cli::mars;
+use mars_cli::mars_with_env;
 use mars_policy::inference::MarsPolicy;
 use mars_tasks::rollout::ChunkPolicy;
 
@@ -25,12 +25,17 @@ fn config(dir: &Path, edit: impl Fn(String) -> String) -> PathBuf {
     path
 }
 
-fn train(dir: &Path, cfg: &Path, extra: &[&str]) -> (std::process::Output, PathBuf) {
-    let out = dir.join("ckpt");
+/// `mars train --dataset FIXTURE` into `dir/<out>`, with the decoded-frame cache in `dir/cache`.
+fn train_into(dir: &Path, out: &str, cfg: &Path, extra: &[&str]) -> (std::process::Output, PathBuf) {
+    let out = dir.join(out);
     let mut args = vec!["train", "--dataset", FIXTURE, "--config", cfg.to_str().unwrap(), "--epochs", "1"];
     args.extend_from_slice(&["--out", out.to_str().unwrap()]);
     args.extend_from_slice(extra);
-    (mars(&args), out)
+    (mars_with_env(&args, &[("MARS_CACHE_DIR", &dir.join("cache"))]), out)
+}
+
+fn train(dir: &Path, cfg: &Path, extra: &[&str]) -> (std::process::Output, PathBuf) {
+    train_into(dir, "ckpt", cfg, extra)
 }
 
 #[test]
@@ -41,6 +46,13 @@ fn a_vision_policy_trains_on_a_lerobot_dataset_and_acts() {
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert!(out.status.success(), "{stdout}\n{}", String::from_utf8_lossy(&out.stderr));
     assert!(stdout.contains("6 episodes, 180 frames read") && stdout.contains("180 video frames decoded"), "{stdout}");
+    assert!(!stdout.contains("from the decoded-frame cache"), "{stdout}");
+    // A second run decodes nothing: every frame comes from the cache the first one wrote.
+    let (again, _) = train_into(dir.path(), "ckpt2", &cfg, &["--image-key", "observation.images.top"]);
+    let again_out = String::from_utf8_lossy(&again.stdout);
+    assert!(again.status.success(), "{again_out}");
+    assert!(again_out.contains("180 video frames from the decoded-frame cache"), "{again_out}");
+    assert!(!again_out.contains("decoded in"), "{again_out}");
     let (mut policy, meta) = MarsPolicy::load(&ckpt, 0).unwrap();
     // The first frame of the dataset as the policy sees it: the state, then the image / 255.
     let obs: Vec<f32> = [0.45, 0.0].into_iter().chain(std::iter::repeat_n(0.5, 64 * 64 * 3)).collect();
@@ -77,5 +89,59 @@ fn a_policy_the_dataset_does_not_fit_is_refused_before_anything_is_written() {
         };
         assert!(stderr.contains(said), "{what}: {stderr}");
         assert!(!ckpt.exists(), "{what}: a checkpoint directory was written");
+    }
+}
+
+/// `--normalize-from stats`: the checkpoint carries the mean and std of the dataset's meta/stats.json (made
+/// different here from what the frames give, so the two sources can be told apart), cameras raw; by default it
+/// carries the frames' own; without a stats.json, `stats` is refused before anything is written.
+#[test]
+fn normalisation_comes_from_stats_json_when_asked_and_from_the_frames_otherwise() {
+    let dir = tempfile::tempdir().unwrap();
+    let copy = dir.path().join("push_t");
+    copy_dir(&Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join(FIXTURE), &copy);
+    let stats_path = copy.join("meta/stats.json");
+    let mut stats: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&stats_path).unwrap()).unwrap();
+    stats["action"]["mean"] = serde_json::json!([5.0, -5.0]);
+    stats["action"]["std"] = serde_json::json!([2.0, 3.0]);
+    stats["observation.state"]["mean"] = serde_json::json!([1.5, 2.5]);
+    stats["observation.state"]["std"] = serde_json::json!([0.25, 0.0]);
+    std::fs::write(&stats_path, stats.to_string()).unwrap();
+    let cfg = config(dir.path(), |t| t);
+    let train = |out: &str, extra: &[&str]| {
+        let out = dir.path().join(out);
+        let mut args = vec!["train", "--dataset", copy.to_str().unwrap(), "--config", cfg.to_str().unwrap()];
+        args.extend_from_slice(&["--epochs", "1", "--out", out.to_str().unwrap()]);
+        args.extend_from_slice(extra);
+        (mars_with_env(&args, &[("MARS_CACHE_DIR", &dir.path().join("cache"))]), out)
+    };
+    let (run, ckpt) = train("from-stats", &["--normalize-from", "stats"]);
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let n = mars_policy::checkpoint::load_meta(&ckpt).unwrap().normalizer;
+    assert_eq!((n.action.mean.as_slice(), n.action.std.as_slice()), (&[5.0f32, -5.0][..], &[2.0f32, 3.0][..]));
+    // A std of 0 is left unscaled (1), as for statistics computed from the frames; the pixels stay raw.
+    assert_eq!((&n.obs.mean[..2], &n.obs.std[..2]), (&[1.5f32, 2.5][..], &[0.25f32, 1.0][..]));
+    assert!(n.obs.mean[2..].iter().all(|m| *m == 0.0) && n.obs.std[2..].iter().all(|s| *s == 1.0));
+    let (run, ckpt) = train("from-data", &[]);
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let n = mars_policy::checkpoint::load_meta(&ckpt).unwrap().normalizer;
+    // The frames' own: the fixture's pusher x is around 0.32 m (LeRobot's own stats.json said 0.3241).
+    assert!((n.action.mean[0] - 0.3241).abs() < 1e-3, "{:?}", n.action);
+    std::fs::remove_file(&stats_path).unwrap();
+    let (run, ckpt) = train("no-stats", &["--normalize-from", "stats"]);
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert!(!run.status.success() && err.contains("stats.json") && err.contains("--normalize-from data"), "{err}");
+    assert!(!ckpt.exists(), "a refused run wrote {}", ckpt.display());
+}
+
+fn copy_dir(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to).unwrap();
+    for e in std::fs::read_dir(from).unwrap() {
+        let e = e.unwrap();
+        if e.file_type().unwrap().is_dir() {
+            copy_dir(&e.path(), &to.join(e.file_name()));
+        } else {
+            std::fs::copy(e.path(), to.join(e.file_name())).unwrap();
+        }
     }
 }

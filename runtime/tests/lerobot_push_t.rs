@@ -26,6 +26,7 @@ fn the_lerobot_fixture_holds_our_expert_demos() {
         action_key: "action".into(),
         image_keys: vec![],
         rest: None,
+        normalize: Default::default(),
     };
     let (read, _) = load(&input, &cfg.model).unwrap();
     assert_eq!(read.len(), made.len());

@@ -172,6 +172,7 @@ fn recorded_demo(attempt: u32) -> bool {
         action_key: "action".into(),
         image_keys: vec![],
         rest: None,
+        normalize: Default::default(),
     };
     let (demos, _) = mars_policy::from_dataset::load(&input, &cfg.model).unwrap();
     assert_eq!(demos.len() as u64, written);

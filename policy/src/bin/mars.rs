@@ -56,6 +56,10 @@ enum Command {
         /// first state when state and action have the same size, else the first action).
         #[arg(long, requires = "dataset")]
         rest_action: Option<mars_lerobot::demos::RestAction>,
+        /// Where the normalisation's mean and std come from: the frames read (data) or the dataset's
+        /// meta/stats.json (stats).
+        #[arg(long, value_enum, default_value_t = mars_policy::from_dataset::Normalization::Data, requires = "dataset")]
+        normalize_from: mars_policy::from_dataset::Normalization,
         /// Checkpoint directory (default: runs/nav2d/<policy>, or runs/<dataset name>/<policy>).
         #[arg(long)]
         out: Option<PathBuf>,
@@ -230,6 +234,7 @@ fn main() -> std::process::ExitCode {
             action_key,
             image_key,
             rest_action,
+            normalize_from,
             out,
             epochs,
             seed,
@@ -245,6 +250,7 @@ fn main() -> std::process::ExitCode {
                         action_key,
                         image_keys: image_key,
                         rest: rest_action,
+                        normalize: normalize_from,
                     };
                     (cli::TrainInput::Dataset(input), PathBuf::from("runs").join(name))
                 }
