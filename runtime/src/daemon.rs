@@ -229,7 +229,7 @@ pub fn run(p: Prepared) -> anyhow::Result<Outcome> {
         .name("marsd-policy".into())
         .spawn(move || {
             let scene = match &task {
-                HilTask::PushT(t) => match SceneLink::open(&policy_cfg.robot, t) {
+                HilTask::PushT(t) => match SceneLink::open(&policy_cfg.robot, t, recording.is_some()) {
                     Ok(s) => Some(s),
                     Err(e) => {
                         let _ = scene_tx.send(Err(e));
@@ -251,6 +251,7 @@ pub fn run(p: Prepared) -> anyhow::Result<Outcome> {
                     next_interval_ns: 0,
                     recording,
                     last_image: Vec::new(),
+                    view_image: Vec::new(),
                     replay,
                 }
                 .run(&policy_cfg),

@@ -134,6 +134,9 @@ pub struct PolicyLoop {
     pub recording: Option<crate::record::Recorder>,
     /// While recording Push-T: the camera frame the last observation used (sized at the first episode).
     pub last_image: Vec<u8>,
+    /// While recording Push-T: the camera's newest frame at this period (the recording's own view of it), what a
+    /// period without a call records.
+    pub view_image: Vec<u8>,
     /// `--replay-actions`: a recorded episode's chunks instead of the engine's (see [`crate::recorded_actions`]).
     pub replay: Option<crate::recorded_actions::RecordedActions>,
 }
@@ -311,6 +314,7 @@ impl PolicyLoop {
         let mut replayed = vec![0.0f32; if self.replay.is_some() { c * d } else { 0 }];
         if self.recording.is_some() && self.last_image.len() != self.image_len() {
             self.last_image = vec![0; self.image_len()];
+            self.view_image = vec![0; self.image_len()];
         }
         let mut trace = traces.start();
         let (mut chunks, mut k_sum, mut ep_late, mut w_inf) = (0u64, 0u64, 0u64, 0.0f32);
@@ -388,6 +392,9 @@ impl PolicyLoop {
             }
             if self.recording.is_some() {
                 self.state_of(&o, &mut state);
+                if let Some(scene) = self.scene.as_mut() {
+                    scene.newest_for_recording(&mut self.view_image);
+                }
             }
             if k % c as u64 != 0 {
                 self.record_period(episode, k, false, &state, &o, t0, &in_force, d);
@@ -407,6 +414,7 @@ impl PolicyLoop {
                     if self.recording.is_some() {
                         in_force.actions.copy_from_slice(&replayed);
                         in_force.first_k = k;
+                        in_force.image.copy_from_slice(&self.view_image);
                     }
                     chunks += 1;
                 }
@@ -547,7 +555,9 @@ impl PolicyLoop {
             frame.frame = k;
             frame.state.copy_from_slice(state);
             frame.action.copy_from_slice(&f.actions[i * d..(i + 1) * d]);
-            frame.image.copy_from_slice(&f.image);
+            // A call's period: the frame the call saw (so `marsd replay` makes the same call); else the camera's
+            // newest frame at this period.
+            frame.image.copy_from_slice(if call { &f.image } else { &self.view_image });
             frame.w_inf = f.w_inf;
             frame.k = f.k;
             frame.latency_ms = f.latency_ms;

@@ -15,6 +15,9 @@ pub struct SceneLink {
     requests: SceneRequestWriter,
     states: SceneStateReader,
     pub camera: Camera,
+    /// A second subscriber to the camera for a recording (`--record`): it reads every period's newest frame
+    /// without taking any from the policy's reader, whose judging and counts stay as without a recording.
+    recording_view: Option<mars_ipc::ImageReader>,
     latest: SceneState,
     /// When the newest referee frame arrived (0: none yet).
     latest_at_ns: u64,
@@ -23,7 +26,8 @@ pub struct SceneLink {
 }
 
 impl SceneLink {
-    pub fn open(robot: &str, task: &PushTHil) -> anyhow::Result<Self> {
+    /// `recording`: also open the recording's view of the camera.
+    pub fn open(robot: &str, task: &PushTHil, recording: bool) -> anyhow::Result<Self> {
         let ns = RobotNamespace::new(robot)?;
         let (node, _) = mars_ipc::node::create_node(&format!("marsd-{robot}-scene"))?;
         let c = &task.cfg.camera;
@@ -34,7 +38,9 @@ impl SceneLink {
             max_age_ns: (c.max_age_ms * 1e6) as u64,
         };
         let camera = Camera::new(mars_ipc::ImageReader::new(&node, &ns, &c.name)?, spec);
+        let recording_view = if recording { Some(mars_ipc::ImageReader::new(&node, &ns, &c.name)?) } else { None };
         Ok(Self {
+            recording_view,
             requests: SceneRequestWriter::new(&node, &ns)?,
             states: SceneStateReader::new(&node, &ns)?,
             camera,
@@ -43,6 +49,20 @@ impl SceneLink {
             seq: 0,
             _node: node,
         })
+    }
+
+    /// The recording's view: copies the newest well-formed camera frame waiting into `out` (its size); false if
+    /// none came since the last call (or no recording view is open). Not judged: the policy never acts on it.
+    pub fn newest_for_recording(&mut self, out: &mut [u8]) -> bool {
+        let Some(reader) = &self.recording_view else { return false };
+        let mut got = false;
+        while let Ok(Some(f)) = reader.receive() {
+            if f.pixels().len() == out.len() {
+                out.copy_from_slice(f.pixels());
+                got = true;
+            }
+        }
+        got
     }
 
     /// Asks the scene to reset for `episode` from `seed`, or to start it.

@@ -24,7 +24,8 @@ fn push_t_config(logs: &TempDir) -> std::path::PathBuf {
 /// Two episodes: every frame the policy acted on was a usable camera frame (none refused, none missing), the
 /// flange's references all reached by IK inside the workspace, no limit violation anywhere (marsd's final check,
 /// the HAL, and the streams the test recorded, with the FR3's limits), no allocation in the servo tick, and the
-/// camera's latencies measured on every inference.
+/// camera's latencies measured on every inference. Recorded (`--record`): the dataset has the camera's view of
+/// every period, not only of the calls, and the recording took no frame from the policy.
 #[test]
 fn push_t_runs_through_the_camera_the_engine_and_ik_within_limits() {
     let _rt = rt_rig_lock();
@@ -34,7 +35,8 @@ fn push_t_runs_through_the_camera_the_engine_and_ik_within_limits() {
     let mut scene = Command::new(env!("CARGO_BIN_EXE_mars-hil"));
     scene.current_dir(root()).args(["scene", "--robot", &robot]);
     let mut scene = spawn_named(scene, "scene", &logs);
-    let mut marsd = spawn_marsd(&robot, &push_t_config(&logs), 2, &[], &logs);
+    let dataset = logs.join("dataset");
+    let mut marsd = spawn_marsd(&robot, &push_t_config(&logs), 2, &["--record", dataset.to_str().unwrap()], &logs);
     let code = marsd.exit_code(Duration::from_secs(120));
     std::thread::sleep(Duration::from_millis(100));
     let r = rec.finish();
@@ -75,4 +77,28 @@ fn push_t_runs_through_the_camera_the_engine_and_ik_within_limits() {
     assert_limits(&r, &Limits::fr3(), "push-t");
     // The scene's camera strip, drawn from the frames the policy saw.
     assert!(logs.join("marsd-out/camera_strip.png").exists(), "no camera strip was drawn");
+
+    // The recording: a frame per period whose image is that period's view — between calls the pusher moves, so
+    // consecutive periods' images differ (a recording of the calls' frames alone repeats one image per chunk).
+    assert_eq!(u64_at(&s, "/record/episodes_written"), 2, "{}", s["record"]);
+    let ds = mars_lerobot::LeRobotDataset::open(&dataset).unwrap();
+    let key = "observation.images.top".to_owned();
+    let hw = ds.image_size(&key).unwrap();
+    let keys = mars_lerobot::Keys { state: "mars.call".into(), action: "action".into(), images: vec![key] };
+    let (episodes, _) = ds.read_with(&keys, hw, &mars_lerobot::ReadOptions::no_cache()).unwrap();
+    let (mut between_calls, mut changed) = (0, 0);
+    for e in &episodes {
+        let len = e.images[0].len() / e.len;
+        let frame = |t: usize| &e.images[0][t * len..(t + 1) * len];
+        for t in 1..e.len {
+            if e.state[t] == 1.0 {
+                continue;
+            }
+            between_calls += 1;
+            let diff: u64 = frame(t).iter().zip(frame(t - 1)).map(|(a, b)| a.abs_diff(*b) as u64).sum();
+            changed += usize::from(diff as f64 / len as f64 > 0.5);
+        }
+    }
+    eprintln!("recorded images: {changed} of {between_calls} periods between calls differ from the period before");
+    assert!(between_calls > 0 && changed * 2 > between_calls, "{changed} of {between_calls}");
 }
