@@ -22,7 +22,7 @@ import time
 import iceoryx2 as iox2
 
 # Must equal mars_ipc::SCHEMA_VERSION (ipc/src/schema.rs); marsd refuses frames of any other version.
-SCHEMA_VERSION = 8
+SCHEMA_VERSION = 9
 ENCODINGS = {"rgb8": (1, 3), "bgr8": (2, 3), "mono8": (3, 1)}
 
 

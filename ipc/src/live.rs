@@ -56,6 +56,29 @@ pub struct LiveStats {
     pub servo: ServoLive,
     /// The HAL's counters from its newest frame the servo read, since this controller's handshake.
     pub hal: HalLive,
+    /// The camera whose frames the `camera_age` channel times (UTF-8, zero-padded; empty: no camera).
+    pub camera: [u8; CAMERA_NAME_LEN],
+}
+
+/// Bytes of a camera's name in a live frame.
+pub const CAMERA_NAME_LEN: usize = 32;
+
+impl LiveStats {
+    /// The camera's name (see [`LiveStats::camera`]).
+    pub fn camera_name(&self) -> &str {
+        let end = self.camera.iter().position(|b| *b == 0).unwrap_or(CAMERA_NAME_LEN);
+        std::str::from_utf8(&self.camera[..end]).unwrap_or("?")
+    }
+
+    /// Sets the camera's name, cut at [`CAMERA_NAME_LEN`] bytes (on a character boundary).
+    pub fn set_camera_name(&mut self, name: &str) {
+        let mut end = name.len().min(CAMERA_NAME_LEN);
+        while !name.is_char_boundary(end) {
+            end -= 1;
+        }
+        self.camera = [0; CAMERA_NAME_LEN];
+        self.camera[..end].copy_from_slice(&name.as_bytes()[..end]);
+    }
 }
 
 /// The servo loop's counters (see marsd's report for each).
@@ -107,6 +130,7 @@ impl Default for LiveStats {
             starved: 0,
             servo: ServoLive::default(),
             hal: HalLive::default(),
+            camera: [0; CAMERA_NAME_LEN],
         }
     }
 }

@@ -17,7 +17,8 @@ use iceoryx2::prelude::ZeroCopySend;
 /// `robot_mode`), `fault::ROBOT_REFLEX` / `ROBOT_CONNECTION_LOST`, `HoldReason::RobotFault` / `HalStopping`.
 /// v7: `RobotState::robot_cycles` (the robot's cycles since the previous frame) in place of the padding.
 /// v8: `RobotState::ticks_blocked`, `overlong_ticks_*` (the HAL's ticks that blocked or overran its period).
-pub const SCHEMA_VERSION: u32 = 8;
+/// v9: `LiveStats::camera` (the name of the camera whose frame ages the live view gives).
+pub const SCHEMA_VERSION: u32 = 9;
 
 /// The iceoryx2 user header of state and command frames.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ZeroCopySend)]

@@ -135,6 +135,10 @@ pub fn run(p: Prepared) -> anyhow::Result<Outcome> {
         status: status.clone(),
         period_ns: (profile.period_s() * 1e9) as u64,
         inference_budget_ns: ((cfg.policy.lead_ms - cfg.policy.handoff_margin_ms).max(0.0) * 1e6) as u64,
+        camera: match &task {
+            HilTask::PushT(t) => Some(t.cfg.camera.name.clone()),
+            HilTask::PickCup(_) => None,
+        },
     });
     let collector = Collector::start_with(&cfg.out, Duration::from_millis(50), Some(live))?;
     let servo_rec = collector.recorder("servo", &servo_channels(&task), 8);

@@ -23,6 +23,8 @@ pub struct LiveSetup {
     pub status: Arc<Status>,
     pub period_ns: u64,
     pub inference_budget_ns: u64,
+    /// The camera the policy reads, if any (its frames' ages are the `camera_age` channel).
+    pub camera: Option<String>,
 }
 
 /// The collector hook that publishes the live view. The port is opened on the collector's thread at the first
@@ -35,6 +37,7 @@ pub fn publisher(setup: LiveSetup) -> LiveHook {
 fn on_interval(setup: LiveSetup) -> OnInterval {
     let mut frame =
         LiveStats { period_ns: setup.period_ns, inference_budget_ns: setup.inference_budget_ns, ..Default::default() };
+    frame.set_camera_name(setup.camera.as_deref().unwrap_or(""));
     let mut port = None;
     let mut failed = false;
     Box::new(move |view: &IntervalView<'_>, starved: u64| {

@@ -137,10 +137,16 @@ impl fmt::Display for View<'_> {
                 _ => v.to_string(),
             };
             let over = if c.is_time() { ch.over_period.to_string() } else { "–".to_string() };
+            // The inputs' frame ages say whose frames they are: the robot's, and the camera's by name.
+            let label = match c {
+                Channel::StateAge => format!("{}[robot]", c.tag()),
+                Channel::CameraAge if !fr.camera_name().is_empty() => format!("{}[{}]", c.tag(), fr.camera_name()),
+                _ => c.tag().to_owned(),
+            };
             writeln!(
                 f,
                 "{:<23} {:>5} {:>7} {:>9} {:>9} {:>9} {:>9} {:>8.1}",
-                c.tag(),
+                label,
                 c.unit(),
                 ch.count,
                 value(ch.p50),
@@ -179,5 +185,29 @@ impl fmt::Display for View<'_> {
             )?;
         }
         writeln!(f)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The inputs' frame ages are named: the robot's, and the camera's by the name the daemon sent (a long name cut
+    /// at a character boundary); a state-only daemon shows no camera row.
+    #[test]
+    fn frame_ages_are_named_by_their_input() {
+        let mut frame = LiveStats::default();
+        for c in [Channel::StateAge, Channel::CameraAge] {
+            frame.channels[c.index()].end_ns = 1;
+        }
+        frame.set_camera_name("top");
+        let text = View { robot: "r", frame: &frame, now_ns: 2 }.to_string();
+        assert!(text.contains("state_age[robot]") && text.contains("camera_age[top]"), "{text}");
+        frame.set_camera_name(&"é".repeat(20));
+        assert_eq!(frame.camera_name(), "é".repeat(16));
+        frame.channels[Channel::CameraAge.index()].end_ns = 0;
+        frame.set_camera_name("");
+        let text = View { robot: "r", frame: &frame, now_ns: 2 }.to_string();
+        assert!(!text.contains("camera_age"), "{text}");
     }
 }

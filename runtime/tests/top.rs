@@ -14,9 +14,11 @@ fn top(robot: &str, extra: &[&str], logs: &TempDir) -> Proc {
     Proc::spawn(cmd, "top", logs.path())
 }
 
-/// The number in the column `col` (0 = the channel's name) of the row starting with `channel`, in one view.
+/// The number in the column `col` (0 = the channel's name) of the row starting with `channel` (or
+/// `channel[input]`, a frame age named by its input), in one view.
 fn cell(view: &str, channel: &str, col: usize) -> Option<f64> {
-    let row = view.lines().find(|l| l.split_whitespace().next() == Some(channel))?;
+    let named = |t: &str| t == channel || t.strip_prefix(channel).is_some_and(|r| r.starts_with('['));
+    let row = view.lines().find(|l| l.split_whitespace().next().is_some_and(named))?;
     row.split_whitespace().nth(col)?.parse().ok()
 }
 
@@ -66,6 +68,7 @@ fn top_follows_a_running_demo() {
         let samples = cell(v, "tick_compute", 2).unwrap();
         assert!(samples >= 50.0, "an interval of 0.25 s at 1 kHz has ~250 ticks\n{v}");
         assert!(cell(v, "state_age", 2).unwrap() > 0.0, "{v}");
+        assert!(v.contains("state_age[robot]"), "the robot's frame age is named\n{v}");
         let (p50, p99, max) = (
             cell(v, "tick_compute", 3).unwrap(),
             cell(v, "tick_compute", 4).unwrap(),
