@@ -15,6 +15,7 @@ pub mod dataset;
 pub mod demos;
 pub mod episodes;
 mod error;
+pub mod file_limits;
 pub mod info;
 pub mod stats;
 pub mod table;
