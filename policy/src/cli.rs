@@ -31,6 +31,17 @@ pub fn init_runtime_env(jobs: usize) {
         // SAFETY: called from main before any thread exists.
         unsafe { std::env::set_var("RAYON_NUM_THREADS", per_job.to_string()) };
     }
+    quiet_video_encoder();
+}
+
+/// SVT-AV1, the AV1 encoder a recording uses, prints a 16-line banner to stderr for every file it encodes (one
+/// per recorded episode): warnings and errors only, unless the user set `SVT_LOG`. Called from main before any
+/// thread exists (it sets an environment variable).
+pub fn quiet_video_encoder() {
+    if std::env::var_os("SVT_LOG").is_none() {
+        // SAFETY: called from main before any thread exists (see above).
+        unsafe { std::env::set_var("SVT_LOG", "2") };
+    }
     let filter = tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into());
     let ansi = std::io::IsTerminal::is_terminal(&std::io::stderr());
     let _ = tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).with_ansi(ansi).try_init();

@@ -49,7 +49,10 @@ pub struct MarsdArgs {
     pub replay_episode: Option<usize>,
 }
 
+/// marsd's logging, and its environment (see [`mars_policy::cli::quiet_video_encoder`]); from main, before any
+/// thread exists.
 pub fn init_logging() {
+    mars_policy::cli::quiet_video_encoder();
     let filter = tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into());
     let ansi = std::io::IsTerminal::is_terminal(&std::io::stderr());
     let _ = tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).with_ansi(ansi).try_init();
