@@ -387,7 +387,12 @@ impl PolicyLoop {
                     chunks,
                     mean_k_used: if chunks > 0 { k_sum as f64 / chunks as f64 } else { 0.0 },
                     late_chunks: ep_late,
-                    servo_missed_periods: self.ch.status.missed_periods.load(Ordering::Relaxed) - missed_at_start,
+                    servo_missed_periods: self
+                        .ch
+                        .status
+                        .missed_periods
+                        .load(Ordering::Relaxed)
+                        .saturating_sub(missed_at_start),
                 });
             }
             if self.recording.is_some() {
