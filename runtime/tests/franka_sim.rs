@@ -183,6 +183,21 @@ fn demo_tripped_on_a_machine_stall(logs: &TempDir, attempt: u32) -> bool {
     stalled
 }
 
+/// Whether marsd tripped on a timing check while this machine stalled, beyond what the stalled-HAL test injects:
+/// in the window around its logged trip the VM's steal grew by 15 ms or more, or the HAL published no frame for
+/// 15 ms beyond the 8 ms stop the test may have put there. The evidence printed.
+fn tripped_on_a_machine_stall(s: &serde_json::Value, r: &Recorded, marsd: &Proc, attempt: u32) -> bool {
+    use mars_runtime::stall::{MIN_GAP_MS, MIN_STEAL_MS, is_timing_trip};
+    let Some(trip) = s["trip"].as_str().filter(|t| is_timing_trip(t)) else { return false };
+    let Some(e) = trip_evidence(r, marsd) else { return false };
+    let stalled = e.steal_ms.is_some_and(|s| s >= MIN_STEAL_MS) || e.gap.is_some_and(|g| g.ms() >= MIN_GAP_MS + 8.0);
+    eprintln!("marsd tripped ({trip}); around the trip: {e}");
+    if stalled {
+        eprintln!("RERUN the stalled HAL on franka-sim: attempt {attempt} is inconclusive: the machine stalled");
+    }
+    stalled
+}
+
 /// One run of the Pick Cup test; false if franka-sim's timing explains its reflexes, or a stall of this machine
 /// marsd's trip (not on the last attempt).
 fn pick_cup_attempt(attempt: u32) -> bool {
@@ -320,14 +335,17 @@ fn stalled_hal_attempt(attempt: u32) -> bool {
         return false;
     }
     assert_no_reflex(&hal_out, &hal.stderr_text(), &rig.sim.log_text());
-    assert_eq!((code, hal_code), (0, 0), "{}\n{}", marsd.logs(), hal.logs());
+    let r = rec.finish();
     let s = summary(&rig.logs, "marsd");
+    if code == 3 && attempt < sim_evidence::ATTEMPTS && tripped_on_a_machine_stall(&s, &r, &marsd, attempt) {
+        return false;
+    }
+    assert_eq!((code, hal_code), (0, 0), "{}\n{}", marsd.logs(), hal.logs());
     assert!(u64_at(&s, "/successes") >= 1, "no episode succeeded: {s}");
     assert_eq!(u64_at(&s, "/limit_violations/hal_rejected"), 0);
     // Commands the HAL clamped (not required to be 0 here: when a stop outlasts marsd's 3 ms stale-frame limit,
     // marsd's stream restarts from an old frame, and a few of its first steps are judged out of limits).
     eprintln!("HAL clamped {} commands", u64_at(&s, "/limit_violations/hal_clamped"));
-    let r = rec.finish();
     assert_measured_velocity_within_the_bounds(&r);
     // The frames say where the robot moved on over states the HAL never saw (what the limit checker needs).
     let gaps = r.states.iter().filter(|(f, _)| f.robot_cycles > 1).count();
