@@ -7,44 +7,20 @@
 //! Without limits: 0.0034 MB of data and 0.016 MB of video per file (about two and a half of these episodes'
 //! rows, and of their video files: about 1.4 KB and 6.7 KB each), two files to a chunk.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
-use mars_lerobot::writer::{CameraSpec, DatasetSpec, DatasetWriter, FileLimits, VectorSpec};
-use mars_lerobot::{EpisodeFrames, Keys, LeRobotDataset, ReadOptions};
+// The tests' helpers: the fixture's episodes and our writer at given file limits.
+#[path = "../tests/common/mod.rs"]
+mod common;
 
-const IMAGE: &str = "observation.images.top";
-const FRAME: usize = 64 * 64 * 3;
-
-fn write(root: &Path, episodes: &[EpisodeFrames], limits: FileLimits) -> PathBuf {
-    let xy = vec!["x".to_owned(), "y".to_owned()];
-    let spec = DatasetSpec {
-        fps: 10,
-        robot_type: "fr3".into(),
-        vectors: vec![
-            VectorSpec { key: "observation.state".into(), names: xy.clone() },
-            VectorSpec { key: "action".into(), names: xy },
-        ],
-        cameras: vec![CameraSpec { key: IMAGE.into(), height: 64, width: 64 }],
-    };
-    let mut w = DatasetWriter::create_with_limits(root, spec, limits).expect("a new dataset");
-    for e in episodes {
-        for t in 0..e.len {
-            let img = &e.images[0][t * FRAME..(t + 1) * FRAME];
-            w.add_frame(&[&e.state[t * 2..t * 2 + 2], &e.action[t * 2..t * 2 + 2]], &[img]).expect("a frame");
-        }
-        w.end_episode(&e.tasks[0]).expect("an episode");
-    }
-    w.finish().expect("the dataset")
-}
+use common::{IMAGE, fixture_episodes, write};
+use mars_lerobot::LeRobotDataset;
+use mars_lerobot::writer::FileLimits;
 
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let out = PathBuf::from(args.first().expect("usage: write_split OUT [DATA_MB VIDEO_MB CHUNKS_SIZE]"));
-    let fixture = Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/fixtures/lerobot/push_t");
-    let keys = Keys { state: "observation.state".into(), action: "action".into(), images: vec![IMAGE.into()] };
-    let (episodes, _) = LeRobotDataset::open(&fixture)
-        .and_then(|ds| ds.read_with(&keys, (64, 64), &ReadOptions::no_cache()))
-        .expect("the fixture");
+    let episodes = fixture_episodes();
     let limits = match &args[1..] {
         [data, video, chunks] => FileLimits {
             data_files_size_in_mb: data.parse().expect("DATA_MB"),

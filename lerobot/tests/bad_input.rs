@@ -1,41 +1,16 @@
 //! Every way a dataset can be wrong gives an error that names the file or key and says what was expected, never
 //! a panic or a silently shorter dataset. Each case breaks one thing in a copy of the LeRobot-written fixture.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::Arc;
 
+mod common;
+
 use arrow_array::{ArrayRef, Float64Array, RecordBatch};
+use common::{copy, fixture, keys};
 use mars_lerobot::{Keys, LeRobotDataset, LeRobotError, ReadOptions};
 use parquet::arrow::ArrowWriter;
 use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
-
-fn fixture() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/fixtures/lerobot/push_t")
-}
-
-fn copy_dir(from: &Path, to: &Path) {
-    std::fs::create_dir_all(to).unwrap();
-    for e in std::fs::read_dir(from).unwrap() {
-        let e = e.unwrap();
-        let target = to.join(e.file_name());
-        if e.file_type().unwrap().is_dir() {
-            copy_dir(&e.path(), &target);
-        } else {
-            std::fs::copy(e.path(), target).unwrap();
-        }
-    }
-}
-
-/// A copy of the fixture to break.
-fn copy() -> tempfile::TempDir {
-    let dir = tempfile::tempdir().unwrap();
-    copy_dir(&fixture(), dir.path());
-    dir
-}
-
-fn keys() -> Keys {
-    Keys { state: "observation.state".into(), action: "action".into(), images: vec!["observation.images.top".into()] }
-}
 
 fn read(root: &Path) -> Result<usize, LeRobotError> {
     let ds = LeRobotDataset::open(root)?;

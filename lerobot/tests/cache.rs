@@ -8,7 +8,7 @@ mod common;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, SystemTime};
 
-use common::{FRAME, fixture, fixture_episodes, keys, write};
+use common::{FRAME, copy, fixture, fixture_episodes, keys, write};
 use mars_lerobot::writer::FileLimits;
 use mars_lerobot::{EpisodeFrames, LeRobotDataset, ReadOptions, ReadReport};
 
@@ -33,26 +33,6 @@ fn cache_files(dir: &Path) -> Vec<PathBuf> {
     }
     out.sort();
     out
-}
-
-fn copy_dir(from: &Path, to: &Path) {
-    std::fs::create_dir_all(to).unwrap();
-    for e in std::fs::read_dir(from).unwrap() {
-        let e = e.unwrap();
-        let target = to.join(e.file_name());
-        if e.file_type().unwrap().is_dir() {
-            copy_dir(&e.path(), &target);
-        } else {
-            std::fs::copy(e.path(), target).unwrap();
-        }
-    }
-}
-
-/// A copy of the fixture, to change.
-fn copy() -> tempfile::TempDir {
-    let dir = tempfile::tempdir().unwrap();
-    copy_dir(&fixture(), dir.path());
-    dir
 }
 
 /// The LeRobot-written fixture read twice (and its frames as a read without the cache gives them): the first read

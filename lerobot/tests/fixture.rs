@@ -1,22 +1,17 @@
 //! The reader against files LeRobot itself wrote (tests/fixtures/lerobot/push_t, made with LeRobot 0.6.1; its
 //! README says how), and against what LeRobot reads back from them (push_t_expected.json).
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
-use mars_lerobot::{Keys, LeRobotDataset, ReadOptions};
+mod common;
+
+use common::{fixture, keys};
+use mars_lerobot::{LeRobotDataset, ReadOptions};
 use serde_json::Value;
-
-fn fixture() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/fixtures/lerobot/push_t")
-}
 
 fn expected() -> Value {
     let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/fixtures/lerobot/push_t_expected.json");
     serde_json::from_str(&std::fs::read_to_string(p).unwrap()).unwrap()
-}
-
-fn keys() -> Keys {
-    Keys { state: "observation.state".into(), action: "action".into(), images: vec!["observation.images.top".into()] }
 }
 
 fn f32s(v: &Value) -> Vec<f32> {

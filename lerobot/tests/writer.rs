@@ -4,34 +4,13 @@
 
 use std::path::{Path, PathBuf};
 
+mod common;
+
 use arrow_schema::Schema;
-use mars_lerobot::writer::{CameraSpec, DatasetSpec, DatasetWriter, VectorSpec};
-use mars_lerobot::{Keys, LeRobotDataset, ReadOptions};
+use common::{IMAGE, TASK, fixture, keys, spec};
+use mars_lerobot::writer::DatasetWriter;
+use mars_lerobot::{LeRobotDataset, ReadOptions};
 use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
-
-fn fixture() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/fixtures/lerobot/push_t")
-}
-
-const TASK: &str = "push the T block into its goal pose";
-const IMAGE: &str = "observation.images.top";
-
-fn keys() -> Keys {
-    Keys { state: "observation.state".into(), action: "action".into(), images: vec![IMAGE.into()] }
-}
-
-fn spec() -> DatasetSpec {
-    let xy = vec!["x".to_owned(), "y".to_owned()];
-    DatasetSpec {
-        fps: 10,
-        robot_type: "fr3".into(),
-        vectors: vec![
-            VectorSpec { key: "observation.state".into(), names: xy.clone() },
-            VectorSpec { key: "action".into(), names: xy },
-        ],
-        cameras: vec![CameraSpec { key: IMAGE.into(), height: 64, width: 64 }],
-    }
-}
 
 /// The fixture's episodes written again by us, under `dir/rewritten`.
 fn rewrite(dir: &Path) -> PathBuf {

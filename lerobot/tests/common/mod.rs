@@ -1,5 +1,6 @@
-//! What the split and cache tests share: the LeRobot-written fixture, its episodes, and those episodes written
-//! again by our writer (at file limits of the test's choosing).
+//! What the lerobot tests (and the write_split example) share: the LeRobot-written fixture, a copy of it to
+//! change, its episodes, and those episodes written again by our writer (at file limits of the test's choosing).
+#![allow(dead_code)] // each test binary uses a part
 
 use std::path::{Path, PathBuf};
 
@@ -25,10 +26,10 @@ pub fn fixture_episodes() -> Vec<EpisodeFrames> {
     ds.read_with(&keys(), (64, 64), &ReadOptions::no_cache()).unwrap().0
 }
 
-/// `episodes` written as a dataset at `root`, its files split at `limits`.
-pub fn write(root: &Path, episodes: &[EpisodeFrames], limits: FileLimits) -> PathBuf {
+/// The fixture's features as our writer declares them.
+pub fn spec() -> DatasetSpec {
     let xy = vec!["x".to_owned(), "y".to_owned()];
-    let spec = DatasetSpec {
+    DatasetSpec {
         fps: 10,
         robot_type: "fr3".into(),
         vectors: vec![
@@ -36,8 +37,32 @@ pub fn write(root: &Path, episodes: &[EpisodeFrames], limits: FileLimits) -> Pat
             VectorSpec { key: "action".into(), names: xy },
         ],
         cameras: vec![CameraSpec { key: IMAGE.into(), height: 64, width: 64 }],
-    };
-    let mut w = DatasetWriter::create_with_limits(root, spec, limits).unwrap();
+    }
+}
+
+pub fn copy_dir(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to).unwrap();
+    for e in std::fs::read_dir(from).unwrap() {
+        let e = e.unwrap();
+        let target = to.join(e.file_name());
+        if e.file_type().unwrap().is_dir() {
+            copy_dir(&e.path(), &target);
+        } else {
+            std::fs::copy(e.path(), target).unwrap();
+        }
+    }
+}
+
+/// A copy of the fixture, to change or break.
+pub fn copy() -> tempfile::TempDir {
+    let dir = tempfile::tempdir().unwrap();
+    copy_dir(&fixture(), dir.path());
+    dir
+}
+
+/// `episodes` written as a dataset at `root`, its files split at `limits`.
+pub fn write(root: &Path, episodes: &[EpisodeFrames], limits: FileLimits) -> PathBuf {
+    let mut w = DatasetWriter::create_with_limits(root, spec(), limits).unwrap();
     for e in episodes {
         for t in 0..e.len {
             let img = &e.images[0][t * FRAME..(t + 1) * FRAME];
