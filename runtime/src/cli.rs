@@ -121,7 +121,7 @@ pub struct DemoArgs {
     #[arg(long, value_enum, default_value_t = DemoRobot::Mock)]
     pub backend: DemoRobot,
     /// franka-sim's virtual environment (made by `.ci/franka-sim-venv`, which the demo runs first).
-    #[arg(long, default_value = ".venv-sim")]
+    #[arg(long, default_value = FRANKA_SIM_VENV)]
     pub franka_sim_venv: PathBuf,
     /// The task: Pick Cup (configs/marsd.toml) or Push-T with its camera and scene (configs/marsd_push_t.toml);
     /// an explicit --config decides instead.
@@ -134,6 +134,9 @@ pub enum DemoTask {
     PickCup,
     PushT,
 }
+
+/// franka-sim's virtual environment, where `.ci/franka-sim-venv` makes it.
+pub const FRANKA_SIM_VENV: &str = ".venv-sim";
 
 /// marsd's configuration when `--config` is not given.
 pub const DEFAULT_CONFIG: &str = "configs/marsd.toml";

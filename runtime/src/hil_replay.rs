@@ -212,7 +212,7 @@ pub fn run(args: &HilReplayArgs) -> anyhow::Result<(Option<HilReplayReport>, u8)
         hal_stall_at_tick: None,
         hal_stall_ms: None,
         backend: args.backend,
-        franka_sim_venv: ".venv-sim".into(),
+        franka_sim_venv: crate::cli::FRANKA_SIM_VENV.into(),
         task: DemoTask::PickCup,
     };
     let code = crate::cli::demo(demo)?;

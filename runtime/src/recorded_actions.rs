@@ -81,22 +81,13 @@ impl RecordedActions {
         self.action_dim
     }
 
-    /// Periods recorded.
-    pub fn len(&self) -> usize {
-        self.calls.len()
-    }
-
-    pub fn is_empty(&self) -> bool {
-        self.calls.is_empty()
-    }
-
     /// The chunk of `out.len() / action_dim` actions the run published in period `k`, into `out`; false if it
     /// published none then (the chunk in force goes on). Past the recording's end (the run's episode had ended
     /// there; the replay's may not have) the last action is held. Allocation-free.
     pub fn chunk_at(&self, k: u64, out: &mut [f32]) -> bool {
         let k = k as usize;
         let d = self.action_dim;
-        let last = self.len() - 1;
+        let last = self.calls.len() - 1;
         if k <= last && !self.calls[k] {
             return false;
         }

@@ -168,25 +168,10 @@ fn pick_cup_succeeds_through_the_fci_hal_on_franka_sim_with_no_reflex() {
     with_reruns("Pick Cup on franka-sim", pick_cup_attempt);
 }
 
-/// Whether the demo's marsd tripped on a timing check while this machine stalled: the demo's own account of the
-/// trip (`trip.json`: the HAL's frame gap and the VM's steal in the window around it), printed as the evidence.
-fn demo_tripped_on_a_machine_stall(logs: &TempDir, attempt: u32) -> bool {
-    let Ok(text) = std::fs::read_to_string(logs.join("out/trip.json")) else { return false };
-    let t: serde_json::Value = serde_json::from_str(&text).unwrap();
-    let stalled = t["timing_check"] == true && t["machine_stalled"] == true;
-    if stalled {
-        eprintln!(
-            "RERUN Pick Cup on franka-sim: attempt {attempt} is inconclusive: marsd tripped ({}) at {} and {}",
-            t["trip"], t["logged_at"], t["said"]
-        );
-    }
-    stalled
-}
-
 /// Whether marsd tripped on a timing check while this machine stalled, beyond what the stalled-HAL test injects:
 /// in the window around its logged trip the VM's steal grew by 15 ms or more, or the HAL published no frame for
 /// 15 ms beyond the 8 ms stop the test may have put there. The evidence printed.
-fn tripped_on_a_machine_stall(s: &serde_json::Value, r: &Recorded, marsd: &Proc, attempt: u32) -> bool {
+fn tripped_beyond_the_injected_stops(s: &serde_json::Value, r: &Recorded, marsd: &Proc, attempt: u32) -> bool {
     use mars_runtime::stall::{MIN_GAP_MS, MIN_STEAL_MS, is_timing_trip};
     let Some(trip) = s["trip"].as_str().filter(|t| is_timing_trip(t)) else { return false };
     let Some(e) = trip_evidence(r, marsd) else { return false };
@@ -215,7 +200,10 @@ fn pick_cup_attempt(attempt: u32) -> bool {
     if rerun_for_irregular_states(attempt, "Pick Cup on franka-sim", &out, &demo.stderr_text(), Injected::Nothing) {
         return false;
     }
-    if code == 3 && attempt < sim_evidence::ATTEMPTS && demo_tripped_on_a_machine_stall(&logs, attempt) {
+    if code == 3
+        && attempt < sim_evidence::ATTEMPTS
+        && demo_tripped_on_a_machine_stall(&logs.join("out"), &format!("Pick Cup on franka-sim, attempt {attempt}"))
+    {
         return false;
     }
     assert_eq!(code, 0, "{}", demo.logs());
@@ -337,7 +325,7 @@ fn stalled_hal_attempt(attempt: u32) -> bool {
     assert_no_reflex(&hal_out, &hal.stderr_text(), &rig.sim.log_text());
     let r = rec.finish();
     let s = summary(&rig.logs, "marsd");
-    if code == 3 && attempt < sim_evidence::ATTEMPTS && tripped_on_a_machine_stall(&s, &r, &marsd, attempt) {
+    if code == 3 && attempt < sim_evidence::ATTEMPTS && tripped_beyond_the_injected_stops(&s, &r, &marsd, attempt) {
         return false;
     }
     assert_eq!((code, hal_code), (0, 0), "{}\n{}", marsd.logs(), hal.logs());

@@ -202,7 +202,7 @@ fn recorded_demo(attempt: u32) -> bool {
         "{}",
         replay.stdout_text().lines().skip_while(|l| !l.starts_with("replay of")).collect::<Vec<_>>().join("\n")
     );
-    if attempt == 1 && code == 3 && replay_tripped_on_a_machine_stall(&out.join("trip.json")) {
+    if attempt == 1 && code == 3 && demo_tripped_on_a_machine_stall(&out, "the recorded demo's replay") {
         return false;
     }
     assert!(code == 0 || code == 2, "the replay did not run to its end\n{}", replay.logs());
@@ -248,18 +248,6 @@ fn recorded_demo(attempt: u32) -> bool {
         assert!(other.worst > 5.0 * worst.max(tolerance / 10.0), "{other:?}");
     }
     true
-}
-
-/// Whether the replay's marsd tripped on a timing check during a stall of this machine (the demo's `trip.json`),
-/// printed as the evidence.
-fn replay_tripped_on_a_machine_stall(trip_json: &Path) -> bool {
-    let Ok(text) = std::fs::read_to_string(trip_json) else { return false };
-    let t: serde_json::Value = serde_json::from_str(&text).unwrap();
-    let stalled = t["timing_check"] == true && t["machine_stalled"] == true;
-    if stalled {
-        eprintln!("RERUN the recorded demo: the replay's marsd tripped ({}) and {}", t["trip"], t["said"]);
-    }
-    stalled
 }
 
 /// The same through marsd with a writer that sleeps 300 ms per frame: the run goes on as without a recording

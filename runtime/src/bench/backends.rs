@@ -39,7 +39,7 @@ pub struct BackendBenchArgs {
     #[arg(long)]
     pub no_noise: bool,
     /// franka-sim's virtual environment (made by `.ci/franka-sim-venv`).
-    #[arg(long, default_value = ".venv-sim")]
+    #[arg(long, default_value = crate::cli::FRANKA_SIM_VENV)]
     pub franka_sim_venv: PathBuf,
 }
 

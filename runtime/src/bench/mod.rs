@@ -206,7 +206,7 @@ fn run_policy(args: &BenchArgs, name: &str, robot: &str) -> PolicyRun {
         hal_stall_at_tick: None,
         hal_stall_ms: None,
         backend: crate::cli::DemoRobot::Mock,
-        franka_sim_venv: ".venv-sim".into(),
+        franka_sim_venv: crate::cli::FRANKA_SIM_VENV.into(),
         task: crate::cli::DemoTask::PickCup,
     };
     let probe = LoadProbe::start();

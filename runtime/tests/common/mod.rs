@@ -755,3 +755,16 @@ pub fn assert_limits(r: &Recorded, lim: &Limits, what: &str) -> AppliedStats {
     );
     st
 }
+
+/// Whether a `mars-hil demo` (or `mars-hil replay`) whose output folder is `out` was stopped by marsd tripping on a
+/// timing check while this machine stalled: the demo's own account, `out/trip.json` (see `mars-hil demo`). When it
+/// was, prints `RERUN <what>: …` with the evidence.
+pub fn demo_tripped_on_a_machine_stall(out: &Path, what: &str) -> bool {
+    let Ok(text) = std::fs::read_to_string(out.join("trip.json")) else { return false };
+    let t: serde_json::Value = serde_json::from_str(&text).unwrap();
+    let stalled = t["timing_check"] == true && t["machine_stalled"] == true;
+    if stalled {
+        eprintln!("RERUN {what}: marsd tripped ({}) at {} and {}", t["trip"], t["logged_at"], t["said"]);
+    }
+    stalled
+}
