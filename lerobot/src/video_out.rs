@@ -4,7 +4,9 @@
 //! (crf 30, a keyframe every 2 frames so a reader can seek to any episode cheaply, yuv420p); H.264 when this FFmpeg
 //! has no AV1 encoder.
 
+use std::ops::{Deref, DerefMut};
 use std::path::{Path, PathBuf};
+use std::sync::Mutex;
 
 use ffmpeg::Rescale;
 use ffmpeg::format::Pixel;
@@ -25,10 +27,51 @@ const ENCODERS: [EncoderChoice; 3] = [
 /// LeRobot's `g`: a keyframe every 2 frames.
 const GOP: u32 = 2;
 
+/// Held while an encoder is opened or closed in this process.
+static ENCODER_LIFECYCLE: Mutex<()> = Mutex::new(());
+
+/// An open encoder whose opening and closing hold [`ENCODER_LIFECYCLE`]: SVT-AV1 1.4.1 crashed (SIGSEGV inside
+/// `svt_av1_enc_init_handle`, from a core dump) when one thread opened an encoder while another closed its own —
+/// the parallel lerobot tests under load, 2 runs in 25. marsd records from one thread, but nothing here may
+/// assume that. Encoding itself runs unlocked.
+struct Encoder(Option<ffmpeg::encoder::Video>);
+
+impl Encoder {
+    fn open(
+        enc: ffmpeg::encoder::video::Video,
+        codec: ffmpeg::Codec,
+        options: ffmpeg::Dictionary,
+    ) -> Result<Self, ffmpeg::Error> {
+        let _lifecycle = ENCODER_LIFECYCLE.lock().unwrap_or_else(|e| e.into_inner());
+        // A failed open frees its context here too, under the lock.
+        enc.open_as_with(codec, options).map(|e| Self(Some(e)))
+    }
+}
+
+impl Deref for Encoder {
+    type Target = ffmpeg::encoder::Video;
+    fn deref(&self) -> &Self::Target {
+        self.0.as_ref().expect("open until dropped")
+    }
+}
+
+impl DerefMut for Encoder {
+    fn deref_mut(&mut self) -> &mut Self::Target {
+        self.0.as_mut().expect("open until dropped")
+    }
+}
+
+impl Drop for Encoder {
+    fn drop(&mut self) {
+        let _lifecycle = ENCODER_LIFECYCLE.lock().unwrap_or_else(|e| e.into_inner());
+        drop(self.0.take());
+    }
+}
+
 pub struct VideoWriter {
     path: PathBuf,
     output: ffmpeg::format::context::Output,
-    encoder: ffmpeg::encoder::Video,
+    encoder: Encoder,
     scaler: Scaler,
     rgb: VideoFrame,
     yuv: VideoFrame,
@@ -69,7 +112,7 @@ impl VideoWriter {
             for (k, v) in options {
                 dict.set(k, v);
             }
-            let encoder = match enc.open_as_with(codec, dict) {
+            let encoder = match Encoder::open(enc, codec, dict) {
                 Ok(e) => e,
                 Err(e) => {
                     // e.g. a size the encoder does not take: the next one may.
@@ -77,7 +120,7 @@ impl VideoWriter {
                     continue;
                 }
             };
-            output.stream_mut(0).expect("the stream just added").set_parameters(&encoder);
+            output.stream_mut(0).expect("the stream just added").set_parameters(&*encoder);
             output.write_header().map_err(|e| fail("cannot write the header", e))?;
             let stream_time_base = output.stream(0).expect("the stream just added").time_base();
             let scaler = Scaler::get(Pixel::RGB24, width, height, Pixel::YUV420P, width, height, Flags::BILINEAR)
