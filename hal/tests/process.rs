@@ -172,10 +172,10 @@ fn every_bad_command_is_refused_and_never_applied() {
     beyond.position[0] = rig.profile.q_max[0] + 0.1;
     send(beyond);
     let mut jump = JointCommand::position(5, 3, seq, &here);
-    jump.position[1] += 0.5; // 100 rad/s implied at 200 Hz
+    jump.position[1] += 0.5; // 100 rad/s implied at 200 Hz, far beyond the 12.6 rad/s limit
     send(jump);
     let mut fast = JointCommand::position(5, 4, seq, &here);
-    fast.velocity[3] = 10.0;
+    fast.velocity[3] = 2.0 * rig.profile.dq_max[3];
     send(fast);
     send(JointCommand::position(5, 5, seq, &here[..5])); // wrong joint count
     let s = rig.wait_for("five refusals", Duration::from_secs(5), |s| s.rejected_commands >= 5);

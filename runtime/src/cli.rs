@@ -16,7 +16,9 @@ pub struct MarsdArgs {
     /// Daemon configuration (TOML).
     #[arg(long, default_value = DEFAULT_CONFIG)]
     pub config: PathBuf,
-    /// Override `robot` (the iceoryx2 namespace; must match the HAL's --robot).
+    /// Override `robot` (the iceoryx2 namespace; must match the HAL's --robot). In `mars-hil demo`, a robot's
+    /// name (`fr3`, `r1-lite`) picks that robot's demo instead (configs/marsd.toml, configs/marsd_r1_lite.toml),
+    /// in a namespace of its own; any other value is the namespace.
     #[arg(long)]
     pub robot: Option<String>,
     /// Override `episodes` (0: run until SIGTERM/SIGINT).
@@ -123,15 +125,16 @@ pub struct DemoArgs {
     /// franka-sim's virtual environment (made by `.ci/franka-sim-venv`, which the demo runs first).
     #[arg(long, default_value = FRANKA_SIM_VENV)]
     pub franka_sim_venv: PathBuf,
-    /// The task: Pick Cup (configs/marsd.toml) or Push-T with its camera and scene (configs/marsd_push_t.toml);
-    /// an explicit --config decides instead.
-    #[arg(long, value_enum, default_value_t = DemoTask::PickCup)]
+    /// The task: the robot's pick (the FR3's Pick Cup, configs/marsd.toml; the R1 Lite's Pick Vegetable) or
+    /// Push-T with its camera and scene (configs/marsd_push_t.toml); an explicit --config decides instead.
+    #[arg(long, value_enum, default_value_t = DemoTask::Pick)]
     pub task: DemoTask,
 }
 
 #[derive(clap::ValueEnum, Debug, Clone, Copy, PartialEq, Eq)]
 pub enum DemoTask {
-    PickCup,
+    #[value(alias = "pick-cup", alias = "pick-vegetable")]
+    Pick,
     PushT,
 }
 
@@ -142,6 +145,8 @@ pub const FRANKA_SIM_VENV: &str = ".venv-sim";
 pub const DEFAULT_CONFIG: &str = "configs/marsd.toml";
 /// The same for `--task push-t`.
 pub const PUSH_T_CONFIG: &str = "configs/marsd_push_t.toml";
+/// The demo's configuration for each robot `mars-hil demo --robot` can name.
+pub const ROBOT_CONFIGS: [(&str, &str); 2] = [("fr3", DEFAULT_CONFIG), ("r1-lite", "configs/marsd_r1_lite.toml")];
 
 #[derive(clap::ValueEnum, Debug, Clone, Copy, PartialEq, Eq)]
 pub enum DemoRobot {
@@ -164,13 +169,36 @@ impl Drop for Reaped {
     }
 }
 
+/// Which configuration the demo runs when no `--config` is given: the robot `--robot` names (its namespace then
+/// made per run, as without `--robot`), and for it the task `--task` names.
+fn choose_demo_config(args: &mut DemoArgs) -> anyhow::Result<()> {
+    if args.marsd.config != Path::new(DEFAULT_CONFIG) {
+        return Ok(());
+    }
+    let named = args.marsd.robot.as_deref().and_then(|r| ROBOT_CONFIGS.iter().find(|(name, _)| *name == r));
+    if let Some((name, config)) = named {
+        anyhow::ensure!(
+            args.task == DemoTask::Pick || *name == "fr3",
+            "--task push-t runs on the FR3 (its table, camera and kinematics are the FR3's), not on --robot {name}"
+        );
+        anyhow::ensure!(
+            args.backend == DemoRobot::Mock || *name == "fr3",
+            "--backend franka-sim simulates an FR3, not --robot {name}"
+        );
+        args.marsd.config = (*config).into();
+        args.marsd.robot = None;
+    }
+    if args.task == DemoTask::PushT {
+        args.marsd.config = PUSH_T_CONFIG.into();
+    }
+    Ok(())
+}
+
 /// The HIL demo: the mock FR3 HAL and `marsd` as two processes (both from this executable), N episodes, the
 /// report. Returns marsd's exit status.
 pub fn demo(mut args: DemoArgs) -> anyhow::Result<u8> {
     let exe = std::env::current_exe().context("locating this executable")?;
-    if args.task == DemoTask::PushT && args.marsd.config == Path::new(DEFAULT_CONFIG) {
-        args.marsd.config = PUSH_T_CONFIG.into();
-    }
+    choose_demo_config(&mut args)?;
     let cfg = crate::config::DaemonConfig::load(&args.marsd.config)?;
     // A camera task has a scene (the world, the camera, the referee) as a process of its own.
     let profile = mars_hal::profile::Profile::load(&cfg.profile)?;
@@ -220,7 +248,7 @@ pub fn demo(mut args: DemoArgs) -> anyhow::Result<u8> {
             scene.args(["scene", "--task"]).arg(&cfg.task).arg("--profile").arg(&cfg.profile).args(["--robot", &robot]);
             Some(Reaped(scene.spawn().context("starting the scene process")?))
         }
-        crate::task::HilTask::PickCup(_) => None,
+        crate::task::HilTask::Pick(_) => None,
     };
     let watch = crate::stall_watch::StallWatch::start(&robot, profile.period_s() * 1e3)?;
     let mut marsd = Command::new(&exe);

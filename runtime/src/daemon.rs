@@ -137,7 +137,7 @@ pub fn run(p: Prepared) -> anyhow::Result<Outcome> {
         inference_budget_ns: ((cfg.policy.lead_ms - cfg.policy.handoff_margin_ms).max(0.0) * 1e6) as u64,
         camera: match &task {
             HilTask::PushT(t) => Some(t.cfg.camera.name.clone()),
-            HilTask::PickCup(_) => None,
+            HilTask::Pick(_) => None,
         },
     });
     let collector = Collector::start_with(&cfg.out, Duration::from_millis(50), Some(live))?;
@@ -154,7 +154,7 @@ pub fn run(p: Prepared) -> anyhow::Result<Outcome> {
     let (obs_in, obs_out) = triple_buffer::triple_buffer(&Observed::default());
     let session = session_id();
     let tick = match &task {
-        HilTask::PickCup(_) => ServoTick::new(&cfg, &profile, session)?,
+        HilTask::Pick(_) => ServoTick::new(&cfg, &profile, session)?,
         // Push-T acts on the table: the servo turns its (x, y) into joints.
         HilTask::PushT(t) => ServoTick::new(&cfg, &profile, session)?.with_effector(t.effector()),
     };
@@ -241,7 +241,7 @@ pub fn run(p: Prepared) -> anyhow::Result<Outcome> {
                         return None;
                     }
                 },
-                HilTask::PickCup(_) => None,
+                HilTask::Pick(_) => None,
             };
             let _ = scene_tx.send(Ok(()));
             let rt = crate::rt::setup_realtime("policy", policy_core, Some(policy_prio), false);
@@ -306,7 +306,7 @@ pub fn run(p: Prepared) -> anyhow::Result<Outcome> {
 /// The recording's dataset: the policy's state and action (named per joint), Push-T's camera, the task's name.
 fn record_setup(cfg: &DaemonConfig, profile: &Profile, task: &HilTask, path: &Path) -> crate::record::RecordSetup {
     let (state_names, action_names, camera) = match task {
-        HilTask::PickCup(t) => {
+        HilTask::Pick(t) => {
             let mut names: Vec<String> = (0..t.joints()).map(|j| format!("joint_{j}")).collect();
             names.push("gripper".into());
             (names.clone(), names, None)

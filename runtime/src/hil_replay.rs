@@ -213,7 +213,7 @@ pub fn run(args: &HilReplayArgs) -> anyhow::Result<(Option<HilReplayReport>, u8)
         hal_stall_ms: None,
         backend: args.backend,
         franka_sim_venv: crate::cli::FRANKA_SIM_VENV.into(),
-        task: DemoTask::PickCup,
+        task: DemoTask::Pick,
     };
     let code = crate::cli::demo(demo)?;
     if code != 0 {

@@ -10,6 +10,8 @@ use mars_policy::plots::{ensure_font, palette, w_color};
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
+use mars_ipc::MAX_JOINTS;
+
 use crate::latency::{Channel, K_MAX, Totals};
 
 pub const LATENCY_SIZE: (u32, u32) = (1000, 600);
@@ -26,8 +28,8 @@ pub struct EpisodeTrace {
     /// The grasp mode the episode ended in, if known.
     pub mode: Option<usize>,
     pub success: bool,
-    /// Joint positions (rad), one per policy call.
-    pub q: Vec<[f64; 7]>,
+    /// Joint positions (rad), one per policy call; the arm's joints first, the rest of the frame's capacity 0.
+    pub q: Vec<[f64; MAX_JOINTS]>,
     /// ‖w‖∞ of the chunk each call produced (same length as `q`).
     pub w_inf: Vec<f32>,
     /// A camera task's first frame the policy used and the newest frame kept (the scene as the episode ended;
@@ -217,7 +219,7 @@ pub fn plot_episodes(
     joint_y: usize,
     path: &Path,
 ) -> anyhow::Result<()> {
-    ensure!(joint_x < 7 && joint_y < 7, "joints are 0..7, not ({joint_x}, {joint_y})");
+    ensure!(joint_x < MAX_JOINTS && joint_y < MAX_JOINTS, "joints are 0..{MAX_JOINTS}, not ({joint_x}, {joint_y})");
     to_png(path, EPISODES_SIZE, |root| draw_episodes(root, traces, mode_names, joint_x, joint_y))
 }
 
@@ -229,7 +231,7 @@ fn draw_episodes(
     jy: usize,
 ) -> anyhow::Result<()> {
     let (map, bar) = root.split_horizontally(EPISODES_SIZE.0 - 110);
-    let xy = |q: &[f64; 7]| (q[jx], q[jy]);
+    let xy = |q: &[f64; MAX_JOINTS]| (q[jx], q[jy]);
     let pts = || traces.iter().flat_map(|t| t.q.iter().map(xy)).filter(|p| p.0.is_finite() && p.1.is_finite());
     let span = |v: Vec<f64>| -> Range<f64> {
         let (lo, hi) = v.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| (a.min(x), b.max(x)));
@@ -345,7 +347,7 @@ pub fn plot_camera_strip(
     traces: &[EpisodeTrace],
     mode_names: &[String],
     size: u32,
-    xy: impl Fn(&[f64; 7]) -> [f64; 2],
+    xy: impl Fn(&[f64; MAX_JOINTS]) -> [f64; 2],
     pixel: impl Fn([f64; 2]) -> [f32; 2],
     path: &Path,
     rows: usize,

@@ -24,7 +24,7 @@ use crate::plots::EpisodeTrace;
 use crate::rt::Ticker;
 use crate::scene_link::SceneLink;
 use crate::shared::{Observed, Phase, Request, Status};
-use crate::task::pick_cup::{DoneReason, EpisodeMonitor, Progress};
+use crate::task::pick::{DoneReason, EpisodeMonitor, Progress};
 use crate::task::{HilTask, PushTHil};
 use crate::traces::{TRACE_CAPACITY, TraceRing};
 use crate::watchdog::{Streak, Trip};
@@ -219,7 +219,7 @@ impl PolicyLoop {
     /// Push-T first has the scene reset the block (`None`: it did not answer, tripped; or the loop must stop).
     fn set_up(&mut self, episode: u64, seed: u64) -> Option<(Vec<f64>, f64, Vec<f32>)> {
         match &self.task {
-            HilTask::PickCup(t) => {
+            HilTask::Pick(t) => {
                 let pose = t.start_pose(seed);
                 let rest = t.rest_action(&pose);
                 Some((pose, t.cfg.gripper_open, rest))
@@ -240,7 +240,7 @@ impl PolicyLoop {
                 let timeout = t.cfg.scene_timeout_s;
                 self.ask_scene(SceneAction::Run, episode, 0, ScenePhase::Running, timeout).is_some()
             }
-            HilTask::PickCup(_) => true,
+            HilTask::Pick(_) => true,
         }
     }
 
@@ -296,7 +296,7 @@ impl PolicyLoop {
         let mut obs = vec![0.0f32; self.engine.obs_dim()];
         let mut history: Vec<f32> = rest.iter().copied().cycle().take(c * d).collect();
         let mut judge = match &self.task {
-            HilTask::PickCup(t) => Judge::Arm(t.monitor()),
+            HilTask::Pick(t) => Judge::Arm(t.monitor()),
             HilTask::PushT(t) => {
                 Judge::Scene { timeout_s: t.cfg.timeout_s, silent_limit_ns: (t.cfg.scene_timeout_s * 1e9) as u64 }
             }
@@ -353,9 +353,9 @@ impl PolicyLoop {
                 }
             };
             if trace.q.len() < TRACE_CAPACITY {
-                let mut q7 = [0.0; 7];
-                q7[..n.min(7)].copy_from_slice(&o.position[..n.min(7)]);
-                trace.q.push(q7);
+                let mut q = [0.0; MAX_JOINTS];
+                q[..n].copy_from_slice(&o.position[..n]);
+                trace.q.push(q);
                 trace.w_inf.push(w_inf);
             }
             if let Progress::Done { success, mode, reason } = progress {
@@ -575,7 +575,7 @@ impl PolicyLoop {
     /// The observation's state part (no image) for state `o`: Pick Cup's joints and gripper, Push-T's flange (x, y).
     fn state_of(&self, o: &Observed, out: &mut [f32]) {
         match &self.task {
-            HilTask::PickCup(t) => t.observation(&o.position[..t.joints()], o.gripper, out),
+            HilTask::Pick(t) => t.observation(&o.position[..t.joints()], o.gripper, out),
             HilTask::PushT(t) => {
                 let [x, y] = t.flange_xy(&o.position[..7]);
                 (out[0], out[1]) = (x as f32, y as f32);
@@ -585,7 +585,7 @@ impl PolicyLoop {
 
     fn state_dim(&self) -> usize {
         match &self.task {
-            HilTask::PickCup(t) => t.obs_dim(),
+            HilTask::Pick(t) => t.obs_dim(),
             HilTask::PushT(_) => 2,
         }
     }
@@ -593,7 +593,7 @@ impl PolicyLoop {
     /// Bytes of the camera's frame (0 without a camera).
     fn image_len(&self) -> usize {
         match &self.task {
-            HilTask::PickCup(_) => 0,
+            HilTask::Pick(_) => 0,
             HilTask::PushT(t) => (t.cfg.camera.size * t.cfg.camera.size * 3) as usize,
         }
     }
@@ -606,7 +606,7 @@ impl PolicyLoop {
     /// The robot's joint count.
     fn engine_joints(&self) -> usize {
         match &self.task {
-            HilTask::PickCup(t) => t.joints(),
+            HilTask::Pick(t) => t.joints(),
             HilTask::PushT(t) => t.start_pose.len(),
         }
     }
@@ -622,7 +622,7 @@ impl PolicyLoop {
         report: &mut PolicyReport,
     ) -> Result<u64, ()> {
         match &self.task {
-            HilTask::PickCup(t) => {
+            HilTask::Pick(t) => {
                 t.observation(&o.position[..t.joints()], o.gripper, obs);
                 Ok(0)
             }

@@ -230,6 +230,7 @@ impl Summary {
     pub fn write(&self, dir: &Path, p: &PolicyReport, task: &crate::task::HilTask) -> anyhow::Result<Vec<PathBuf>> {
         let mut written = Vec::new();
         let mode_names: Vec<String> = self.modes.iter().map(|(name, _)| name.clone()).collect();
+        let [jx, jy] = task.plot_joints();
         let json = dir.join("summary.json");
         std::fs::write(&json, serde_json::to_string_pretty(self)?)
             .with_context(|| format!("writing {}", json.display()))?;
@@ -242,8 +243,8 @@ impl Summary {
         let plots: [(&str, Draw); 3] = [
             ("latency.png", Box::new(|path| crate::plots::plot_latency(&self.latency, path))),
             ("k.png", Box::new(|path| crate::plots::plot_k(&self.latency, path))),
-            // Joints 0 and 6 are where the two grasps differ most.
-            ("episodes.png", Box::new(|path| crate::plots::plot_episodes(&p.traces, &mode_names, 0, 6, path))),
+            // The two joints in which the task's modes differ most.
+            ("episodes.png", Box::new(|path| crate::plots::plot_episodes(&p.traces, &mode_names, jx, jy, path))),
         ];
         let mut plots = Vec::from(plots);
         if let crate::task::HilTask::PushT(t) = task {
@@ -252,7 +253,7 @@ impl Summary {
             let (effector, camera) = (t.effector(), mars_tasks::push_t::render::Camera::push_t(size));
             let mode_names = mode_names.clone();
             let draw: Draw = Box::new(move |path| {
-                let xy = |q: &[f64; 7]| effector.xy(q);
+                let xy = |q: &[f64; mars_ipc::MAX_JOINTS]| effector.xy(&q[..7]);
                 let pixel = |p: [f64; 2]| camera.pixel(p[0] as f32, p[1] as f32);
                 crate::plots::plot_camera_strip(&p.traces, &mode_names, size, xy, pixel, path, 6)
             });

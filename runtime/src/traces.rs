@@ -77,7 +77,7 @@ mod tests {
 
     fn trace(ring: &mut TraceRing, tag: f64) -> EpisodeTrace {
         let mut t = ring.start();
-        t.q.push([tag; 7]);
+        t.q.push([tag; mars_ipc::MAX_JOINTS]);
         t.w_inf.push(tag as f32);
         t
     }

@@ -3,6 +3,7 @@
 use std::path::{Path, PathBuf};
 
 use hdrhistogram::Histogram;
+use mars_ipc::MAX_JOINTS;
 use mars_runtime::latency::{Channel, Totals};
 use mars_runtime::plots::{EPISODES_SIZE, EpisodeTrace, K_SIZE, LATENCY_SIZE, plot_episodes, plot_k, plot_latency};
 
@@ -52,7 +53,7 @@ fn two_branches() -> Vec<EpisodeTrace> {
             let q = (0..n)
                 .map(|t| {
                     let s = t as f64 / n as f64;
-                    let mut q = [0.0; 7];
+                    let mut q = [0.0; MAX_JOINTS];
                     q[0] = side * 0.8 * s + 0.02 * e as f64;
                     q[1] = -0.5 + s;
                     q
@@ -86,9 +87,9 @@ fn empty_inputs_still_render_and_bad_joints_error() {
     plot_latency(&none, &dir.join("latency.png")).unwrap();
     plot_k(&none, &dir.join("k.png")).unwrap();
     plot_episodes(&[], &[], 0, 1, &dir.join("episodes.png")).unwrap();
-    let short = EpisodeTrace { mode: None, q: vec![[0.1; 7]], w_inf: vec![], ..Default::default() };
+    let short = EpisodeTrace { mode: None, q: vec![[0.1; MAX_JOINTS]], w_inf: vec![], ..Default::default() };
     plot_episodes(&[short], &[], 2, 3, &dir.join("one_point.png")).unwrap();
-    assert!(plot_episodes(&[], &[], 0, 7, &dir.join("bad.png")).is_err());
+    assert!(plot_episodes(&[], &[], 0, MAX_JOINTS, &dir.join("bad.png")).is_err());
     if !keep {
         std::fs::remove_dir_all(&dir).ok();
     }

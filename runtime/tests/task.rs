@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 use mars_hal::profile::Profile;
 use mars_runtime::task::eval::evaluate;
 use mars_runtime::task::expert::generate_demos;
-use mars_runtime::task::{DoneReason, PickCup, Progress, TaskError, arm};
+use mars_runtime::task::{DoneReason, Pick, Progress, TaskError, arm};
 
 /// Counts this thread's heap allocations, so a test can assert that a call makes none.
 struct CountingAlloc;
@@ -54,12 +54,23 @@ fn task_text() -> String {
     std::fs::read_to_string(repo("configs/pick_cup.toml")).expect("task file")
 }
 
-fn task() -> PickCup {
-    PickCup::load(&repo("configs/pick_cup.toml"), &arm(&fr3())).expect("shipped task is valid")
+fn task() -> Pick {
+    Pick::load(&repo("configs/pick_cup.toml"), &arm(&fr3())).expect("shipped task is valid")
+}
+
+/// The shipped pick tasks, each with its robot: (task, profile, committed checkpoints).
+const SHIPPED: [(&str, &str, &str); 2] = [
+    ("configs/pick_cup.toml", "configs/fr3.toml", "assets/checkpoints/fr3_pick_cup"),
+    ("configs/pick_vegetable.toml", "configs/r1_lite.toml", "assets/checkpoints/r1_lite_pick_vegetable"),
+];
+
+fn shipped(task: &str, profile: &str) -> (Pick, Profile) {
+    let p = Profile::load(&repo(profile)).expect("shipped profile");
+    (Pick::load(&repo(task), &arm(&p)).expect("shipped task is valid"), p)
 }
 
 fn refusal(text: &str) -> String {
-    match PickCup::parse(text, "test.toml", &arm(&fr3())) {
+    match Pick::parse(text, "test.toml", &arm(&fr3())) {
         Err(e @ (TaskError::Invalid { .. } | TaskError::Parse { .. })) => e.to_string(),
         other => panic!("expected a refusal, got {other:?}"),
     }
@@ -95,7 +106,7 @@ fn config_errors_name_the_field_and_the_problem() {
     let e = refusal(&format!("speed = 3\n{}", task_text()));
     assert!(e.contains("test.toml") && e.contains("speed"), "{e}");
 
-    let e = PickCup::load(Path::new("no/such/task.toml"), &arm(&fr3())).expect_err("missing file").to_string();
+    let e = Pick::load(Path::new("no/such/task.toml"), &arm(&fr3())).expect_err("missing file").to_string();
     assert!(e.contains("cannot read task no/such/task.toml"), "{e}");
 }
 
@@ -120,46 +131,58 @@ fn start_pose_observation_and_rest_action() {
 
 #[test]
 fn expert_demos_are_valid_balanced_and_deterministic() {
-    let (t, p) = (task(), fr3());
-    let demos = generate_demos(&t, &p, 20, 3).expect("demos");
+    for (task, profile, _) in SHIPPED {
+        let (t, p) = shipped(task, profile);
+        expert_demos_check(&t, &p);
+    }
+}
+
+fn expert_demos_check(t: &Pick, p: &Profile) {
+    let demos = generate_demos(t, p, 20, 3).expect("demos");
+    // Joints, then the gripper at index n.
+    let n = t.joints();
+    let g = n;
     let mut counts = [0usize; 2];
     let slot_s = 1.0 / t.cfg.policy_rate_hz;
     for d in &demos {
         let mode = d.mode.expect("every demo has a mode");
         counts[mode] += 1;
         assert_eq!(d.observations.len(), d.actions.len());
-        assert!(d.observations.iter().chain(&d.actions).chain([&d.rest_action]).all(|v| v.len() == 8));
+        assert!(d.observations.iter().chain(&d.actions).chain([&d.rest_action]).all(|v| v.len() == n + 1));
         // The first observation is the start the rest action says (to within the plant's noise).
         let gap = d.observations[0].iter().zip(&d.rest_action).map(|(o, r)| (o - r).abs()).fold(0.0, f32::max);
         assert!(gap < 1e-3, "first observation vs rest action: {gap}");
         // Independent of the expert's own check: targets inside the limits, interpolated speed below dq_max.
         let mut prev = d.rest_action.clone();
         for a in &d.actions {
-            for i in 0..7 {
+            for i in 0..n {
                 let q = a[i] as f64;
-                assert!(q > p.q_min[i] + 0.19 && q < p.q_max[i] - 0.19, "joint {i} at {q}");
+                assert!(q > p.q_min[i] + 0.19 && q < p.q_max[i] - 0.19, "{}: joint {i} at {q}", t.cfg.name);
                 assert!(((a[i] - prev[i]) as f64).abs() / slot_s < p.dq_max[i]);
             }
-            assert!((p.gripper_min..=p.gripper_max).contains(&(a[7] as f64)));
+            assert!((p.gripper_min..=p.gripper_max).contains(&(a[g] as f64)));
             prev = a.clone();
         }
         // It reaches its own grasp: some action lies on it and the gripper closes there.
         let grasp = &t.cfg.grasps[mode].q;
         let at_grasp = |a: &Vec<f32>| a.iter().zip(grasp).all(|(x, g)| (*x as f64 - g).abs() < t.cfg.tolerance);
-        assert!(d.actions.iter().any(|a| at_grasp(a) && (a[7] as f64) < t.cfg.gripper_closed + 1e-3));
+        assert!(d.actions.iter().any(|a| at_grasp(a) && (a[g] as f64) < t.cfg.gripper_closed + 1e-3));
     }
     assert_eq!(counts, [10, 10]);
-    // The modes fork after the shared approach: same joints 0 and 6 before, far apart at the grasp.
-    let (rim, handle) = (&demos[0].actions, &demos[1].actions);
-    assert!((rim[15][0] - handle[15][0]).abs() < 0.1 && (rim[15][6] - handle[15][6]).abs() < 0.1);
-    assert!((rim[40][0] - handle[40][0]).abs() > 0.5 && (rim[40][6] - handle[40][6]).abs() > 0.5);
-    assert_eq!(generate_demos(&t, &p, 20, 3).expect("demos"), demos);
-    assert_ne!(generate_demos(&t, &p, 20, 4).expect("demos"), demos);
+    // The modes fork after the shared approach: the same in the two joints where the grasps differ most before
+    // (Pick Cup: 0 and 6; Pick Vegetable: 0 and 5), far apart at the grasp.
+    let (a, b) = (&demos[0].actions, &demos[1].actions);
+    for j in t.most_distinct_joints() {
+        assert!((a[15][j] - b[15][j]).abs() < 0.1, "{}: joint {j} before the fork", t.cfg.name);
+        assert!((a[40][j] - b[40][j]).abs() > 0.5, "{}: joint {j} at the grasps", t.cfg.name);
+    }
+    assert_eq!(generate_demos(t, p, 20, 3).expect("demos"), demos);
+    assert_ne!(generate_demos(t, p, 20, 4).expect("demos"), demos);
 }
 
 #[test]
 fn an_expert_too_fast_for_the_robot_is_refused() {
-    let t = PickCup::parse(&task_text().replace("grasp_s = 1.5", "grasp_s = 0.1"), "fast.toml", &arm(&fr3())).unwrap();
+    let t = Pick::parse(&task_text().replace("grasp_s = 1.5", "grasp_s = 0.1"), "fast.toml", &arm(&fr3())).unwrap();
     let e = format!("{:#}", generate_demos(&t, &fr3(), 2, 0).expect_err("0.57 rad in 0.1 s is too fast"));
     assert!(e.contains("expert demo 0 (grasp `rim`) is invalid") && e.contains("velocity: true"), "{e}");
 }
@@ -211,13 +234,15 @@ fn monitor_tells_the_grasps_apart_and_ends_on_retreat_or_timeout() {
 
 #[test]
 fn committed_mars_checkpoint_solves_the_task_with_both_grasps() {
-    let (t, p) = (task(), fr3());
-    let dir = repo("assets/checkpoints/fr3_pick_cup/mars");
-    let report = evaluate(&dir, &t, &p, 10, 1000).expect("evaluation runs");
-    println!("{report}");
-    assert!(report.successes >= 9, "{report}");
-    assert!(report.mode_counts.iter().all(|&c| c >= 2), "both grasps used: {report}");
-    let k_max = mars_policy::checkpoint::load_meta(&dir).expect("checkpoint meta").model.k_max as f32;
-    assert!(report.mean_k >= 1.0 && report.mean_k < 0.75 * k_max, "fewer ODE steps than FM's K_max: {report}");
-    assert_eq!(report.limit_violations, 0, "{report}");
+    for (task, profile, checkpoints) in SHIPPED {
+        let (t, p) = shipped(task, profile);
+        let dir = repo(checkpoints).join("mars");
+        let report = evaluate(&dir, &t, &p, 10, 1000).expect("evaluation runs");
+        println!("{task}: {report}");
+        assert!(report.successes >= 9, "{task}: {report}");
+        assert!(report.mode_counts.iter().all(|&c| c >= 2), "{task}: both grasps used: {report}");
+        let k_max = mars_policy::checkpoint::load_meta(&dir).expect("checkpoint meta").model.k_max as f32;
+        assert!(report.mean_k >= 1.0 && report.mean_k < 0.75 * k_max, "{task}: fewer ODE steps than FM's: {report}");
+        assert_eq!(report.limit_violations, 0, "{task}: {report}");
+    }
 }

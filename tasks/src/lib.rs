@@ -6,15 +6,16 @@
 //! - [`nav2d`]: the benchmark task — a point agent through one of several passages between two gates.
 //! - [`push_t`]: the paper's FR3 Push-T — a T block pushed across a table by the end effector, seen from above;
 //!   the expert goes around the block by the upper or the lower route.
-//! - [`pick_cup`]: the FR3 Pick Cup in joint space — a mug grasped by its rim or by its handle. Its world is the
-//!   arm (the HAL's mock plant, franka-sim or an FR3), so its expert and rollouts live with the HAL's plant in
-//!   `mars_runtime::task`; the task itself (poses, observation, success and mode) is here.
+//! - [`pick`]: a pick in joint space with several grasps — the FR3 Pick Cup (a mug by its rim or its handle), the
+//!   R1 Lite Pick Vegetable (the carrot or the daikon). Its world is the arm (the HAL's mock plant, a simulator or
+//!   the robot), so its expert and rollouts live with the HAL's plant in `mars_runtime::task`; the task itself
+//!   (poses, observation, success and mode) is here.
 //!
 //! Every task says what a policy and the runtime need to know of it through one small trait, [`Task`].
 
 pub mod demo;
 pub mod nav2d;
-pub mod pick_cup;
+pub mod pick;
 pub mod push_t;
 pub mod rollout;
 

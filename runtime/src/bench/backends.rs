@@ -169,7 +169,7 @@ fn run_one(args: &BackendBenchArgs, backend: DemoRobot, noisy: bool) -> Run {
         hal_stall_ms: None,
         backend,
         franka_sim_venv: args.franka_sim_venv.clone(),
-        task: crate::cli::DemoTask::PickCup,
+        task: crate::cli::DemoTask::Pick,
     };
     let noise = noisy.then(|| {
         let ms = |v: f64| Duration::from_secs_f64(v / 1e3);

@@ -207,7 +207,7 @@ fn run_policy(args: &BenchArgs, name: &str, robot: &str) -> PolicyRun {
         hal_stall_ms: None,
         backend: crate::cli::DemoRobot::Mock,
         franka_sim_venv: crate::cli::FRANKA_SIM_VENV.into(),
-        task: crate::cli::DemoTask::PickCup,
+        task: crate::cli::DemoTask::Pick,
     };
     let probe = LoadProbe::start();
     let teed = tee_stderr(|| crate::cli::demo(demo));

@@ -221,7 +221,7 @@ fn curve(args: &mars_policy::curve::CurveArgs, task: &TaskArgs, in_process: bool
         );
         Trainer::Command(mars)
     };
-    let curve_task = cli::PickCupCurve {
+    let curve_task = cli::PickCurve {
         task: task.task.clone(),
         profile: task.profile.clone(),
         demos: args.demos,

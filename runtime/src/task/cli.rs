@@ -8,15 +8,12 @@ use mars_tasks::demo::{Demo, DemoSet};
 
 use super::eval::{EvalReport, evaluate};
 use super::expert::generate_demos;
-use super::pick_cup::PickCup;
-
-/// The `task` field of the demo files, naming what the demos are of.
-pub const TASK: &str = "fr3_pick_cup";
+use super::pick::Pick;
 
 /// The profile and the task checked against it.
-pub fn load_task(task: &Path, profile: &Path) -> anyhow::Result<(PickCup, Profile)> {
+pub fn load_task(task: &Path, profile: &Path) -> anyhow::Result<(Pick, Profile)> {
     let profile = Profile::load(profile)?;
-    let task = PickCup::load(task, &super::arm(&profile))?;
+    let task = Pick::load(task, &super::arm(&profile))?;
     Ok((task, profile))
 }
 
@@ -36,8 +33,10 @@ pub fn demos(task: &Path, profile: &Path, n: usize, seed: u64, out: &Path) -> an
     let (task, profile) = load_task(task, profile)?;
     let demos = generate_demos(&task, &profile, n, seed)?;
     let steps: usize = demos.iter().map(Demo::len).sum();
-    write_json(out, &DemoSet { task: TASK.into(), demos })?;
-    println!("wrote {n} {TASK} demos ({steps} steps at {} Hz) to {}", task.cfg.policy_rate_hz, out.display());
+    // The demo file's `task` names what the demos are of: the task file's `name` (fr3_pick_cup, r1_lite_pick_vegetable).
+    let name = task.cfg.name.clone();
+    write_json(out, &DemoSet { task: name.clone(), demos })?;
+    println!("wrote {n} {name} demos ({steps} steps at {} Hz) to {}", task.cfg.policy_rate_hz, out.display());
     Ok(())
 }
 
@@ -60,17 +59,18 @@ pub fn eval(
     Ok(report)
 }
 
-/// Pick Cup as a task of the training-efficiency curves (`mars-hil curve`).
-pub struct PickCupCurve {
+/// A pick task (Pick Cup by default) as a task of the training-efficiency curves (`mars-hil curve`).
+pub struct PickCurve {
     pub task: std::path::PathBuf,
     pub profile: std::path::PathBuf,
     pub demos: usize,
     pub episodes: usize,
 }
 
-impl mars_policy::curve::CurveTask for PickCupCurve {
+impl mars_policy::curve::CurveTask for PickCurve {
     fn title(&self) -> String {
-        format!("FR3 Pick Cup, {} demos, {} episodes per snapshot", self.demos, self.episodes)
+        let name = load_task(&self.task, &self.profile).map(|(t, _)| t.cfg.name).unwrap_or_else(|_| "pick".into());
+        format!("{name}, {} demos, {} episodes per snapshot", self.demos, self.episodes)
     }
 
     fn demos(&self, seed: u64, path: &Path) -> anyhow::Result<()> {

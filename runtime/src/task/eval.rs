@@ -1,6 +1,6 @@
-//! In-process closed-loop evaluation of a checkpoint on Pick Cup: the allocation-free engine drives the HIL sim
-//! plant directly (no IPC, no daemon), executing whole chunks and re-planning after each, with the expert's
-//! servo. For validating checkpoints and for tests; the real runtime path is `marsd`.
+//! In-process closed-loop evaluation of a checkpoint on a pick task (Pick Cup, Pick Vegetable): the allocation-free
+//! engine drives the HIL sim plant directly (no IPC, no daemon), executing whole chunks and re-planning after each,
+//! with the expert's servo. For validating checkpoints and for tests; the real runtime path is `marsd`.
 
 use std::path::Path;
 
@@ -11,7 +11,7 @@ use mars_ipc::MAX_JOINTS;
 use mars_tasks::nav2d::modal_balance;
 use serde::{Deserialize, Serialize};
 
-use super::pick_cup::{DoneReason, PickCup, Progress, max_abs_diff};
+use super::pick::{DoneReason, Pick, Progress, max_abs_diff};
 use super::sim_arm::SimArm;
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -82,7 +82,7 @@ impl std::fmt::Display for EvalReport {
 }
 
 /// One closed-loop episode from the start pose of `seed`, with the engine's noise re-seeded by `seed`.
-pub fn run_episode(engine: &mut Engine, task: &PickCup, profile: &Profile, seed: u64) -> EpisodeResult {
+pub fn run_episode(engine: &mut Engine, task: &Pick, profile: &Profile, seed: u64) -> EpisodeResult {
     engine.reseed(seed);
     let (c, d) = (engine.chunk_len(), engine.action_dim());
     let start = task.start_pose(seed);
@@ -145,7 +145,7 @@ pub fn run_episode(engine: &mut Engine, task: &PickCup, profile: &Profile, seed:
 }
 
 /// `n` episodes with seeds `seed + i` of the checkpoint in `dir`, aggregated.
-pub fn evaluate(dir: &Path, task: &PickCup, profile: &Profile, n: usize, seed: u64) -> anyhow::Result<EvalReport> {
+pub fn evaluate(dir: &Path, task: &Pick, profile: &Profile, n: usize, seed: u64) -> anyhow::Result<EvalReport> {
     ensure!(n > 0, "evaluate at least 1 episode");
     let mut engine = Engine::load(dir, EngineConfig::with_seed(seed))?;
     ensure!(

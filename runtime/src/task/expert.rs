@@ -1,6 +1,6 @@
-//! The scripted Pick Cup expert: minimum-jerk moves between the task's poses, sampled at the policy rate and
-//! executed on the HIL sim plant at the profile rate, so each demo is what the real servo path would record.
-//! Modes alternate (balanced), everything is seeded, and every demo is checked before it is kept.
+//! The scripted expert of a pick task (Pick Cup, Pick Vegetable): minimum-jerk moves between the task's poses, sampled
+//! at the policy rate and executed on the HIL sim plant at the profile rate, so each demo is what the real servo path
+//! would record. Modes alternate (balanced), everything is seeded, and every demo is checked before it is kept.
 
 use anyhow::bail;
 use mars_hal::profile::Profile;
@@ -8,7 +8,7 @@ use mars_tasks::demo::Demo;
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
 
-use super::pick_cup::{DoneReason, PickCup, Progress};
+use super::pick::{DoneReason, Pick, Progress};
 use super::sim_arm::SimArm;
 
 /// Minimum-jerk profile: 0 → 1 over τ ∈ [0, 1] with zero velocity and acceleration at both ends, so
@@ -29,7 +29,7 @@ struct Segment<'a> {
 /// The expert's actions ([q target …, gripper target], one per policy step) for one episode from `start`
 /// through grasp `mode`; pre-grasp, grasp and retreat poses are jittered per joint by the expert's
 /// `waypoint_jitter`.
-pub fn plan(task: &PickCup, start: &[f64], mode: usize, rng: &mut impl Rng) -> Vec<Vec<f64>> {
+pub fn plan(task: &Pick, start: &[f64], mode: usize, rng: &mut impl Rng) -> Vec<Vec<f64>> {
     let c = &task.cfg;
     let e = &c.expert;
     let mut jitter = |pose: &[f64]| -> Vec<f64> {
@@ -64,7 +64,7 @@ pub fn plan(task: &PickCup, start: &[f64], mode: usize, rng: &mut impl Rng) -> V
 /// Executes `actions` on a fresh sim plant (noise seeded by `sim_seed`) from `start`, recording the measured
 /// observation before each action. Errors say why the demo is unusable: a limit left, or the wrong outcome.
 pub fn record(
-    task: &PickCup,
+    task: &Pick,
     profile: &Profile,
     start: &[f64],
     actions: &[Vec<f64>],
@@ -101,7 +101,7 @@ pub fn record(
 }
 
 /// `n` verified demos, demo i through grasp `i % n_modes` (balanced), deterministic for a given seed.
-pub fn generate_demos(task: &PickCup, profile: &Profile, n: usize, seed: u64) -> anyhow::Result<Vec<Demo>> {
+pub fn generate_demos(task: &Pick, profile: &Profile, n: usize, seed: u64) -> anyhow::Result<Vec<Demo>> {
     let mut rng = StdRng::seed_from_u64(seed);
     (0..n)
         .map(|i| {

@@ -1,8 +1,8 @@
-//! The FR3 hardware-in-the-loop tasks: Pick Cup in joint space (grasp by the rim or by the handle) and Push-T on
-//! the table (around the block by the upper or the lower route), behind one [`HilTask`] marsd runs.
+//! The hardware-in-the-loop tasks marsd runs, behind one [`HilTask`]: a pick in joint space (the FR3's Pick Cup,
+//! the R1 Lite's Pick Vegetable) and Push-T on the table (around the block by the upper or the lower route).
 //!
-//! Pick Cup itself (TOML, start poses, observations, the [`pick_cup::EpisodeMonitor`]) lives with the other tasks
-//! in `mars_tasks::pick_cup`, checked against the profile's facts ([`arm`]); its world is the arm, so here are
+//! The pick task itself (TOML, start poses, observations, the [`pick::EpisodeMonitor`]) lives with the other tasks
+//! in `mars_tasks::pick`, checked against the profile's facts ([`arm`]); its world is the arm, so here are
 //! [`expert`] (balanced demos on the sim plant), [`eval`] (a checkpoint rolled out in-process) and [`sim_arm`] (the
 //! plant behind the servo both use); [`cli`] is what `mars-hil demos` / `eval-sim` run. [`push_t`] is Push-T as
 //! marsd sees it (the world is the scene process, `crate::scene`).
@@ -18,9 +18,9 @@ use std::path::Path;
 
 use mars_hal::profile::Profile;
 pub use mars_tasks::Task;
-pub use mars_tasks::pick_cup;
+pub use mars_tasks::pick;
 
-pub use pick_cup::{Arm, DoneReason, EpisodeMonitor, PickCup, Progress, TaskError};
+pub use pick::{Arm, DoneReason, EpisodeMonitor, Pick, Progress, TaskError};
 pub use push_t::PushTHil;
 
 /// The profile's facts a joint-space task is checked against.
@@ -37,12 +37,12 @@ pub fn arm(p: &Profile) -> Arm {
     }
 }
 
-/// A task marsd can run, chosen by the task file's `kind` (none: Pick Cup).
+/// A task marsd can run, chosen by the task file's `kind` (none: a pick task).
 #[derive(Debug, Clone)]
 // One per marsd run, built at start: the variants' sizes do not matter.
 #[allow(clippy::large_enum_variant)]
 pub enum HilTask {
-    PickCup(PickCup),
+    Pick(Pick),
     PushT(PushTHil),
 }
 
@@ -57,12 +57,12 @@ impl HilTask {
             .get("kind")
             .map(|k| k.as_str().map(str::to_owned));
         match kind {
-            None => PickCup::parse(&text, &origin, &arm(profile)).map(Self::PickCup),
+            None => Pick::parse(&text, &origin, &arm(profile)).map(Self::Pick),
             Some(Some(k)) if k == "push_t" => PushTHil::parse(&text, &origin, profile).map(Self::PushT),
             Some(k) => Err(TaskError::Invalid {
                 path: origin,
                 field: "kind".into(),
-                problem: format!("is {k:?}: \"push_t\", or no `kind` for a Pick Cup task"),
+                problem: format!("is {k:?}: \"push_t\", or no `kind` for a pick task"),
             }),
         }
     }
@@ -70,7 +70,7 @@ impl HilTask {
     /// The task behind the trait every task shares.
     pub fn task(&self) -> &dyn Task {
         match self {
-            Self::PickCup(t) => t,
+            Self::Pick(t) => t,
             Self::PushT(t) => t,
         }
     }
@@ -89,8 +89,17 @@ impl HilTask {
 
     pub fn policy_rate_hz(&self) -> f64 {
         match self {
-            Self::PickCup(t) => t.cfg.policy_rate_hz,
+            Self::Pick(t) => t.cfg.policy_rate_hz,
             Self::PushT(t) => t.cfg.policy_rate_hz,
+        }
+    }
+
+    /// The two joints the episodes plot shows: where a pick's grasps differ most; Push-T's 0 and 6 (the FR3's
+    /// base and wrist, which swing the flange between the two routes).
+    pub fn plot_joints(&self) -> [usize; 2] {
+        match self {
+            Self::Pick(t) => t.most_distinct_joints(),
+            Self::PushT(_) => [0, 6],
         }
     }
 

@@ -14,7 +14,7 @@ use mars_tasks::push_t::PushTConfig;
 use mars_tasks::push_t::episode::Observe;
 use serde::Deserialize;
 
-use super::pick_cup::{LIMIT_MARGIN_RAD, TaskError};
+use super::pick::{LIMIT_MARGIN_RAD, TaskError};
 use crate::effector::{PlanarEffector, Workspace};
 
 /// Where the table is for the arm.
@@ -47,7 +47,7 @@ pub struct CameraConfig {
 #[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct PushTHilConfig {
-    /// `"push_t"`: what tells this file from a Pick Cup task.
+    /// `"push_t"`: what tells this file from a pick task.
     pub kind: String,
     pub name: String,
     pub policy_rate_hz: f64,

@@ -8,7 +8,7 @@ use mars_hal::profile::Profile;
 use mars_hal::sim::SimBackend;
 use mars_ipc::MAX_JOINTS;
 
-use super::pick_cup::PickCup;
+use super::pick::Pick;
 
 /// Reset motion from the profile's `home` to an episode's start (not part of the episode): slow enough that
 /// the largest start jitter moves at a small fraction of any velocity limit.
@@ -49,7 +49,7 @@ pub struct SimArm {
 
 impl SimArm {
     /// The profile's plant with its noise seeded by `sim_seed` (so each episode sees its own noise).
-    pub fn new(profile: &Profile, task: &PickCup, sim_seed: u64) -> Self {
+    pub fn new(profile: &Profile, task: &Pick, sim_seed: u64) -> Self {
         let mut profile = profile.clone();
         profile.sim.seed = sim_seed;
         let sim = SimBackend::new(&profile);

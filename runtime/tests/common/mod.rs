@@ -249,9 +249,14 @@ pub fn servo_core() -> usize {
 /// it shares a core with (the HAL's ticks are short and phase-shifted from the servo's; the policy thread, which
 /// may spin for tens of ms at SCHED_FIFO 70, has the other core).
 pub fn spawn_hal(robot: &str, extra: &[&str], logs: &TempDir) -> Proc {
+    spawn_hal_of("configs/fr3.toml", robot, extra, logs)
+}
+
+/// [`spawn_hal`] for the robot of another profile.
+pub fn spawn_hal_of(profile: &str, robot: &str, extra: &[&str], logs: &TempDir) -> Proc {
     assert_rig_locked("the HAL");
     let mut cmd = Command::new(env!("CARGO_BIN_EXE_mars-hil"));
-    cmd.args(["hal", "--profile", "configs/fr3.toml", "--robot", robot])
+    cmd.args(["hal", "--profile", profile, "--robot", robot])
         .args(["--core", &servo_core().to_string(), "--rt-priority", &HAL_PRIORITY.to_string()])
         .args(extra);
     realtime_child(&mut cmd);
@@ -501,7 +506,14 @@ pub const REL_TOL: f64 = 1e-6;
 
 impl Limits {
     pub fn fr3() -> Self {
-        let text = std::fs::read_to_string(root().join("configs/fr3.toml")).unwrap();
+        let l = Self::of("configs/fr3.toml");
+        assert_eq!(l.dt, 1e-3, "the checks assume the 1 kHz FR3 profile");
+        l
+    }
+
+    /// The limits of the profile at `path` (from the repository's root).
+    pub fn of(path: &str) -> Self {
+        let text = std::fs::read_to_string(root().join(path)).unwrap();
         let t: toml::Table = toml::from_str(&text).unwrap();
         let v = |k: &str| -> Vec<f64> {
             t[k].as_array().unwrap_or_else(|| panic!("{k}")).iter().map(|x| x.as_float().unwrap()).collect()
@@ -519,7 +531,6 @@ impl Limits {
             home: v("home"),
         };
         assert!([&l.q_min, &l.q_max, &l.dq, &l.ddq, &l.jerk].iter().all(|x| x.len() == n));
-        assert_eq!(l.dt, 1e-3, "the checks assume the 1 kHz FR3 profile");
         l
     }
 
@@ -738,8 +749,13 @@ pub fn hold_reason(s: &RobotState) -> Option<HoldReason> {
 
 /// Starts the HAL and waits for its first frame (so marsd never races the HAL's service creation).
 pub fn hal_with_recorder(robot: &str, extra: &[&str], logs: &TempDir) -> (Proc, Recorder) {
+    hal_of_with_recorder("configs/fr3.toml", robot, extra, logs)
+}
+
+/// [`hal_with_recorder`] for the robot of another profile.
+pub fn hal_of_with_recorder(profile: &str, robot: &str, extra: &[&str], logs: &TempDir) -> (Proc, Recorder) {
     let rec = Recorder::start(robot);
-    let hal = spawn_hal(robot, extra, logs);
+    let hal = spawn_hal_of(profile, robot, extra, logs);
     rec.expect_state("the HAL's first state frame", 0, START, |_| true);
     (hal, rec)
 }

@@ -1,9 +1,11 @@
-//! The FR3 Pick Cup task in joint space (after the paper's real-world Pick Cup: grasp a mug by its rim or by its
-//! handle). From a jittered `home`, a shared approach to a pre-grasp pose, then one of two grasp configurations,
-//! the gripper closes, and a shared retreat. Read from TOML (`configs/pick_cup.toml`) and checked against the
-//! arm's facts ([`Arm`], from the robot profile) before anything moves. Its world is the arm itself: the HAL's
-//! mock plant in the HIL demo, franka-sim or a real FR3, so the task is its poses, its observation and the
-//! [`EpisodeMonitor`] that tells success and the mode from the measured state.
+//! A pick task in joint space, for any arm with a gripper: from a jittered `home`, a shared approach to a
+//! pre-grasp pose, then one of several grasp configurations (the task's modes), the gripper closes, and a shared
+//! retreat. The paper's real-world picks are its configurations: the FR3's Pick Cup (`configs/pick_cup.toml`: the
+//! mug by its rim or by its handle) and the R1 Lite's Pick Vegetable (`configs/pick_vegetable.toml`: the carrot
+//! or the daikon on either side of a mango). Read from TOML and checked against the arm's facts ([`Arm`], from
+//! the robot profile) before anything moves. Its world is the arm itself: the HAL's mock plant in the HIL demo,
+//! a simulator or the real robot, so the task is its poses, its observation and the [`EpisodeMonitor`] that
+//! tells success and the mode from the measured state.
 
 use std::path::Path;
 
@@ -31,7 +33,7 @@ pub struct Arm {
     pub gripper_max: f64,
 }
 
-/// One way to grasp the cup: a mode of the task.
+/// One way to grasp the object (or one object to grasp): a mode of the task.
 #[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Grasp {
@@ -58,7 +60,7 @@ pub struct ExpertParams {
 /// The task as written in its TOML file.
 #[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
-pub struct PickCupConfig {
+pub struct PickConfig {
     pub name: String,
     pub policy_rate_hz: f64,
     pub start_jitter: f64,
@@ -74,8 +76,8 @@ pub struct PickCupConfig {
 
 /// The validated task, with the profile facts it depends on (start pose, servo ticks per action).
 #[derive(Debug, Clone, PartialEq)]
-pub struct PickCup {
-    pub cfg: PickCupConfig,
+pub struct Pick {
+    pub cfg: PickConfig,
     /// The profile's `home`: the un-jittered start.
     pub home: Vec<f64>,
     /// Servo ticks per policy action (profile rate / policy rate).
@@ -87,13 +89,13 @@ pub enum TaskError {
     // The I/O and TOML errors are part of the message, not `source`s, so `{:#}` chains print them once.
     #[error("cannot read task {path}: {error}")]
     Read { path: String, error: std::io::Error },
-    #[error("task {path} is not valid TOML for a Pick Cup task: {error}")]
+    #[error("task {path} is not valid TOML for a pick task: {error}")]
     Parse { path: String, error: Box<toml::de::Error> },
     #[error("task {path}: `{field}` {problem}")]
     Invalid { path: String, field: String, problem: String },
 }
 
-impl PickCup {
+impl Pick {
     pub fn load(path: &Path, profile: &Arm) -> Result<Self, TaskError> {
         let origin = path.display().to_string();
         let text = std::fs::read_to_string(path).map_err(|error| TaskError::Read { path: origin.clone(), error })?;
@@ -102,7 +104,7 @@ impl PickCup {
 
     /// Parse and validate against `profile`; `origin` names the source in errors.
     pub fn parse(text: &str, origin: &str, profile: &Arm) -> Result<Self, TaskError> {
-        let cfg: PickCupConfig =
+        let cfg: PickConfig =
             toml::from_str(text).map_err(|e| TaskError::Parse { path: origin.to_owned(), error: Box::new(e) })?;
         let ticks = profile.rate_hz / cfg.policy_rate_hz;
         let task = Self { home: profile.home.clone(), ticks_per_action: ticks.round().max(1.0) as usize, cfg };
@@ -230,6 +232,19 @@ impl PickCup {
         self.joints() + 1
     }
 
+    /// The two joints in which the grasps differ most, in joint order: the plane where the modes show as two
+    /// branches (Pick Cup: joints 0 and 6).
+    pub fn most_distinct_joints(&self) -> [usize; 2] {
+        let spread = |j: usize| {
+            let q = self.cfg.grasps.iter().map(|g| g.q[j]);
+            q.clone().fold(f64::NEG_INFINITY, f64::max) - q.fold(f64::INFINITY, f64::min)
+        };
+        let mut joints: Vec<usize> = (0..self.joints()).collect();
+        joints.sort_by(|&a, &b| spread(b).total_cmp(&spread(a)).then(a.cmp(&b)));
+        let (a, b) = (joints[0], joints.get(1).copied().unwrap_or(joints[0]));
+        [a.min(b), a.max(b)]
+    }
+
     pub fn n_modes(&self) -> usize {
         self.cfg.grasps.len()
     }
@@ -304,14 +319,14 @@ pub struct EpisodeMonitor {
     retreat: Vec<f64>,
     tolerance: f64,
     timeout_s: f64,
-    /// Below this width the gripper counts as closed (holding the cup): halfway between closed and open.
+    /// Below this width the gripper counts as closed (holding the object): halfway between closed and open.
     gripper_holding_below: f64,
     grasped: Option<usize>,
     done: Option<Progress>,
 }
 
 impl EpisodeMonitor {
-    pub fn new(task: &PickCup) -> Self {
+    pub fn new(task: &Pick) -> Self {
         let c = &task.cfg;
         Self {
             grasps: c.grasps.iter().map(|g| g.q.clone()).collect(),
@@ -364,17 +379,17 @@ impl EpisodeMonitor {
     }
 }
 
-impl crate::Task for PickCup {
+impl crate::Task for Pick {
     fn name(&self) -> &str {
         &self.cfg.name
     }
 
     fn obs_dim(&self) -> usize {
-        PickCup::obs_dim(self)
+        Pick::obs_dim(self)
     }
 
     fn action_dim(&self) -> usize {
-        PickCup::action_dim(self)
+        Pick::action_dim(self)
     }
 
     fn mode_names(&self) -> Vec<String> {
