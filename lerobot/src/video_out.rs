@@ -34,7 +34,16 @@ static ENCODER_LIFECYCLE: Mutex<()> = Mutex::new(());
 /// `svt_av1_enc_init_handle`, from a core dump) when one thread opened an encoder while another closed its own —
 /// the parallel lerobot tests under load, 2 runs in 25. marsd records from one thread, but nothing here may
 /// assume that. Encoding itself runs unlocked.
-struct Encoder(Option<ffmpeg::encoder::Video>);
+///
+/// It is also never closed without its end of stream, nor with an end of stream and no frame: SVT-AV1 1.4.1 then
+/// waits for ever (closed so, "deinit called without sending EOS!"; or in `svt_av1_enc_get_packet` at the end of
+/// an empty stream, from a debugger) — marsd hung after a trip in its first recorded episode, its recording
+/// abandoned. An encoder dropped unfinished is given a blank frame if it had none, ended and drained.
+struct Encoder {
+    encoder: Option<ffmpeg::encoder::Video>,
+    frames_sent: u64,
+    eof_sent: bool,
+}
 
 impl Encoder {
     fn open(
@@ -44,27 +53,51 @@ impl Encoder {
     ) -> Result<Self, ffmpeg::Error> {
         let _lifecycle = ENCODER_LIFECYCLE.lock().unwrap_or_else(|e| e.into_inner());
         // A failed open frees its context here too, under the lock.
-        enc.open_as_with(codec, options).map(|e| Self(Some(e)))
+        enc.open_as_with(codec, options).map(|e| Self { encoder: Some(e), frames_sent: 0, eof_sent: false })
+    }
+
+    fn send_frame(&mut self, frame: &VideoFrame) -> Result<(), ffmpeg::Error> {
+        (**self).send_frame(frame)?;
+        self.frames_sent += 1;
+        Ok(())
+    }
+
+    /// Ends the stream (the packets still to come are then received until `Eof`).
+    fn send_eof(&mut self) -> Result<(), ffmpeg::Error> {
+        self.eof_sent = true;
+        (**self).send_eof()
     }
 }
 
 impl Deref for Encoder {
     type Target = ffmpeg::encoder::Video;
     fn deref(&self) -> &Self::Target {
-        self.0.as_ref().expect("open until dropped")
+        self.encoder.as_ref().expect("open until dropped")
     }
 }
 
 impl DerefMut for Encoder {
     fn deref_mut(&mut self) -> &mut Self::Target {
-        self.0.as_mut().expect("open until dropped")
+        self.encoder.as_mut().expect("open until dropped")
     }
 }
 
 impl Drop for Encoder {
     fn drop(&mut self) {
+        if !self.eof_sent {
+            // An abandoned stream: ended (after a blank frame if it had none) and its last packets received and
+            // dropped, so the encoder can close.
+            if self.frames_sent == 0 {
+                let (format, width, height) = (self.format(), self.width(), self.height());
+                let _ = self.send_frame(&VideoFrame::new(format, width, height));
+            }
+            if self.frames_sent > 0 && self.send_eof().is_ok() {
+                let mut packet = ffmpeg::Packet::empty();
+                while (**self).receive_packet(&mut packet).is_ok() {}
+            }
+        }
         let _lifecycle = ENCODER_LIFECYCLE.lock().unwrap_or_else(|e| e.into_inner());
-        drop(self.0.take());
+        drop(self.encoder.take());
     }
 }
 

@@ -126,3 +126,37 @@ fn a_write_that_fails_half_way_is_never_finished() {
     assert!(e.to_string().contains("an earlier write failed"), "{e}");
     assert!(!root.exists(), "nothing at the path");
 }
+
+/// A recording given up at any point (marsd abandons one whose run stopped before an episode was complete) closes
+/// its video encoders and leaves nothing behind. SVT-AV1 1.4.1 waits for ever on an encoder closed without its
+/// end of stream, or ended with no frame: marsd hung so after a trip in its first recorded episode.
+#[test]
+fn a_recording_abandoned_at_any_point_closes_and_leaves_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    fn frame(w: &mut DatasetWriter) {
+        w.add_frame(&[&[0.0, 0.0], &[0.0, 0.0]], &[&[0u8; 12288]]).unwrap();
+    }
+    let points: [(&str, fn(&mut DatasetWriter)); 3] = [
+        ("before any frame", |_| {}),
+        ("in its first episode", frame),
+        ("in its second episode", |w| {
+            frame(w);
+            w.end_episode(TASK).unwrap();
+            frame(w);
+        }),
+    ];
+    for (i, (when, step)) in points.into_iter().enumerate() {
+        let root = dir.path().join(format!("run{i}"));
+        // The writer lives on a thread of its own (as marsd's recording thread), so a hang shows as a timeout.
+        let (done, closed) = std::sync::mpsc::channel();
+        let at = root.clone();
+        std::thread::spawn(move || {
+            let mut w = DatasetWriter::create(&at, spec()).unwrap();
+            step(&mut w);
+            w.abandon();
+            let _ = done.send(());
+        });
+        closed.recv_timeout(std::time::Duration::from_secs(60)).unwrap_or_else(|_| panic!("abandoned {when}: hung"));
+        assert!(!root.exists() && !dir.path().join(format!("run{i}.partial")).exists(), "{when}: files left");
+    }
+}

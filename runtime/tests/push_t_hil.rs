@@ -29,8 +29,13 @@ fn push_t_config(logs: &TempDir) -> std::path::PathBuf {
 #[test]
 fn push_t_runs_through_the_camera_the_engine_and_ik_within_limits() {
     let _rt = rt_rig_lock();
-    let logs = TempDir::new("pusht");
-    let robot = robot("pusht");
+    with_one_rerun(push_t_attempt);
+}
+
+/// One run of the test above; false if a stall of the whole VM explains its failure (first attempt only).
+fn push_t_attempt(attempt: u32) -> bool {
+    let logs = TempDir::new(&format!("pusht{attempt}"));
+    let robot = robot(&format!("pusht{attempt}"));
     let (mut hal, rec) = hal_with_recorder(&robot, &[], &logs);
     let mut scene = Command::new(env!("CARGO_BIN_EXE_mars-hil"));
     scene.current_dir(root()).args(["scene", "--robot", &robot]);
@@ -42,8 +47,15 @@ fn push_t_runs_through_the_camera_the_engine_and_ik_within_limits() {
     let r = rec.finish();
     assert!(hal.running() && scene.running(), "{}\n{}", hal.logs(), scene.logs());
     eprintln!("{}", marsd.stdout_text());
-    assert_eq!(code, 0, "marsd failed\n{}\n{}", marsd.logs(), scene.logs());
     let s = summary(&logs, "marsd");
+    if code != 0
+        && attempt == 1
+        && let Some(why) = machine_stall_explains(&r, &s, &marsd, u64::MAX)
+    {
+        eprintln!("RERUN push-t: attempt 1 is inconclusive: {why}; running it again");
+        return false;
+    }
+    assert_eq!(code, 0, "marsd failed\n{}\n{}", marsd.logs(), scene.logs());
     assert_eq!(s["stop"], "finished");
     assert_eq!(u64_at(&s, "/episodes"), 2);
 
@@ -101,4 +113,5 @@ fn push_t_runs_through_the_camera_the_engine_and_ik_within_limits() {
     }
     eprintln!("recorded images: {changed} of {between_calls} periods between calls differ from the period before");
     assert!(between_calls > 0 && changed * 2 > between_calls, "{changed} of {between_calls}");
+    true
 }

@@ -331,6 +331,24 @@ pub struct Recorded {
     pub steal: Vec<StealSample>,
 }
 
+impl Recorded {
+    /// The HAL's period as its frames show it (ms): the median step between consecutive frames' stamps (1 ms for
+    /// the FR3's mock HAL, 5 for the R1 Lite's), 1 ms before two consecutive frames are recorded.
+    pub fn period_ms(&self) -> f64 {
+        let mut steps: Vec<u64> = self
+            .states
+            .windows(2)
+            .filter(|w| w[1].0.seq == w[0].0.seq + 1)
+            .map(|w| w[1].0.timestamp_ns.saturating_sub(w[0].0.timestamp_ns))
+            .collect();
+        if steps.is_empty() {
+            return 1.0;
+        }
+        let mid = steps.len() / 2;
+        *steps.select_nth_unstable(mid).1 as f64 * 1e-6
+    }
+}
+
 /// A thread of the test process that subscribes to the robot's state and command services and records every
 /// frame (iceoryx2 ports belong to the thread that opened them, so the thread opens its own).
 pub struct Recorder {
@@ -726,18 +744,15 @@ pub fn steal_ms() -> f64 {
 
 /// The HAL's pauses (frame gaps of at least [`stall::PAUSE_PERIODS`] periods) in the recorded frames.
 pub fn hal_gaps(r: &Recorded) -> Vec<FrameGap> {
-    stall::frame_gaps(r.states.iter().map(|(s, _)| (s.seq, s.timestamp_ns)), stall::PAUSE_PERIODS * FR3_PERIOD_MS)
+    stall::frame_gaps(r.states.iter().map(|(s, _)| (s.seq, s.timestamp_ns)), stall::PAUSE_PERIODS * r.period_ms())
 }
-
-/// The FR3 profile's period, the mock HAL's in these tests (ms).
-pub const FR3_PERIOD_MS: f64 = 1.0;
 
 /// What the machine did around marsd's watchdog trip: the time is that of marsd's "watchdog trip" log line
 /// (summary.json has none), the evidence a HAL frame gap or steal growth in the window around it. `None` if
 /// marsd logged no trip.
 pub fn trip_evidence(r: &Recorded, marsd: &Proc) -> Option<Evidence> {
     let trip_ns = stall::trip_time_from_log(&marsd.stderr_text())?;
-    Some(stall::around_trip(trip_ns, &hal_gaps(r), FR3_PERIOD_MS, &r.steal))
+    Some(stall::around_trip(trip_ns, &hal_gaps(r), r.period_ms(), &r.steal))
 }
 
 /// Generous: the first start may include iceoryx2 setup and the checkpoint's warm-up on a loaded machine.
@@ -783,4 +798,82 @@ pub fn demo_tripped_on_a_machine_stall(out: &Path, what: &str) -> bool {
         eprintln!("RERUN {what}: marsd tripped ({}) at {} and {}", t["trip"], t["logged_at"], t["said"]);
     }
     stalled
+}
+
+/// Whether a failed run is explained by a stall of the machine rather than by marsd, with the evidence tied to
+/// that very failure (printed before the scenario runs again, once):
+/// - marsd stopped on a timing trip (stale state, tick overruns, the HAL's command timeout), and in the window
+///   around the trip (its time from marsd's "watchdog trip" log line) the HAL — the highest-priority process,
+///   SCHED_FIFO 85 — published no frame for ≥ 15 ms, or the VM's steal time grew;
+/// - or, without a trip, chunks were late, and while each was computed the HAL froze, or the hypervisor stole, at
+///   least as long as the chunk was late — and its servo missed no more than `missed_limit` periods beyond those
+///   the HAL itself missed in the same run ([`hal_missed_periods`]: nothing of the rig ran then; the tests hold
+///   the servo to the same count).
+pub fn machine_stall_explains(r: &Recorded, s: &serde_json::Value, marsd: &Proc, missed_limit: u64) -> Option<String> {
+    let trip = s["trip"].as_str();
+    if let Some(trip) = trip {
+        if !mars_runtime::stall::is_timing_trip(trip) {
+            return None;
+        }
+        let Some(e) = trip_evidence(r, marsd) else {
+            eprintln!("marsd reported trip {trip:?} but logged no watchdog trip line: no evidence");
+            return None;
+        };
+        eprintln!("around the trip ({trip}): {e}");
+        return e.is_stall().then(|| format!("marsd tripped ({trip}) and {e}"));
+    }
+    let mut explained = Vec::new();
+    let missed = u64_at(s, "/deadline_misses/servo_missed_periods");
+    // Missed periods the HAL itself missed too are no failure (the tests hold the servo to the rest); more than that
+    // is the servo's own, and nothing here explains it.
+    if missed > missed_limit.saturating_add(hal_missed_periods(r)) {
+        return None;
+    }
+    let late = u64_at(s, "/deadline_misses/late_chunks");
+    if late > 0 {
+        let times = s["deadline_misses"]["late_chunk_times"].as_array().cloned().unwrap_or_default();
+        if times.len() as u64 != late {
+            eprintln!("{late} late chunks, {} of them timed: no evidence for the rest", times.len());
+            return None;
+        }
+        // Any pause of the HAL longer than its period counts here: the lateness may be a few ms.
+        let gaps = hal_pauses(r);
+        for t in &times {
+            let at = |k: &str| t[k].as_u64().unwrap_or_else(|| panic!("late chunk without {k}: {t}"));
+            let e = mars_runtime::stall::around_late_chunk(
+                at("woke_ns"),
+                at("need_ns"),
+                at("ready_ns"),
+                &gaps,
+                1.0,
+                &r.steal,
+            );
+            eprintln!("late chunk: {e}");
+            if !e.is_stall() {
+                return None;
+            }
+            explained.push(e.to_string());
+        }
+    }
+    (!explained.is_empty()).then(|| explained.join("; "))
+}
+
+/// The HAL's frame gaps above 1.5 of its periods in a recorded run: where the HAL — the highest-priority thread of the
+/// rig, on the servo's core — did not run.
+pub fn hal_pauses(r: &Recorded) -> Vec<mars_runtime::stall::FrameGap> {
+    mars_runtime::stall::frame_gaps(r.states.iter().map(|(s, _)| (s.seq, s.timestamp_ns)), 1.5 * r.period_ms())
+}
+
+/// Periods the HAL itself failed to run in a recorded run: those the servo missed too were the machine's, not the
+/// servo's.
+pub fn hal_missed_periods(r: &Recorded) -> u64 {
+    mars_runtime::stall::hal_missed_periods(&hal_pauses(r), r.period_ms())
+}
+
+/// Runs `attempt(1)`, and `attempt(2)` if the first said a whole-VM stall spoiled it (returned false); the second
+/// must pass.
+pub fn with_one_rerun(attempt: impl Fn(u32) -> bool) {
+    if !attempt(1) && !attempt(2) {
+        panic!("two runs in a row were spoiled by stalls of the whole VM (see above)");
+    }
 }
