@@ -136,7 +136,8 @@ mod tests {
 
     #[test]
     fn a_bad_table_is_refused_when_the_backend_is_ros2() {
-        let cases: [(&str, fn(&mut Ros2Params)); 5] = [
+        type Spoil = fn(&mut Ros2Params);
+        let cases: [(&str, Spoil); 5] = [
             ("domain_id", |r| r.domain_id = 233),
             ("joint_names", |r| {
                 r.joint_names.pop();
