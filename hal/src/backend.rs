@@ -17,11 +17,10 @@
 //!   so the HAL tick runs inside that callback with a backend whose `read` is the state just received and whose
 //!   `apply` fills the command the callback returns; a `ControlException` (reflex) ends the motion, and the HAL
 //!   holds until a recovery is asked for.
-//!
-//! What the next one would have to do:
-//! - **R1 Lite over ROS 2**: subscribe to `/hdas/feedback_arm_right` (`sensor_msgs/JointState`) for `read`,
-//!   publish the setpoint on `/motion_target/target_joint_state_arm_right` for `apply`, with the HAL loop timed
-//!   by the profile rate; a feedback topic older than the command timeout is a fault.
+//! - **R1 Lite over ROS 2** ([`crate::ros2`]): `read` is the newest `/hdas/feedback_arm_right` (and gripper)
+//!   `sensor_msgs/JointState`, `apply` publishes the setpoint on `/motion_target/target_joint_state_arm_right`,
+//!   the HAL loop timed by the profile rate; feedback older than the timeout is a (transient) fault, and since
+//!   the robot latches its last target the backend publishes an explicit stop rather than going quiet.
 
 /// What a backend measured in one tick.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]

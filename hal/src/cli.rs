@@ -46,6 +46,13 @@ pub struct HalArgs {
     /// fci: drive no Franka Hand (the gripper width reads 0); overrides `[fci] gripper`.
     #[arg(long)]
     pub no_gripper: bool,
+    /// ros2: the DDS domain (ROS_DOMAIN_ID, 0–232); overrides `[ros2] domain_id`.
+    #[arg(long, value_parser = clap::value_parser!(u16).range(0..=232))]
+    pub ros_domain_id: Option<u16>,
+    /// ros2: discover and talk over this host's loopback only (a robot simulated here); sets `[ros2]
+    /// localhost_only`.
+    #[arg(long)]
+    pub ros_localhost_only: bool,
     /// Also write the exit report as JSON to this file (timing quantiles, counters, the robot's side).
     #[arg(long)]
     pub report_json: Option<PathBuf>,
@@ -208,6 +215,12 @@ pub fn run_hal(args: HalArgs) -> anyhow::Result<Report> {
     if let Some(l) = args.late_commands {
         profile.fci.late_commands = l;
     }
+    if let Some(d) = args.ros_domain_id {
+        profile.ros2.domain_id = d;
+    }
+    if args.ros_localhost_only {
+        profile.ros2.localhost_only = true;
+    }
     profile.validate()?;
     if profile.sim.faults.any() {
         tracing::warn!(faults = ?profile.sim.faults, "fault injection is on");
@@ -223,7 +236,7 @@ pub fn run_hal(args: HalArgs) -> anyhow::Result<Report> {
         lock_memory: !args.no_lock_memory,
         stop: None,
         // A real robot is released only at rest; the sim ends at once (its tests count on it).
-        brake_before_exit: profile.backend == BackendKind::Fci,
+        brake_before_exit: profile.backend != BackendKind::Sim,
     };
     let report = match profile.backend {
         BackendKind::Sim => run(&profile, &mut SimBackend::new(&profile), &opts)?,
@@ -233,6 +246,10 @@ pub fn run_hal(args: HalArgs) -> anyhow::Result<Report> {
                 anyhow::bail!("backend fci needs the robot's address: --robot-ip or [fci] robot_ip in the profile");
             };
             crate::fci::drive::run(&profile, &addr, &opts)?
+        }
+        BackendKind::Ros2 => {
+            anyhow::ensure!(!profile.sim.faults.any(), "fault injection is a sim backend feature; not with ros2");
+            crate::ros2::drive::run(&profile, &opts)?
         }
     };
     // The run is over and the arm at rest: a file that cannot be written costs only the file.

@@ -4,7 +4,8 @@
 //! Data flow of one tick: the backend is read ([`backend`], [`sim`]) → commands arrive over iceoryx2 →
 //! [`control`] judges them ([`safety`], [`session`], [`gripper`]) → the setpoint goes to the backend → the state
 //! frame leaves ([`runner`] does the I/O). [`profile`] and [`velocity_limits`] hold the robot's limits. [`fci`] talks
-//! to a Franka robot over its Control Interface (so far: connect and read its state, `mars-hal fci-status`).
+//! to a Franka robot over its Control Interface (so far: connect and read its state, `mars-hal fci-status`);
+//! [`ros2`] to a robot over ROS 2 topics (the Galaxea R1 Lite).
 
 pub mod backend;
 pub mod cli;
@@ -15,6 +16,7 @@ pub mod fci;
 pub mod gripper;
 pub mod profile;
 pub mod report_json;
+pub mod ros2;
 pub mod runner;
 pub mod safety;
 pub mod session;

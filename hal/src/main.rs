@@ -1,5 +1,5 @@
-//! `mars-hal`: the robot-side process. Runs a profile's robot (the sim backend in this build) at the profile
-//! rate and meets the controller only through iceoryx2.
+//! `mars-hal`: the robot-side process. Runs a profile's robot (the sim, a Franka robot over FCI, or a robot over
+//! ROS 2) at the profile rate and meets the controller only through iceoryx2.
 
 use clap::{CommandFactory, FromArgMatches, Parser};
 use mars_hal::cli::{FciStatusArgs, HalArgs, RecoverArgs, fci_status, recover, report_and_exit_code, run_hal};
@@ -10,7 +10,7 @@ use mars_hal::cli::{FciStatusArgs, HalArgs, RecoverArgs, fci_status, recover, re
 static ALLOC: mars_rt::alloc_count::CountingAlloc = mars_rt::alloc_count::CountingAlloc;
 
 #[derive(Parser)]
-#[command(version, about = "MARS robot-side HAL process (sim backend, or a Franka robot over FCI)")]
+#[command(version, about = "MARS robot-side HAL process (sim backend, a Franka robot over FCI, or a robot over ROS 2)")]
 #[command(args_conflicts_with_subcommands = true, subcommand_negates_reqs = true)]
 struct Args {
     /// The HAL process's arguments: only used to build the command line; `main` reads them from the matches itself,
@@ -32,8 +32,13 @@ enum Command {
 }
 
 fn main() {
+    // RustDDS (the ros2 backend) logs each discovery step at info and warns on every heartbeat to a peer that
+    // advertises only loopback locators (tens a second against Cyclone DDS on `lo`): only its errors by default.
+    let default_filter = "info,rustdds=error,ros2_client=error";
     tracing_subscriber::fmt()
-        .with_env_filter(tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()))
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| default_filter.into()),
+        )
         .with_writer(std::io::stderr)
         .init();
     let matches = Args::command().get_matches();

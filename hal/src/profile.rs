@@ -95,13 +95,16 @@ pub struct Profile {
     pub gripper_deadband: f64,
     /// …and at most once per this long (ms); a target that changes meanwhile is sent when it ends.
     pub gripper_command_interval_ms: f64,
-    /// Which backend drives the robot: the sim plant (default) or a Franka robot over FCI (`[fci]`).
+    /// Which backend drives the robot: the sim plant (default), a Franka robot over FCI (`[fci]`), or a robot
+    /// over ROS 2 topics (`[ros2]`).
     #[serde(default)]
     pub backend: BackendKind,
     #[serde(default)]
     pub sim: SimParams,
     #[serde(default)]
     pub fci: crate::fci::FciParams,
+    #[serde(default)]
+    pub ros2: crate::ros2::Ros2Params,
 }
 
 /// The robot behind the HAL.
@@ -113,6 +116,8 @@ pub enum BackendKind {
     Sim,
     /// A Franka robot (FR3) or franka-sim over the Franka Control Interface (`[fci]`), paced by the robot.
     Fci,
+    /// A robot driven over ROS 2 topics (`[ros2]`: the Galaxea R1 Lite's), paced by the HAL's own timer.
+    Ros2,
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -297,6 +302,11 @@ impl Profile {
             if let Err(msg) = self.fci.validate() {
                 return bad(format!("fci.{msg}"));
             }
+        }
+        if self.backend == BackendKind::Ros2
+            && let Err(msg) = self.ros2.validate(self.joints, self.rate_hz, self.command_timeout_ms)
+        {
+            return bad(format!("ros2.{msg}"));
         }
         Ok(())
     }

@@ -3,3 +3,4 @@
 #![allow(dead_code)]
 
 pub mod franka_sim;
+pub mod standin;

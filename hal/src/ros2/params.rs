@@ -1,0 +1,158 @@
+//! The `[ros2]` table of a profile: which DDS domain and topics the robot speaks on, with which QoS, and how
+//! long its feedback may be silent.
+
+use serde::Deserialize;
+
+/// A topic's DDS reliability.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Reliability {
+    /// Lost samples are resent (to reliable readers; a best-effort reader matches it and gets no resends).
+    Reliable,
+    /// Lost samples stay lost: for a stream where only the newest sample counts.
+    BestEffort,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Ros2Params {
+    /// The DDS domain (ROS_DOMAIN_ID), 0–232; `mars-hal --ros-domain-id` overrides it.
+    pub domain_id: u16,
+    /// Discover and talk only over this host's loopback (ROS_LOCALHOST_ONLY's meaning): for a robot simulated on
+    /// the same machine, and the tests. `mars-hal --ros-localhost-only` sets it.
+    pub localhost_only: bool,
+    /// ROS topic names (absolute; the DDS topic is `rt` + the name, as rmw maps it).
+    pub arm_feedback_topic: String,
+    pub arm_target_topic: String,
+    pub gripper_feedback_topic: String,
+    pub gripper_target_topic: String,
+    /// Joint names the targets carry (`JointState.name`); one per profile joint.
+    pub joint_names: Vec<String>,
+    /// Drive the gripper topics (false: no gripper; its opening reads `gripper_min`, targets are refused).
+    pub gripper: bool,
+    /// The gripper topics' position at the profile's `gripper_max` opening (0 is `gripper_min`, linear between).
+    pub gripper_stroke_max: f64,
+    /// Feedback older than this (ms) is a fault: the HAL holds and publishes no motion. Default: the profile's
+    /// `command_timeout_ms`.
+    pub feedback_timeout_ms: Option<f64>,
+    /// How long to wait at start for the robot's first feedback (s); nothing is published before it.
+    pub connect_timeout_s: f64,
+    pub target_reliability: Reliability,
+    pub feedback_reliability: Reliability,
+}
+
+impl Default for Ros2Params {
+    fn default() -> Self {
+        Self {
+            domain_id: 0,
+            localhost_only: false,
+            arm_feedback_topic: "/hdas/feedback_arm_right".into(),
+            arm_target_topic: "/motion_target/target_joint_state_arm_right".into(),
+            gripper_feedback_topic: "/hdas/feedback_gripper_right".into(),
+            gripper_target_topic: "/motion_target/target_position_gripper_right".into(),
+            // Galaxea's R1 Lite URDF.
+            joint_names: (1..=6).map(|i| format!("right_arm_joint{i}")).collect(),
+            gripper: true,
+            gripper_stroke_max: 100.0,
+            feedback_timeout_ms: None,
+            connect_timeout_s: 10.0,
+            // The public R1 Lite drivers publish targets RELIABLE (the robot's subscribers are BEST_EFFORT, so
+            // nothing is resent in practice; a reliable writer matches either kind of reader).
+            target_reliability: Reliability::Reliable,
+            // Only the newest feedback counts, and a best-effort reader matches either kind of writer.
+            feedback_reliability: Reliability::BestEffort,
+        }
+    }
+}
+
+impl Ros2Params {
+    /// The feedback timeout (ms) for a profile whose command timeout is `command_timeout_ms`.
+    pub fn feedback_timeout_ms(&self, command_timeout_ms: f64) -> f64 {
+        self.feedback_timeout_ms.unwrap_or(command_timeout_ms)
+    }
+
+    /// Checks the table for a profile of `joints` joints at `rate_hz`.
+    pub fn validate(&self, joints: usize, rate_hz: f64, command_timeout_ms: f64) -> Result<(), String> {
+        // RTPS's port mapping (7400 + 250 × domain + …) leaves room for domains 0–232 only.
+        if self.domain_id > 232 {
+            return Err(format!("domain_id = {} must be in 0..=232 (RTPS's port range)", self.domain_id));
+        }
+        for (field, topic) in [
+            ("arm_feedback_topic", &self.arm_feedback_topic),
+            ("arm_target_topic", &self.arm_target_topic),
+            ("gripper_feedback_topic", &self.gripper_feedback_topic),
+            ("gripper_target_topic", &self.gripper_target_topic),
+        ] {
+            if let Err(why) = super::topics::check_ros_name(topic) {
+                return Err(format!("{field} = {topic:?}: {why}"));
+            }
+        }
+        if self.joint_names.len() != joints {
+            return Err(format!("joint_names has {} names but the robot has {joints} joints", self.joint_names.len()));
+        }
+        if !(self.gripper_stroke_max.is_finite() && self.gripper_stroke_max > 0.0) {
+            return Err(format!("gripper_stroke_max = {} must be a positive number", self.gripper_stroke_max));
+        }
+        let period_ms = 1e3 / rate_hz;
+        let timeout = self.feedback_timeout_ms(command_timeout_ms);
+        if !(timeout.is_finite() && timeout >= 2.0 * period_ms) {
+            return Err(format!(
+                "feedback_timeout_ms = {timeout} must be at least two feedback periods ({:.3} ms)",
+                2.0 * period_ms
+            ));
+        }
+        if !(self.connect_timeout_s.is_finite() && self.connect_timeout_s > 0.0 && self.connect_timeout_s <= 600.0) {
+            return Err(format!("connect_timeout_s = {} must be in (0, 600] s", self.connect_timeout_s));
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::path::Path;
+
+    use super::*;
+    use crate::profile::{BackendKind, Profile};
+
+    fn r1_lite() -> Profile {
+        Profile::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/r1_lite.toml")).unwrap()
+    }
+
+    #[test]
+    fn the_r1_lite_profile_s_table_is_valid_and_names_the_r1_lite_s_topics() {
+        let mut p = r1_lite();
+        p.backend = BackendKind::Ros2;
+        p.validate().unwrap();
+        let (r, d) = (&p.ros2, Ros2Params::default());
+        assert_eq!(
+            [&r.arm_feedback_topic, &r.arm_target_topic, &r.gripper_feedback_topic, &r.gripper_target_topic],
+            [&d.arm_feedback_topic, &d.arm_target_topic, &d.gripper_feedback_topic, &d.gripper_target_topic]
+        );
+        assert_eq!(r.joint_names, d.joint_names);
+        assert_eq!((r.target_reliability, r.feedback_reliability), (Reliability::Reliable, Reliability::BestEffort));
+        assert_eq!(r.feedback_timeout_ms(p.command_timeout_ms), 100.0);
+    }
+
+    #[test]
+    fn a_bad_table_is_refused_when_the_backend_is_ros2() {
+        type Spoil = fn(&mut Ros2Params);
+        let cases: [(&str, Spoil); 5] = [
+            ("domain_id", |r| r.domain_id = 233),
+            ("joint_names", |r| {
+                r.joint_names.pop();
+            }),
+            ("feedback_timeout_ms", |r| r.feedback_timeout_ms = Some(5.0)),
+            ("arm_target_topic", |r| r.arm_target_topic = "motion_target/x".into()),
+            ("gripper_stroke_max", |r| r.gripper_stroke_max = 0.0),
+        ];
+        for (field, spoil) in cases {
+            let mut p = r1_lite();
+            spoil(&mut p.ros2);
+            p.validate().expect("the sim backend does not look at [ros2]");
+            p.backend = BackendKind::Ros2;
+            let msg = p.validate().unwrap_err().to_string();
+            assert!(msg.contains(&format!("ros2.{field}")), "{field}: {msg}");
+        }
+    }
+}
