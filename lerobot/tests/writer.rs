@@ -136,7 +136,8 @@ fn a_recording_abandoned_at_any_point_closes_and_leaves_nothing() {
     fn frame(w: &mut DatasetWriter) {
         w.add_frame(&[&[0.0, 0.0], &[0.0, 0.0]], &[&[0u8; 12288]]).unwrap();
     }
-    let points: [(&str, fn(&mut DatasetWriter)); 3] = [
+    type Step = fn(&mut DatasetWriter);
+    let points: [(&str, Step); 3] = [
         ("before any frame", |_| {}),
         ("in its first episode", frame),
         ("in its second episode", |w| {
