@@ -42,7 +42,10 @@ pub fn quiet_video_encoder() {
         // SAFETY: called from main before any thread exists (see above).
         unsafe { std::env::set_var("SVT_LOG", "2") };
     }
-    let filter = tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into());
+    // RustDDS (the HAL's ros2 backend, which `mars-hil hal` runs) warns tens of times a second against a peer on
+    // loopback: only its errors by default, as `mars-hal` does.
+    let default = "info,rustdds=error,ros2_client=error";
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| default.into());
     let ansi = std::io::IsTerminal::is_terminal(&std::io::stderr());
     let _ = tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).with_ansi(ansi).try_init();
 }

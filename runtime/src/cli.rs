@@ -118,8 +118,10 @@ pub struct DemoArgs {
     pub hal_stall_at_tick: Option<u64>,
     #[arg(long, requires = "hal_stall_at_tick")]
     pub hal_stall_ms: Option<f64>,
-    /// The robot behind the HAL: the mock plant in the HAL process, or franka-sim (a MuJoCo FR3 speaking the
-    /// Franka Control Interface, started here; the HAL drives it with its fci backend, as it would a real FR3).
+    /// The robot behind the HAL: the mock plant in the HAL process; franka-sim (a MuJoCo FR3 speaking the
+    /// Franka Control Interface, started here; the HAL drives it with its fci backend, as it would a real FR3);
+    /// or, with `--robot r1-lite`, the R1 Lite stand-in (a Cyclone DDS peer on the R1 Lite's ROS 2 topics,
+    /// started here; the HAL drives it with its ros2 backend, as it would the robot).
     #[arg(long, value_enum, default_value_t = DemoRobot::Mock)]
     pub backend: DemoRobot,
     /// franka-sim's virtual environment (made by `.ci/franka-sim-venv`, which the demo runs first).
@@ -152,6 +154,7 @@ pub const ROBOT_CONFIGS: [(&str, &str); 2] = [("fr3", DEFAULT_CONFIG), ("r1-lite
 pub enum DemoRobot {
     Mock,
     FrankaSim,
+    R1LiteStandin,
 }
 
 /// marsd's allowed gap between usable frames when the robot is franka-sim (ms).
@@ -181,10 +184,12 @@ fn choose_demo_config(args: &mut DemoArgs) -> anyhow::Result<()> {
             args.task == DemoTask::Pick || *name == "fr3",
             "--task push-t runs on the FR3 (its table, camera and kinematics are the FR3's), not on --robot {name}"
         );
-        anyhow::ensure!(
-            args.backend == DemoRobot::Mock || *name == "fr3",
-            "--backend franka-sim simulates an FR3, not --robot {name}"
-        );
+        let (backend, simulates) = match args.backend {
+            DemoRobot::Mock => ("mock", *name),
+            DemoRobot::FrankaSim => ("franka-sim", "fr3"),
+            DemoRobot::R1LiteStandin => ("r1-lite-standin", "r1-lite"),
+        };
+        anyhow::ensure!(*name == simulates, "--backend {backend} stands in for --robot {simulates}, not {name}");
         args.marsd.config = (*config).into();
         args.marsd.robot = None;
     }
@@ -217,8 +222,17 @@ pub fn demo(mut args: DemoArgs) -> anyhow::Result<u8> {
     }
     // franka-sim first: the HAL reads the robot before anything else.
     let _sim = match args.backend {
-        DemoRobot::Mock => None,
+        DemoRobot::Mock | DemoRobot::R1LiteStandin => None,
         DemoRobot::FrankaSim => Some(start_franka_sim(&args.franka_sim_venv, &out)?),
+    };
+    let standin = match args.backend {
+        DemoRobot::R1LiteStandin => {
+            anyhow::ensure!(profile.joints == 6, "the R1 Lite stand-in needs the R1 Lite's profile (--robot r1-lite)");
+            let s = crate::standin::StandIn::start(&profile, &out)?;
+            eprintln!("R1 Lite stand-in on DDS domain {} (log {})", s.domain, s.log.display());
+            Some(s)
+        }
+        _ => None,
     };
     let mut hal = Command::new(&exe);
     // The HAL is a robot's own control loop: real-time, above the servo loop it shares a core with.
@@ -240,6 +254,9 @@ pub fn demo(mut args: DemoArgs) -> anyhow::Result<u8> {
     if args.backend == DemoRobot::FrankaSim {
         // franka-sim runs on an ordinary kernel (a real FR3 wants PREEMPT_RT: see README, "On a real FR3").
         hal.args(["--backend", "fci", "--robot-ip", "127.0.0.1", "--realtime", "ignore", "--late-commands", "applied"]);
+    }
+    if let Some(s) = &standin {
+        hal.args(["--backend", "ros2", "--ros-domain-id", &s.domain.to_string(), "--ros-localhost-only"]);
     }
     let mut hal = Reaped(hal.spawn().context("starting the HAL process")?);
     let mut scene = match &task {

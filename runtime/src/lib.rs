@@ -36,6 +36,7 @@ pub mod shared;
 pub mod smoothing;
 pub mod stall;
 pub mod stall_watch;
+pub mod standin;
 pub mod tally;
 pub mod task;
 pub mod timeliness;

@@ -76,6 +76,48 @@ fn r1_lite_demo_picks_both_vegetables_within_its_limits() {
     with_one_rerun(|attempt| demo_attempt(&R1_LITE_PICK_VEGETABLE, attempt));
 }
 
+/// The R1 Lite over ROS 2: `mars-hil demo --robot r1-lite --backend r1-lite-standin` — Pick Vegetable through marsd,
+/// the HAL's ros2 backend (RustDDS) and the R1 Lite stand-in (Cyclone DDS, another implementation of the wire):
+/// both vegetables picked, nothing out of limits, and the stand-in received the HAL's targets and nothing it
+/// could not use.
+#[test]
+fn r1_lite_demo_picks_both_vegetables_over_ros2_through_a_cyclone_dds_stand_in() {
+    let _rt = rt_rig_lock();
+    with_one_rerun(r1_lite_ros2_attempt);
+}
+
+fn r1_lite_ros2_attempt(attempt: u32) -> bool {
+    let logs = TempDir::new(&format!("r1ros2{attempt}"));
+    let out = logs.join("out");
+    let mut cmd = std::process::Command::new(env!("CARGO_BIN_EXE_mars-hil"));
+    cmd.current_dir(root()).args(["demo", "--robot", "r1-lite", "--backend", "r1-lite-standin"]).arg("--out").arg(&out);
+    let mut demo = spawn_named(cmd, "demo", &logs);
+    let code = demo.exit_code(Duration::from_secs(300));
+    if code == 3 && attempt == 1 && demo_tripped_on_a_machine_stall(&out, "the R1 Lite over ROS 2") {
+        return false;
+    }
+    assert_eq!(code, 0, "{}", demo.logs());
+    let s: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(u64_at(&s, "/episodes"), 10, "{s}");
+    // As on the mock HAL (the same checkpoint, seeds and plant lag): 10 of 10 in the runs measured.
+    assert!(u64_at(&s, "/successes") >= 8, "{s}");
+    let modes = s["modes"].as_array().unwrap();
+    assert!(modes.iter().all(|m| m[1].as_u64().unwrap() > 0), "both vegetables: {modes:?}");
+    for check in ["final_check", "hal_rejected", "hal_clamped"] {
+        assert_eq!(u64_at(&s, &format!("/limit_violations/{check}")), 0, "{check}: {s}");
+    }
+    assert_eq!(u64_at(&s, "/servo_allocations/system"), 0, "the servo tick allocated");
+    // The stand-in's own account (its last JSON line): the HAL's arm targets arrived, every one usable.
+    let log = std::fs::read_to_string(out.join("standin.log")).unwrap();
+    let last: serde_json::Value = serde_json::from_str(log.lines().last().unwrap()).unwrap();
+    let counts = &last["counts"];
+    assert_eq!(counts["bad_targets"], 0, "{last}");
+    let sent = u64_at(&s, "/commands_sent");
+    assert!(counts["arm_targets"].as_u64().unwrap() as f64 > 0.9 * sent as f64, "{last} of {sent} commands");
+    true
+}
+
 /// One run of test 1 on `demo`'s robot; false if a whole-VM stall explains its failure (first attempt only).
 fn demo_attempt(demo: &ShippedDemo, attempt: u32) -> bool {
     let logs = TempDir::new(&format!("{}{attempt}", demo.name));
