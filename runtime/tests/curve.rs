@@ -32,7 +32,7 @@ fn pick_cup_curve_scores_every_snapshot() {
         .expect("mars-hil runs");
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let md = std::fs::read_to_string(dir.join("curves.md")).unwrap();
-    for want in ["FR3 Pick Cup", "| 1 |", "| 2 |", "| mars |", "| fm |", "mars-hil curve --task"] {
+    for want in ["fr3_pick_cup", "| 1 |", "| 2 |", "| mars |", "| fm |", "mars-hil curve --task"] {
         assert!(md.contains(want), "curves.md lacks {want:?}:\n{md}");
     }
     let json: serde_json::Value =
