@@ -3,7 +3,7 @@
 //! feedback topics and tracking its target topics, on this host only, in a DDS domain no other run of this machine
 //! holds. The HAL then drives it with its ros2 backend, as it would the robot.
 
-use std::fs::{File, OpenOptions};
+use std::fs::File;
 use std::os::unix::process::CommandExt;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
@@ -20,28 +20,8 @@ pub struct StandIn {
     child: Child,
     pub domain: u16,
     pub log: PathBuf,
-    /// Held while the stand-in runs: the domain's lock, the one `hal/tests` take too.
+    /// Held while the stand-in runs: the domain's reservation (`mars_hal::ros2::domain`), as the tests hold theirs.
     _domain: File,
-}
-
-/// A DDS domain (1–232) held by an flock in the temp dir for as long as the file lives, so two runs of this
-/// machine (a demo, the ros2 tests) never share one.
-fn free_domain() -> anyhow::Result<(u16, File)> {
-    let start = std::process::id();
-    for k in 0..232u32 {
-        let domain = ((start + k) % 232 + 1) as u16;
-        let path = std::env::temp_dir().join(format!("mars-dds-domain-{domain}.lock"));
-        let file = OpenOptions::new()
-            .create(true)
-            .truncate(false)
-            .write(true)
-            .open(&path)
-            .with_context(|| format!("opening {}", path.display()))?;
-        if file.try_lock().is_ok() {
-            return Ok((domain, file));
-        }
-    }
-    anyhow::bail!("all 232 DDS domains are held by other runs on this machine")
 }
 
 impl StandIn {
@@ -55,7 +35,8 @@ impl StandIn {
             let ok = Command::new(".ci/dds-venv").status().context("running .ci/dds-venv")?.success();
             anyhow::ensure!(ok, ".ci/dds-venv failed: the R1 Lite stand-in cannot run");
         }
-        let (domain, lock) = free_domain()?;
+        let (domain, lock) =
+            mars_hal::ros2::domain::reserve_domain(std::process::id()).context("reserving a DDS domain")?;
         std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
         let log = out.join("standin.log");
         let home: Vec<String> = profile.home.iter().map(|q| q.to_string()).collect();

@@ -22,6 +22,7 @@
 //! when the robot or the controller goes quiet; [`drive`] runs the HAL loop on its own timer around it.
 
 pub mod backend;
+pub mod domain;
 pub mod drive;
 pub mod io;
 pub mod message;

@@ -51,15 +51,21 @@ fn lock(name: &str) -> File {
 
 /// The simulator's virtual environment, installed first if it is missing.
 pub fn venv() -> PathBuf {
+    install_venv(".ci/franka-sim-venv", ".venv-sim", "mars-franka-sim-install.lock")
+}
+
+/// Runs the idempotent installer `script` (from the repository's root) under the machine-wide lock `lock`, so
+/// two test binaries never install at once; returns the environment `dir` it makes.
+pub fn install_venv(script: &str, dir: &str, lock_name: &str) -> PathBuf {
     let root = repo_root();
-    let _installing = lock("mars-franka-sim-install.lock");
-    let script = root.join(".ci/franka-sim-venv");
+    let _installing = lock(lock_name);
+    let script = root.join(script);
     let status = Command::new(&script)
         .current_dir(&root)
         .status()
         .unwrap_or_else(|e| panic!("running {}: {e}", script.display()));
-    assert!(status.success(), "{} failed ({status}): franka-sim is not installed", script.display());
-    root.join(".venv-sim")
+    assert!(status.success(), "{} failed ({status}): {dir} is not installed", script.display());
+    root.join(dir)
 }
 
 /// What the simulator starts as, from its own installed source (not from numbers copied here): the arm's initial

@@ -8,7 +8,7 @@
 //! - It runs in its own process group, killed when the handle is dropped; its JSON-lines log (every target it
 //!   received, when it went silent) is what the tests read, and is kept when a test fails.
 
-use std::fs::{File, OpenOptions, TryLockError};
+use std::fs::File;
 use std::os::unix::process::CommandExt;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
@@ -17,36 +17,11 @@ use std::time::{Duration, Instant};
 
 use serde_json::Value;
 
-use super::franka_sim::repo_root;
-
-/// Takes the machine-wide lock `name` (in the temp dir), waiting while another process holds it.
-fn lock(name: &str) -> File {
-    let path = std::env::temp_dir().join(name);
-    let file = OpenOptions::new()
-        .create(true)
-        .truncate(false)
-        .write(true)
-        .open(&path)
-        .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
-    match file.try_lock() {
-        Ok(()) => {}
-        Err(TryLockError::WouldBlock) => file.lock().unwrap_or_else(|e| panic!("{}: {e}", path.display())),
-        Err(TryLockError::Error(e)) => panic!("{}: {e}", path.display()),
-    }
-    file
-}
+use super::franka_sim::{install_venv, repo_root};
 
 /// The stand-in's virtual environment, installed first if it is missing.
 pub fn venv() -> PathBuf {
-    let root = repo_root();
-    let _installing = lock("mars-dds-install.lock");
-    let script = root.join(".ci/dds-venv");
-    let status = Command::new(&script)
-        .current_dir(&root)
-        .status()
-        .unwrap_or_else(|e| panic!("running {}: {e}", script.display()));
-    assert!(status.success(), "{} failed ({status}): cyclonedds is not installed", script.display());
-    root.join(".venv-dds")
+    install_venv(".ci/dds-venv", ".venv-dds", "mars-dds-install.lock")
 }
 
 /// A DDS domain (1–232) for one stand-in and its HAL. Each domain is held by an flock for as long as the
@@ -55,20 +30,7 @@ pub fn venv() -> PathBuf {
 pub fn unique_domain() -> (u16, File) {
     static N: AtomicU32 = AtomicU32::new(0);
     let start = std::process::id().wrapping_add(N.fetch_add(1, Ordering::Relaxed) * 37);
-    for k in 0..232u32 {
-        let domain = ((start + k) % 232 + 1) as u16;
-        let path = std::env::temp_dir().join(format!("mars-dds-domain-{domain}.lock"));
-        let file = OpenOptions::new()
-            .create(true)
-            .truncate(false)
-            .write(true)
-            .open(&path)
-            .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
-        if file.try_lock().is_ok() {
-            return (domain, file);
-        }
-    }
-    panic!("all 232 DDS domains are in use by tests on this machine");
+    mars_hal::ros2::domain::reserve_domain(start).unwrap_or_else(|e| panic!("{e}"))
 }
 
 /// How the stand-in starts.
