@@ -48,6 +48,7 @@ fn max_diff(a: &[f64], b: &[f64]) -> f64 {
 /// The stand-in, the HAL process on its domain, the controller's ports and the frames seen.
 struct Rig {
     profile: Profile,
+    robot: String,
     standin: StandIn,
     _node: Node<ipc::Service>,
     states: StateReader,
@@ -65,6 +66,11 @@ struct Rig {
 impl Rig {
     /// The stand-in at `start` (joint positions), then the HAL on its domain; waits for the HAL's first frame.
     fn start(start: [f64; JOINTS]) -> Self {
+        Self::start_with(start, false)
+    }
+
+    /// [`Self::start`], the stand-in publishing its cameras (every 5th frame truncated) when `cameras`.
+    fn start_with(start: [f64; JOINTS], cameras: bool) -> Self {
         let rt = rt_rig_lock().expect("taking the real-time rig lock");
         let profile = Profile::load(&r1_lite()).unwrap();
         let standin = StandIn::start(&StandInOptions {
@@ -73,6 +79,8 @@ impl Rig {
             rate_hz: profile.rate_hz,
             time_constant_s: 0.05,
             gripper_as_joint: false,
+            cameras,
+            camera_bad_every: 5,
         });
         let robot = unique_robot();
         let ns = RobotNamespace::new(&robot).unwrap();
@@ -91,6 +99,7 @@ impl Rig {
             .unwrap();
         let mut rig = Rig {
             profile,
+            robot,
             standin,
             _node: node,
             states,
@@ -494,6 +503,8 @@ fn arm_feedback_with_the_gripper_as_a_seventh_joint_is_read_as_six() {
         rate_hz: profile.rate_hz,
         time_constant_s: 0.05,
         gripper_as_joint: true,
+        cameras: false,
+        camera_bad_every: 0,
     });
     let robot = unique_robot();
     let ns = RobotNamespace::new(&robot).unwrap();
@@ -538,4 +549,130 @@ fn without_feedback_the_hal_refuses_to_start_and_publishes_nothing() {
     assert_eq!(out.status.code(), Some(2), "{stderr}");
     assert!(stderr.contains("no feedback from the robot") && stderr.contains("nothing was commanded"), "{stderr}");
     assert!(started.elapsed() < Duration::from_secs(10), "{:?}", started.elapsed());
+}
+
+/// The grey level of the stand-in's centre square in frame `k` (its test card: 40 + 25·(k mod 8)).
+fn card_level(k: u64) -> u8 {
+    (40 + 25 * (k % 8)) as u8
+}
+
+/// The scheduling policy of each thread of process `pid` whose name starts with `prefix` (`/proc/<pid>/task/*/
+/// stat`, field 41: 0 SCHED_OTHER, 1 SCHED_FIFO, 2 SCHED_RR).
+fn thread_policies(pid: u32, prefix: &str) -> Vec<(String, u32)> {
+    let mut out = vec![];
+    for task in std::fs::read_dir(format!("/proc/{pid}/task")).unwrap().flatten() {
+        let comm = std::fs::read_to_string(task.path().join("comm")).unwrap_or_default().trim().to_owned();
+        if !comm.starts_with(prefix) {
+            continue;
+        }
+        let stat = std::fs::read_to_string(task.path().join("stat")).unwrap();
+        // The fields after the command's closing parenthesis start at field 3.
+        let after = stat.rsplit_once(')').unwrap().1;
+        let policy = after.split_whitespace().nth(41 - 3).unwrap().parse().unwrap();
+        out.push((comm, policy));
+    }
+    out.sort();
+    out
+}
+
+#[test]
+fn the_robot_s_jpeg_cameras_arrive_as_rgb_image_frames_decoded_off_the_hal_loop() {
+    let profile = Profile::load(&r1_lite()).unwrap();
+    let mut rig = Rig::start_with(start_pose(&profile), true);
+    let ns = RobotNamespace::new(&rig.robot).unwrap();
+    let cams = rig.profile.ros2.cameras.clone();
+    assert_eq!(cams.len(), 2, "the R1 Lite profile bridges its head and wrist cameras");
+    let readers: Vec<ImageReader> = cams.iter().map(|c| ImageReader::new(&rig._node, &ns, &c.id).unwrap()).collect();
+    // (seq, capture ns, read ns, centre grey, the four quadrants' pixels) of every frame, per camera.
+    let mut seen: Vec<Vec<(u64, u64, u64, u8, [[u8; 3]; 4])>> = vec![vec![]; cams.len()];
+    let end = Instant::now() + Duration::from_secs(4);
+    while Instant::now() < end {
+        for ((reader, cam), seen) in readers.iter().zip(&cams).zip(&mut seen) {
+            while let Some(f) = reader.receive().unwrap() {
+                let read_ns = clock::monotonic_ns();
+                let h = *f.header();
+                assert_eq!((h.width, h.height), (cam.width, cam.height), "{}", cam.id);
+                assert_eq!(ImageEncoding::from_u32(h.encoding), Some(ImageEncoding::Rgb8), "{}", cam.id);
+                let px = f.pixels();
+                assert_eq!(px.len(), (cam.width * cam.height * 3) as usize);
+                let (w, hh) = (cam.width as usize, cam.height as usize);
+                let at = |x: usize, y: usize| -> [u8; 3] { px[(y * w + x) * 3..][..3].try_into().unwrap() };
+                let quads =
+                    [at(w / 8, hh / 8), at(w * 7 / 8, hh / 8), at(w / 8, hh * 7 / 8), at(w * 7 / 8, hh * 7 / 8)];
+                seen.push((h.seq, h.timestamp_ns, read_ns, at(w / 2, hh / 2)[0], quads));
+            }
+        }
+        let _ = rig.watch(Duration::from_millis(5));
+    }
+    let hal_pid = rig.hal.as_ref().unwrap().id();
+    let threads = thread_policies(hal_pid, "ros2-cam-");
+    // SIGTERM: the HAL brakes, stops, and logs each camera's counts.
+    // SAFETY: kill(2) on our own child; no memory is involved.
+    assert_eq!(unsafe { libc::kill(hal_pid as i32, libc::SIGTERM) }, 0);
+    let status = rig.hal.as_mut().unwrap().wait().unwrap();
+    assert!(status.success(), "mars-hal: {status}\n{}", rig.hal_output());
+    let out = rig.hal_output();
+
+    // Decoded on threads of their own, at normal priority: not the loop's thread or its SCHED_FIFO.
+    assert_eq!(
+        threads,
+        vec![("ros2-cam-0".to_owned(), 0), ("ros2-cam-1".to_owned(), 0)],
+        "the camera threads and their scheduling policies"
+    );
+    let sent = rig.standin.named("camera_frame");
+    let want = [[200, 40, 40], [40, 200, 40], [40, 40, 200], [128, 128, 128]];
+    for (cam, seen) in cams.iter().zip(&seen) {
+        let good_sent = sent.iter().filter(|e| e["camera"] == cam.id.as_str() && e["bad"] == false).count();
+        let bad_sent = sent.iter().filter(|e| e["camera"] == cam.id.as_str() && e["bad"] == true).count();
+        // 15 Hz for 4 s, less every 5th frame: ~48 whole frames. Some may be skipped (the bridge keeps the
+        // newest) or lost (BEST_EFFORT), not most.
+        assert!(
+            seen.len() >= 20 && seen.len() <= good_sent,
+            "{}: {} frames read, {good_sent} whole sent",
+            cam.id,
+            seen.len()
+        );
+        assert!(bad_sent >= 3, "{}: the stand-in sent {bad_sent} truncated frames", cam.id);
+        for w in seen.windows(2) {
+            assert!(w[1].0 > w[0].0, "{}: seq {} after {}", cam.id, w[1].0, w[0].0);
+        }
+        for &(seq, capture, read, grey, quads) in seen {
+            // Captured before it was read (the stamp's age kept on this machine's clock), and recently.
+            assert!(
+                capture <= read && read - capture < 500_000_000,
+                "{} seq {seq}: capture {capture}, read {read}",
+                cam.id
+            );
+            for (q, w) in quads.iter().zip(want) {
+                assert!(
+                    q.iter().zip(w).all(|(a, b)| (*a as i32 - b).abs() <= 8),
+                    "{} seq {seq}: {q:?} vs {w:?}",
+                    cam.id
+                );
+            }
+            assert!(
+                (0..8).any(|k| (grey as i32 - card_level(k) as i32).abs() <= 6),
+                "{} seq {seq}: grey {grey}",
+                cam.id
+            );
+        }
+        // The pictures change from frame to frame as the stand-in's did (the centre counts frames mod 8).
+        let mut levels: Vec<u8> = seen.iter().map(|s| s.3 / 25).collect();
+        levels.sort();
+        levels.dedup();
+        assert!(levels.len() >= 5, "{}: centre levels seen {levels:?}", cam.id);
+        // The HAL's count: every truncated frame it took was refused as undecodable, none published.
+        let line = out
+            .lines()
+            .find(|l| l.contains("ROS 2 camera") && l.contains(&format!("camera={}", cam.id)))
+            .unwrap_or_else(|| panic!("no `ROS 2 camera` line for {}:\n{out}", cam.id));
+        let field = |name: &str| -> u64 {
+            let v = line.split(&format!(" {name}=")).nth(1).and_then(|r| r.split_whitespace().next());
+            v.unwrap_or_else(|| panic!("{name} in {line}")).parse().unwrap()
+        };
+        assert!(field("undecodable") >= 1, "{line}");
+        assert_eq!(field("published") + field("undecodable") + field("skipped"), field("taken"), "{line}");
+        assert!(field("published") >= seen.len() as u64, "{line}");
+        assert_eq!((field("not_jpeg"), field("wrong_size"), field("publish_errors")), (0, 0, 0), "{line}");
+    }
 }

@@ -16,6 +16,12 @@ What it does, as the robot does (Galaxea's docs and public drivers):
   there after its commands stop;
 - goes silent (stops publishing feedback, keeps receiving, tracking and logging) on SIGUSR1 or after
   --silent-after-s, and speaks again on SIGUSR2 (a robot driver that hung and came back);
+- with --cameras, publishes its two cameras as the robot does, `sensor_msgs/CompressedImage` JPEG (encoded by
+  Pillow's libjpeg-turbo) on /hdas/camera_head/left_raw/image_raw_color/compressed (1280×720) and
+  /hdas/camera_wrist_right/color/image_raw/compressed (640×360), BEST_EFFORT, at --camera-hz, from a thread of
+  their own: a test card of four flat quadrants (red, green / blue, grey) with a square in the middle whose grey
+  level counts the frames (40 + 25·(k mod 8)); --camera-bad-every N cuts every N-th frame short (a truncated JPEG);
+  each frame sent is logged (`camera_frame`);
 - logs JSON lines (to --log, flushed per line): `ready`, `first_feedback`, every `arm_target` and
   `gripper_target` received (with CLOCK_MONOTONIC ns, the HAL's clock), `silent` (with the time of its last
   feedback), a `summary` every second and at exit (counts, last target, pose).
@@ -32,6 +38,7 @@ import math
 import os
 import signal
 import sys
+import threading
 import time
 from dataclasses import dataclass, field
 
@@ -66,7 +73,27 @@ def parse_args():
     p.add_argument("--gripper-feedback", default="/hdas/feedback_gripper_right")
     p.add_argument("--arm-target", default="/motion_target/target_joint_state_arm_right")
     p.add_argument("--gripper-target", default="/motion_target/target_position_gripper_right")
+    p.add_argument("--cameras", action="store_true", help="publish the head and wrist cameras (JPEG)")
+    p.add_argument("--camera-hz", type=float, default=15.0)
+    p.add_argument("--camera-bad-every", type=int, default=0, help="truncate every N-th camera frame (0: none)")
+    p.add_argument("--head-camera", default="/hdas/camera_head/left_raw/image_raw_color/compressed")
+    p.add_argument("--wrist-camera", default="/hdas/camera_wrist_right/color/image_raw/compressed")
     return p.parse_args()
+
+
+def test_card(w, h, k):
+    """The cameras' picture: four flat quadrants and a centre square whose grey level counts frames (mod 8)."""
+    from PIL import Image, ImageDraw
+
+    img = Image.new("RGB", (w, h), (128, 128, 128))
+    d = ImageDraw.Draw(img)
+    d.rectangle([0, 0, w // 2 - 1, h // 2 - 1], fill=(200, 40, 40))
+    d.rectangle([w // 2, 0, w - 1, h // 2 - 1], fill=(40, 200, 40))
+    d.rectangle([0, h // 2, w // 2 - 1, h - 1], fill=(40, 40, 200))
+    g = 40 + 25 * (k % 8)
+    r = h // 8
+    d.rectangle([w // 2 - r, h // 2 - r, w // 2 + r - 1, h // 2 + r - 1], fill=(g, g, g))
+    return img
 
 
 def dds_topic(ros_name):
@@ -83,7 +110,7 @@ def main():
     from cyclonedds.domain import DomainParticipant
     from cyclonedds.idl import IdlStruct
     from cyclonedds.idl.annotations import final
-    from cyclonedds.idl.types import float64, int32, sequence, uint32
+    from cyclonedds.idl.types import float64, int32, sequence, uint8, uint32
     from cyclonedds.pub import DataWriter
     from cyclonedds.sub import DataReader
     from cyclonedds.topic import Topic
@@ -112,12 +139,22 @@ def main():
         velocity: sequence[float64] = field(default_factory=list)
         effort: sequence[float64] = field(default_factory=list)
 
+    # ROS 2's uint8[]: on the wire a length, then the bytes (Cyclone packs a `bytes` value given for it at once).
+    @dataclass
+    @final
+    class CompressedImage_(IdlStruct, typename="sensor_msgs::msg::dds_::CompressedImage_"):
+        header: Header_ = field(default_factory=Header_)
+        format: str = ""
+        data: sequence[uint8] = field(default_factory=list)
+
     log_file = open(args.log, "a", buffering=1) if args.log else sys.stdout
+    log_lock = threading.Lock()
 
     def log(event, **fields):
         fields = {"ev": event, "t_ns": time.monotonic_ns(), **fields}
-        log_file.write(json.dumps(fields) + "\n")
-        log_file.flush()
+        with log_lock:
+            log_file.write(json.dumps(fields) + "\n")
+            log_file.flush()
 
     q = [float(x) for x in args.start.split(",")]
     n = len(q)
@@ -157,6 +194,34 @@ def main():
     def stamp():
         t = time.time()
         return Header_(Time_(int(t), int((t % 1.0) * 1e9)), "")
+
+    def cameras():
+        import io
+
+        specs = [("head_left", args.head_camera, 1280, 720), ("wrist_right", args.wrist_camera, 640, 360)]
+        writers = [DataWriter(dp, Topic(dp, dds_topic(t), CompressedImage_), qos=best_effort) for _, t, _, _ in specs]
+        k = 0
+        next_frame = time.monotonic()
+        while not stop["now"]:
+            k += 1
+            for (cam, _, w, h), writer in zip(specs, writers):
+                buf = io.BytesIO()
+                test_card(w, h, k).save(buf, format="JPEG", quality=90)
+                data = buf.getvalue()
+                bad = args.camera_bad_every > 0 and k % args.camera_bad_every == 0
+                if bad:
+                    data = data[: len(data) // 2]
+                writer.write(CompressedImage_(stamp(), "rgb8; jpeg compressed bgr8", data))
+                log("camera_frame", camera=cam, k=k, bad=bad, bytes=len(data))
+            next_frame += 1.0 / args.camera_hz
+            delay = next_frame - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)
+            else:
+                next_frame = time.monotonic()
+
+    if args.cameras:
+        threading.Thread(target=cameras, name="cameras", daemon=True).start()
 
     period = 1.0 / args.rate_hz
     started = time.monotonic()

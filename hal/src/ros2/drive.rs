@@ -8,6 +8,8 @@
 //!   a controller starts a new session.
 //! - **SIGTERM / the duration**: stop following and brake the setpoint to rest, publishing each step, so the
 //!   robot latches a position at rest; then the I/O thread publishes what is left and closes.
+//! - **Cameras**: bridged on threads of their own from the start ([`super::camera`]); their counts are logged at
+//!   exit (`ROS 2 camera`).
 
 use std::time::Duration;
 
@@ -25,7 +27,7 @@ use crate::runner::{HalLoop, Next, Report, RunOptions};
 /// rest). Refuses to start (a [`StartError`], nothing published) without feedback from the robot.
 pub fn run(profile: &Profile, opts: &RunOptions) -> anyhow::Result<Report> {
     let p = &profile.ros2;
-    let link = Link::open(p, profile.joints)?;
+    let link = Link::open(p, profile.joints, &opts.robot)?;
     info!(
         domain = p.domain_id, localhost_only = p.localhost_only, feedback = %p.arm_feedback_topic,
         target = %p.arm_target_topic, gripper = p.gripper, "ROS 2 open; waiting for the robot's feedback"
@@ -89,6 +91,13 @@ pub fn run(profile: &Profile, opts: &RunOptions) -> anyhow::Result<Report> {
         retakes = c.retakes,
         "ROS 2 link"
     );
+    for (id, counts) in &backend.link.cameras {
+        let s = counts.snapshot();
+        info!(
+            camera = %id, taken = s[0].1, published = s[1].1, skipped = s[2].1, not_jpeg = s[3].1,
+            undecodable = s[4].1, wrong_size = s[5].1, unstamped = s[6].1, publish_errors = s[7].1, "ROS 2 camera"
+        );
+    }
     backend.link.close();
     Ok(report)
 }

@@ -8,7 +8,8 @@
 //! with CLOCK_MONOTONIC when it takes it: the feedback's age the backend judges is the time since then.
 //!
 //! The participant, node and topics are made on the I/O thread before the HAL loop starts, so neither it nor
-//! RustDDS's own threads inherit the loop's real-time settings.
+//! RustDDS's own threads inherit the loop's real-time settings; so are the camera threads ([`super::camera`]),
+//! which take their topics' subscriptions from it and are joined before the node is dropped.
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
@@ -24,7 +25,8 @@ use ros2_client::node_options::NodeOptions;
 use ros2_client::qos::{QosProfile, WhenFull};
 use tracing::warn;
 
-use super::message::{Header, JOINT_STATE_PACKAGE, JOINT_STATE_TYPE, JointState, Time};
+use super::camera::{CameraCounts, Cameras};
+use super::message::{COMPRESSED_IMAGE_TYPE, CompressedImage, Header, JOINT_STATE_TYPE, JointState, SENSOR_MSGS, Time};
 use super::params::{Reliability, Ros2Params};
 
 /// How often the I/O thread looks for feedback when nothing woke it (a target to publish wakes it at once).
@@ -87,6 +89,8 @@ pub struct Link {
     stop: Arc<AtomicBool>,
     handle: Option<JoinHandle<()>>,
     pub counts: Arc<IoCounts>,
+    /// Each camera's id and counters, in `[[ros2.cameras]]` order.
+    pub cameras: Vec<(String, Arc<CameraCounts>)>,
     /// Targets the ring had no room for (the I/O thread fell behind by [`RING`] targets).
     pub ring_full: u64,
 }
@@ -97,6 +101,8 @@ struct Dds {
     gripper_feedback: Option<Subscription<JointState>>,
     arm_target: Publisher<JointState>,
     gripper_target: Option<Publisher<JointState>>,
+    /// The cameras' topics, handed to their threads.
+    cameras: Vec<Subscription<CompressedImage>>,
     // Kept alive for as long as the publishers and subscriptions are used.
     _node: Node,
     _context: Context,
@@ -128,7 +134,7 @@ impl Dds {
         // No /rosout and no parameter services: nothing runs this node's spinner, and the HAL logs to stderr.
         let options = NodeOptions::new().enable_rosout(false).start_parameter_services(false);
         let mut node = context.new_node(name, options).map_err(|e| anyhow::anyhow!("creating the node: {e:?}"))?;
-        let type_name = || MessageTypeName::new(JOINT_STATE_PACKAGE, JOINT_STATE_TYPE);
+        let type_name = || MessageTypeName::new(SENSOR_MSGS, JOINT_STATE_TYPE);
         let topic = |node: &Node, ros_name: &str, r: Reliability| {
             let name = Name::parse(ros_name).map_err(|e| anyhow::anyhow!("topic {ros_name}: {e:?}"))?;
             node.create_topic(&name, type_name(), &qos(r)).map_err(|e| anyhow::anyhow!("topic {ros_name}: {e:?}"))
@@ -162,27 +168,53 @@ impl Dds {
         } else {
             (None, None)
         };
-        Ok(Self { arm_feedback, gripper_feedback, arm_target, gripper_target, _node: node, _context: context })
+        // Camera frames: BEST_EFFORT (it matches the robot's writers of either kind, and a lost frame is not worth
+        // a resend once the next is there).
+        let mut cameras = Vec::new();
+        for c in &p.cameras {
+            let name = Name::parse(&c.topic).map_err(|e| anyhow::anyhow!("topic {}: {e:?}", c.topic))?;
+            let image = MessageTypeName::new(SENSOR_MSGS, COMPRESSED_IMAGE_TYPE);
+            let q = qos(Reliability::BestEffort);
+            let t = node.create_topic(&name, image, &q).map_err(|e| anyhow::anyhow!("topic {}: {e:?}", c.topic))?;
+            cameras.push(
+                node.create_subscription::<CompressedImage>(&t, Some(q))
+                    .map_err(|e| anyhow::anyhow!("subscribing {}: {e:?}", c.topic))?,
+            );
+        }
+        Ok(Self { arm_feedback, gripper_feedback, arm_target, gripper_target, cameras, _node: node, _context: context })
     }
 }
 
 impl Link {
     /// Opens the DDS side on a new thread (participant, node, the two feedback subscriptions and target
-    /// publishers) and returns once it is ready, or why it could not be.
-    pub fn open(p: &Ros2Params, joints: usize) -> anyhow::Result<Self> {
+    /// publishers, and a thread per camera publishing on `mars/<robot>/camera/<id>`) and returns once it is ready,
+    /// or why it could not be.
+    pub fn open(p: &Ros2Params, joints: usize, robot: &str) -> anyhow::Result<Self> {
         let (newest_in, newest) = triple_buffer::triple_buffer(&Newest::default());
         let (targets, targets_out) = rtrb::RingBuffer::new(RING);
         let stop = Arc::new(AtomicBool::new(false));
         let counts = Arc::new(IoCounts::default());
         let (ready_tx, ready_rx) = std::sync::mpsc::channel();
-        let (params, thread_stop, thread_counts) = (p.clone(), stop.clone(), counts.clone());
-        let handle = std::thread::Builder::new().name("ros2-io".into()).spawn(move || match Dds::open(&params) {
-            Ok(dds) => {
-                let _ = ready_tx.send(Ok(()));
-                serve(dds, &params, joints, newest_in, targets_out, &thread_stop, &thread_counts);
-            }
-            Err(e) => {
-                let _ = ready_tx.send(Err(e));
+        let cameras: Vec<_> = p.cameras.iter().map(|c| (c.id.clone(), Arc::new(CameraCounts::default()))).collect();
+        let camera_counts: Vec<_> = cameras.iter().map(|(_, c)| c.clone()).collect();
+        let (params, thread_stop, thread_counts, robot) = (p.clone(), stop.clone(), counts.clone(), robot.to_owned());
+        let handle = std::thread::Builder::new().name("ros2-io".into()).spawn(move || {
+            let opened = Dds::open(&params).and_then(|mut dds| {
+                let subs = std::mem::take(&mut dds.cameras);
+                let cams = Cameras::start(subs, &params.cameras, &robot, &thread_stop, &camera_counts)?;
+                Ok((dds, cams))
+            });
+            match opened {
+                Ok((dds, cams)) => {
+                    let _ = ready_tx.send(Ok(()));
+                    serve(&dds, &params, joints, newest_in, targets_out, &thread_stop, &thread_counts);
+                    // The stop flag is theirs too; the node they subscribed through is dropped after them.
+                    cams.join();
+                    drop(dds);
+                }
+                Err(e) => {
+                    let _ = ready_tx.send(Err(e));
+                }
             }
         })?;
         let io = handle.thread().clone();
@@ -191,7 +223,7 @@ impl Link {
             Ok(Err(e)) => return Err(e.context("opening ROS 2 (RustDDS through ros2-client)")),
             Err(_) => anyhow::bail!("the ROS 2 I/O thread ended while opening"),
         }
-        Ok(Self { newest, targets, io, stop, handle: Some(handle), counts, ring_full: 0 })
+        Ok(Self { newest, targets, io, stop, handle: Some(handle), counts, cameras, ring_full: 0 })
     }
 
     /// The newest feedback. Wait-free; allocates nothing.
@@ -235,7 +267,7 @@ impl Drop for Link {
 /// The I/O thread: publish what the loop hands over, take the feedback, until asked to stop (after the last
 /// targets went out).
 fn serve(
-    dds: Dds,
+    dds: &Dds,
     p: &Ros2Params,
     joints: usize,
     mut newest_in: triple_buffer::Input<Newest>,

@@ -1,16 +1,18 @@
-//! `sensor_msgs/msg/JointState`, the one message the R1 Lite's arm and gripper topics carry, as serde types whose
-//! CDR encoding (RustDDS's serializer) is ROS 2's: fields in the `.msg` file's order, `int32`/`uint32` stamps,
-//! strings and `float64` sequences. On the DDS wire its type is `sensor_msgs::msg::dds_::JointState_`
-//! ([`JOINT_STATE_PACKAGE`] / [`JOINT_STATE_TYPE`] through ros2-client's `MessageTypeName`).
+//! The two messages the R1 Lite's topics carry, `sensor_msgs/msg/JointState` (arm and gripper) and
+//! `sensor_msgs/msg/CompressedImage` (cameras), as serde types whose CDR encoding (RustDDS's serializer) is ROS 2's:
+//! fields in the `.msg` file's order, `int32`/`uint32` stamps, strings, `float64` and `uint8` sequences. On the DDS
+//! wire their types are `sensor_msgs::msg::dds_::JointState_` and `…::CompressedImage_` ([`SENSOR_MSGS`] and the
+//! type names, through ros2-client's `MessageTypeName`).
 //!
-//! Written here rather than generated: ros2-client ships no `sensor_msgs`, and the three structs are the whole
-//! definition (std_msgs/Header, builtin_interfaces/Time, sensor_msgs/JointState of ROS 2 Jazzy). The test below
-//! checks the bytes against what Cyclone DDS (the stand-in's implementation) writes for the same message.
+//! Written here rather than generated: ros2-client ships no `sensor_msgs`, and these structs are the whole
+//! definition (std_msgs/Header, builtin_interfaces/Time and the two messages, as in ROS 2 Jazzy). The tests below
+//! check the bytes against what Cyclone DDS (the stand-in's implementation) writes for the same messages.
 
 use serde::{Deserialize, Serialize};
 
-pub const JOINT_STATE_PACKAGE: &str = "sensor_msgs";
+pub const SENSOR_MSGS: &str = "sensor_msgs";
 pub const JOINT_STATE_TYPE: &str = "JointState";
+pub const COMPRESSED_IMAGE_TYPE: &str = "CompressedImage";
 
 /// `builtin_interfaces/msg/Time`.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
@@ -44,6 +46,16 @@ pub struct JointState {
     pub effort: Vec<f64>,
 }
 
+/// `sensor_msgs/msg/CompressedImage`: `format` names the codec (image_transport writes e.g. `"rgb8; jpeg compressed
+/// bgr8"`), `data` the compressed bytes. `data` as [`serde_bytes::ByteBuf`]: CDR's `sequence<uint8>` is a length and
+/// the raw bytes, which serde's byte-buffer path reads in one copy rather than element by element.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct CompressedImage {
+    pub header: Header,
+    pub format: String,
+    pub data: serde_bytes::ByteBuf,
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -72,6 +84,26 @@ mod tests {
         to_writer_with_rep_id(&mut bytes, &m, RepresentationIdentifier::CDR_LE).unwrap();
         assert_eq!(hex(&bytes), CYCLONE_BYTES);
         let (back, used): (JointState, usize) =
+            deserialize_from_cdr_with_rep_id(&bytes, RepresentationIdentifier::CDR_LE).unwrap();
+        assert_eq!((back, used), (m, bytes.len()));
+    }
+
+    /// `CompressedImage_(Header_(Time_(1, 2), 'a'), 'jpeg', b'\xff\xd8\x01')` as cyclonedds-python 11.0.1 writes
+    /// it (`data: sequence[uint8]`, given a `bytes`), without the encapsulation header: the data's length is
+    /// aligned to 4 after the string, the bytes follow raw.
+    const CYCLONE_IMAGE_BYTES: &str = "01000000020000000200000061000000050000006a7065670000000003000000ffd801";
+
+    #[test]
+    fn a_compressed_image_s_cdr_bytes_are_cyclone_dds_s() {
+        let m = CompressedImage {
+            header: Header { stamp: Time { sec: 1, nanosec: 2 }, frame_id: "a".into() },
+            format: "jpeg".into(),
+            data: serde_bytes::ByteBuf::from(vec![0xff, 0xd8, 0x01]),
+        };
+        let mut bytes = Vec::new();
+        to_writer_with_rep_id(&mut bytes, &m, RepresentationIdentifier::CDR_LE).unwrap();
+        assert_eq!(hex(&bytes), CYCLONE_IMAGE_BYTES);
+        let (back, used): (CompressedImage, usize) =
             deserialize_from_cdr_with_rep_id(&bytes, RepresentationIdentifier::CDR_LE).unwrap();
         assert_eq!((back, used), (m, bytes.len()));
     }

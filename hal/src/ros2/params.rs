@@ -13,6 +13,24 @@ pub enum Reliability {
     BestEffort,
 }
 
+/// One of the robot's cameras (`[[ros2.cameras]]`): a `sensor_msgs/CompressedImage` (JPEG) topic, bridged to our
+/// image frames on `mars/<robot>/camera/<id>` ([`super::camera`]).
+#[derive(Debug, Clone, PartialEq, Eq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CameraParams {
+    /// Our name for it: the image service is `mars/<robot>/camera/<id>`.
+    pub id: String,
+    /// The robot's topic (absolute ROS name).
+    pub topic: String,
+    /// The size the camera sends (px); a frame of another size is refused and counted, never resized.
+    pub width: u32,
+    pub height: u32,
+}
+
+/// The largest camera side accepted (px): also the decoder's bound, so a corrupt header cannot make it allocate
+/// for a gigapixel image.
+pub const MAX_CAMERA_SIDE: u32 = 8192;
+
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct Ros2Params {
@@ -39,6 +57,8 @@ pub struct Ros2Params {
     pub connect_timeout_s: f64,
     pub target_reliability: Reliability,
     pub feedback_reliability: Reliability,
+    /// The cameras to bridge (none: no camera thread runs).
+    pub cameras: Vec<CameraParams>,
 }
 
 impl Default for Ros2Params {
@@ -61,6 +81,21 @@ impl Default for Ros2Params {
             target_reliability: Reliability::Reliable,
             // Only the newest feedback counts, and a best-effort reader matches either kind of writer.
             feedback_reliability: Reliability::BestEffort,
+            // Galaxea's R1 Lite docs: the head's left camera (1280×720) and the right wrist's (640×360), JPEG.
+            cameras: vec![
+                CameraParams {
+                    id: "head_left".into(),
+                    topic: "/hdas/camera_head/left_raw/image_raw_color/compressed".into(),
+                    width: 1280,
+                    height: 720,
+                },
+                CameraParams {
+                    id: "wrist_right".into(),
+                    topic: "/hdas/camera_wrist_right/color/image_raw/compressed".into(),
+                    width: 640,
+                    height: 360,
+                },
+            ],
         }
     }
 }
@@ -85,6 +120,23 @@ impl Ros2Params {
         ] {
             if let Err(why) = super::topics::check_ros_name(topic) {
                 return Err(format!("{field} = {topic:?}: {why}"));
+            }
+        }
+        for (i, c) in self.cameras.iter().enumerate() {
+            if let Err(e) = mars_ipc::RobotNamespace::new("r").and_then(|ns| ns.camera(&c.id).map(|_| ())) {
+                return Err(format!("cameras[{i}].id = {:?}: {e}", c.id));
+            }
+            if self.cameras[..i].iter().any(|o| o.id == c.id) {
+                return Err(format!("cameras[{i}].id = {:?} names two cameras", c.id));
+            }
+            if let Err(why) = super::topics::check_ros_name(&c.topic) {
+                return Err(format!("cameras[{i}].topic = {:?}: {why}", c.topic));
+            }
+            if !(1..=MAX_CAMERA_SIDE).contains(&c.width) || !(1..=MAX_CAMERA_SIDE).contains(&c.height) {
+                return Err(format!(
+                    "cameras[{i}] is {}×{} px: each side must be in 1..={MAX_CAMERA_SIDE}",
+                    c.width, c.height
+                ));
             }
         }
         if self.joint_names.len() != joints {
@@ -130,6 +182,7 @@ mod tests {
             [&d.arm_feedback_topic, &d.arm_target_topic, &d.gripper_feedback_topic, &d.gripper_target_topic]
         );
         assert_eq!(r.joint_names, d.joint_names);
+        assert_eq!(r.cameras, d.cameras);
         assert_eq!((r.target_reliability, r.feedback_reliability), (Reliability::Reliable, Reliability::BestEffort));
         assert_eq!(r.feedback_timeout_ms(p.command_timeout_ms), 100.0);
     }
@@ -137,7 +190,10 @@ mod tests {
     #[test]
     fn a_bad_table_is_refused_when_the_backend_is_ros2() {
         type Spoil = fn(&mut Ros2Params);
-        let cases: [(&str, Spoil); 5] = [
+        let cases: [(&str, Spoil); 8] = [
+            ("cameras[1].id", |r| r.cameras[1].id = "head_left".into()),
+            ("cameras[0].topic", |r| r.cameras[0].topic = "/a b".into()),
+            ("cameras[1]", |r| r.cameras[1].width = 0),
             ("domain_id", |r| r.domain_id = 233),
             ("joint_names", |r| {
                 r.joint_names.pop();

@@ -42,6 +42,10 @@ pub struct StandInOptions {
     pub time_constant_s: f64,
     /// Arm feedback with the gripper as a 7th position.
     pub gripper_as_joint: bool,
+    /// Publish the head and wrist cameras (JPEG test cards), truncating every `camera_bad_every`-th frame (0:
+    /// none).
+    pub cameras: bool,
+    pub camera_bad_every: u32,
 }
 
 /// A running stand-in; killed (its process group) when dropped.
@@ -77,6 +81,9 @@ impl StandIn {
             .process_group(0);
         if o.gripper_as_joint {
             cmd.arg("--feedback-gripper-as-joint");
+        }
+        if o.cameras {
+            cmd.args(["--cameras", "--camera-bad-every", &o.camera_bad_every.to_string()]);
         }
         let child = cmd.spawn().unwrap_or_else(|e| panic!("starting {}: {e}", python.display()));
         let mut s = StandIn { child, log, domain, _domain_lock: domain_lock };

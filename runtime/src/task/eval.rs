@@ -8,6 +8,7 @@ use anyhow::ensure;
 use mars_engine::{Engine, EngineConfig};
 use mars_hal::profile::Profile;
 use mars_ipc::MAX_JOINTS;
+use mars_tasks::nav2d::eval::latency_percentiles;
 use mars_tasks::nav2d::modal_balance;
 use serde::{Deserialize, Serialize};
 
@@ -32,6 +33,9 @@ pub struct EpisodeResult {
     pub steps: usize,
     /// ODE steps of each policy call, in order.
     pub k_per_call: Vec<usize>,
+    /// Each policy call's wall time (ms), in order (the whole `infer` through the engine, on this machine).
+    #[serde(default)]
+    pub call_ms: Vec<f64>,
     /// The closest the measured joints came to each grasp (max-abs error, rad): tells a near miss from a
     /// policy that stopped between the grasps (mode averaging).
     pub closest_to_grasp_rad: Vec<f64>,
@@ -52,6 +56,11 @@ pub struct EvalReport {
     pub gamma: f32,
     /// Mean ODE steps over all policy calls.
     pub mean_k: f32,
+    /// Policy call wall time (ms), p50 and p99 over every call but the run's first few (warm-up).
+    #[serde(default)]
+    pub call_p50_ms: Option<f64>,
+    #[serde(default)]
+    pub call_p99_ms: Option<f64>,
     pub limit_violations: usize,
     pub episodes: Vec<EpisodeResult>,
 }
@@ -68,7 +77,7 @@ impl std::fmt::Display for EvalReport {
             self.mode_names.iter().zip(&self.mode_counts).map(|(m, c)| format!("{m} {c}")).collect();
         write!(
             f,
-            "{}: success {}/{} ({:.1}%), modes {}, γ = {:.2}, mean K {:.2}, limit violations {}",
+            "{}: success {}/{} ({:.1}%), modes {}, γ = {:.2}, mean K {:.2}, call p50 {} p99 {}, limit violations {}",
             self.policy,
             self.successes,
             self.n,
@@ -76,9 +85,15 @@ impl std::fmt::Display for EvalReport {
             modes.join(" / "),
             self.gamma,
             self.mean_k,
+            ms(self.call_p50_ms),
+            ms(self.call_p99_ms),
             self.limit_violations
         )
     }
+}
+
+fn ms(v: Option<f64>) -> String {
+    v.map_or_else(|| "-".into(), |v| format!("{v:.2} ms"))
 }
 
 /// One closed-loop episode from the start pose of `seed`, with the engine's noise re-seeded by `seed`.
@@ -95,13 +110,15 @@ pub fn run_episode(engine: &mut Engine, task: &Pick, profile: &Profile, seed: u6
     let mut history: Vec<f32> = task.rest_action(&start).repeat(c);
     let mut chunk = vec![0.0f32; c * d];
     let mut action = [0.0f64; MAX_JOINTS + 1];
-    let (mut steps, mut k_per_call, mut limit_violations) = (0, Vec::new(), 0);
+    let (mut steps, mut k_per_call, mut call_ms, mut limit_violations) = (0, Vec::new(), Vec::new(), 0);
     let mut closest = vec![f64::INFINITY; task.n_modes()];
     let ending = loop {
         if steps % c == 0 {
             task.observation(arm.q(), arm.gripper(), &mut obs);
+            let called = std::time::Instant::now();
             match engine.infer_with(&obs, &history, None, None) {
                 Ok(out) => {
+                    call_ms.push(called.elapsed().as_secs_f64() * 1e3);
                     chunk.copy_from_slice(out.chunk);
                     k_per_call.push(out.k_used);
                 }
@@ -138,6 +155,7 @@ pub fn run_episode(engine: &mut Engine, task: &Pick, profile: &Profile, seed: u6
         ending,
         steps,
         k_per_call,
+        call_ms,
         closest_to_grasp_rad: closest,
         limit_violations,
         duration_s: arm.t_s(),
@@ -164,6 +182,10 @@ pub fn evaluate(dir: &Path, task: &Pick, profile: &Profile, n: usize, seed: u64)
         mode_counts[m] += 1;
     }
     let calls: Vec<usize> = episodes.iter().flat_map(|e| e.k_per_call.iter().copied()).collect();
+    // The run's first calls (caches, page faults) are skipped, as for nav2d.
+    let times: Vec<std::time::Duration> =
+        episodes.iter().flat_map(|e| &e.call_ms).map(|&m| std::time::Duration::from_secs_f64(m / 1e3)).collect();
+    let latency = latency_percentiles(&times);
     Ok(EvalReport {
         policy: engine.kind().name().to_owned(),
         mode_names: task.cfg.grasps.iter().map(|g| g.name.clone()).collect(),
@@ -172,6 +194,8 @@ pub fn evaluate(dir: &Path, task: &Pick, profile: &Profile, n: usize, seed: u64)
         gamma: modal_balance(&mode_counts),
         mode_counts,
         mean_k: if calls.is_empty() { 0.0 } else { calls.iter().sum::<usize>() as f32 / calls.len() as f32 },
+        call_p50_ms: latency.map(|l| l.0),
+        call_p99_ms: latency.map(|l| l.1),
         limit_violations: episodes.iter().map(|e| e.limit_violations).sum(),
         episodes,
     })
