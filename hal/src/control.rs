@@ -387,6 +387,9 @@ impl HalControl {
             fault_bits |= fault::NON_FINITE_MEASUREMENT;
         }
         let (session, mut hold_reason) = match self.supervisor.mode() {
+            // No session, and the backend failing this tick: the error is why it holds now (a controller that
+            // connects sees that, not merely "no session").
+            Mode::Idle if self.error_this_tick => (0, HoldReason::HalError),
             Mode::Idle => (0, HoldReason::NoSession),
             Mode::Active { session } => (session, HoldReason::None),
             Mode::Holding { session, reason } => (session, reason),
@@ -671,6 +674,23 @@ mod tests {
         let seen = seen.lock().unwrap();
         assert!(seen.contains(&LoopEvent::HoldingOnError), "{seen:?}");
         assert!(seen.iter().any(|e| matches!(e, LoopEvent::BackendRecovered { errors: 1, .. })), "{seen:?}");
+    }
+
+    /// With no session yet, a failing read still says why the HAL holds: HalError while it fails, then no session.
+    #[test]
+    fn a_backend_error_with_no_session_is_the_hold_reason_while_it_lasts() {
+        let p = fr3();
+        let (mut t, _logger, _) = Ticks::new(HalControl::start(&p, &at(&START, 0.03)).unwrap());
+        let st = t.tick(Ok(at(&START, 0.03)), &[], Ok(()));
+        assert_eq!(st.hold_reason, HoldReason::NoSession as u32);
+        for _ in 0..3 {
+            let st = t.tick(Err(BackendError::Transient("no feedback")), &[], Ok(()));
+            assert_eq!((st.session, st.hold_reason), (0, HoldReason::HalError as u32));
+            assert!(st.is(status::BACKEND_ERROR) && st.is(status::HOLDING), "{st:?}");
+        }
+        let st = t.tick(Ok(at(&START, 0.03)), &[], Ok(()));
+        assert_eq!(st.hold_reason, HoldReason::NoSession as u32);
+        assert!(!st.is(status::BACKEND_ERROR), "{st:?}");
     }
 
     #[test]

@@ -244,5 +244,11 @@ fn committed_mars_checkpoint_solves_the_task_with_both_grasps() {
         let k_max = mars_policy::checkpoint::load_meta(&dir).expect("checkpoint meta").model.k_max as f32;
         assert!(report.mean_k >= 1.0 && report.mean_k < 0.75 * k_max, "{task}: fewer ODE steps than FM's: {report}");
         assert_eq!(report.limit_violations, 0, "{task}: {report}");
+        // Every call was timed, and the percentiles come from those times.
+        assert!(report.episodes.iter().all(|e| e.call_ms.len() == e.k_per_call.len() && !e.call_ms.is_empty()));
+        let (p50, p99) = (report.call_p50_ms.unwrap(), report.call_p99_ms.unwrap());
+        let all: Vec<f64> = report.episodes.iter().flat_map(|e| e.call_ms.iter().copied()).collect();
+        let max = all.iter().copied().fold(0.0, f64::max);
+        assert!(0.0 < p50 && p50 <= p99 && p99 <= max, "{task}: p50 {p50} p99 {p99} max {max}");
     }
 }
