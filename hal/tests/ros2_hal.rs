@@ -575,6 +575,9 @@ fn thread_policies(pid: u32, prefix: &str) -> Vec<(String, u32)> {
     out
 }
 
+/// A bridged frame as read: (seq, capture ns, read ns, centre grey, the four quadrants' pixels).
+type Seen = (u64, u64, u64, u8, [[u8; 3]; 4]);
+
 #[test]
 fn the_robot_s_jpeg_cameras_arrive_as_rgb_image_frames_decoded_off_the_hal_loop() {
     let profile = Profile::load(&r1_lite()).unwrap();
@@ -583,8 +586,7 @@ fn the_robot_s_jpeg_cameras_arrive_as_rgb_image_frames_decoded_off_the_hal_loop(
     let cams = rig.profile.ros2.cameras.clone();
     assert_eq!(cams.len(), 2, "the R1 Lite profile bridges its head and wrist cameras");
     let readers: Vec<ImageReader> = cams.iter().map(|c| ImageReader::new(&rig._node, &ns, &c.id).unwrap()).collect();
-    // (seq, capture ns, read ns, centre grey, the four quadrants' pixels) of every frame, per camera.
-    let mut seen: Vec<Vec<(u64, u64, u64, u8, [[u8; 3]; 4])>> = vec![vec![]; cams.len()];
+    let mut seen: Vec<Vec<Seen>> = vec![vec![]; cams.len()];
     let end = Instant::now() + Duration::from_secs(4);
     while Instant::now() < end {
         for ((reader, cam), seen) in readers.iter().zip(&cams).zip(&mut seen) {
