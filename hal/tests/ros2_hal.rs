@@ -615,7 +615,10 @@ fn the_robot_s_jpeg_cameras_arrive_as_rgb_image_frames_decoded_off_the_hal_loop(
     assert!(status.success(), "mars-hal: {status}\n{}", rig.hal_output());
     let out = rig.hal_output();
 
-    // Decoded on threads of their own, at normal priority: not the loop's thread or its SCHED_FIFO.
+    // Decoded on threads of their own, at normal priority: not the loop's thread or its SCHED_FIFO; the loop
+    // thread itself allocated nothing after warm-up while frames were decoded beside it (its allocator counts per
+    // thread).
+    assert!(out.contains("loop allocations after warm-up: 0 system-allocator calls"), "{out}");
     assert_eq!(
         threads,
         vec![("ros2-cam-0".to_owned(), 0), ("ros2-cam-1".to_owned(), 0)],
