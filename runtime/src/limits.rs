@@ -86,6 +86,13 @@ impl LimitCheck {
         (self.known >= 2).then(|| (self.recent[0][j] - self.recent[1][j]) / self.dt)
     }
 
+    /// The acceleration of joint `j` over the last three commands accepted (a second finite difference, as the
+    /// robot takes it).
+    pub fn last_acceleration(&self, j: usize) -> Option<f64> {
+        (self.known >= 3)
+            .then(|| (self.recent[0][j] - 2.0 * self.recent[1][j] + self.recent[2][j]) / (self.dt * self.dt))
+    }
+
     /// Checks `q` as the next command after the ones accepted so far; accepted commands join the stream.
     pub fn admit(&mut self, q: &[f64]) -> Result<(), Violation> {
         let verdict = self.verdict(q);

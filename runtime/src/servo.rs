@@ -526,11 +526,18 @@ impl ServoTick {
     fn resync(&mut self, f: &RobotState) {
         let n = self.n;
         let ours = &self.smoother.state().position[..n];
-        // In step: the HAL applied our last command, and the one before it in the tick before (its velocity, a
-        // finite difference, is ours). A HAL tick without a new command (we skipped one of its frames) leaves the
-        // position right but stops the joints: that needs a resync as much as a late command does.
+        // In step: the HAL applied our last command, and the two before it in the ticks before (its velocity and
+        // acceleration, finite differences, are ours). A HAL tick without a new command (we skipped one of its
+        // frames) leaves the position right but stops the joints: that needs a resync as much as a late command
+        // does. So does a robot whose setpoint history moved under ours (franka-sim after it extrapolated over a
+        // state the HAL never saw: the same q_d, another dq_d and ddq_d, which the HAL continues from): a command
+        // that ignored the acceleration the robot differentiates from would jump it, up to twice the jerk limit.
         let in_step = (0..n).all(|j| {
             self.limits.last_velocity(j).is_none_or(|v| (f.applied_velocity[j] - v).abs() <= 1e-9 * (1.0 + v.abs()))
+                && self.limits.last_acceleration(j).is_none_or(|a| {
+                    // Rounding: a second difference of positions ~1 rad over dt² carries ~1e-16/dt² of error.
+                    (f.applied_acceleration[j] - a).abs() <= 1e-6 * (1.0 + a.abs())
+                })
         });
         if self.seq == 0 || (f.last_command_seq == self.seq && f.applied_position[..n] == *ours && in_step) {
             return;

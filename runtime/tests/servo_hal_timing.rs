@@ -49,6 +49,8 @@ struct Outcome {
     frameless: u64,
     last_resorts: u64,
     worst: [f64; 3],
+    /// Setpoint resyncs to a robot history that differs from the HAL's (see [`run_with_robot_resyncs`]).
+    robot_resyncs: u64,
 }
 
 /// One servo and one HAL (on the mock plant) for `resets` reset motions between seeded random poses, stepped by
@@ -150,12 +152,24 @@ impl Rig {
             frameless: self.servo.counters.frameless_ticks,
             last_resorts: last.position_guard_hits + last.infeasible_steps,
             worst,
+            robot_resyncs: 0,
         }
     }
 }
 
 /// Runs `resets` reset motions with the servo ticking as described in the module doc, for seed `seed`.
 fn run(seed: u64, resets: u64, p_fault: f64) -> Outcome {
+    run_with_robot_resyncs(seed, resets, p_fault, 0.0)
+}
+
+/// [`run`], and before a HAL tick, with probability `p_resync`, the robot's setpoint history differs from the
+/// HAL's as franka-sim's does after it extrapolated over a state the HAL never saw: the same position (q_d is the
+/// HAL's last setpoint) but the one before it elsewhere, so the robot's finite-difference velocity and
+/// acceleration (dq_d, ddq_d) differ from the HAL's; the HAL continues from them (`resync_setpoint`), as its fci
+/// backend does. It comes in the HAL tick that takes the servo's first command after a re-synchronisation of its
+/// own (after a late command), as in the clamp franka-sim showed: the command continues the servo's new stream
+/// from the last frame, and the robot's history moved under it.
+fn run_with_robot_resyncs(seed: u64, resets: u64, p_fault: f64, p_resync: f64) -> Outcome {
     let mut rig = Rig::new(seed, resets);
     let n = rig.q_lo.len();
     let (dq_max, ddq_max, jerk_max) =
@@ -171,6 +185,7 @@ fn run(seed: u64, resets: u64, p_fault: f64) -> Outcome {
     let mut prev: Vec<[f64; MAX_JOINTS]> = Vec::new();
     // Servo tick times not yet run (planned one HAL period ahead).
     let mut servo_ticks: Vec<u64> = Vec::new();
+    let (mut robot_resyncs, mut servo_resyncs) = (0u64, 0u64);
     'run: for k in 1..200_000u64 {
         let h = k * MS;
         // The servo's ticks before this HAL tick: each sees the frames published by then and sends a command
@@ -188,19 +203,41 @@ fn run(seed: u64, resets: u64, p_fault: f64) -> Outcome {
                 break 'run;
             }
         }
+        let servo_resynced = rig.servo.counters.resyncs > servo_resyncs;
+        servo_resyncs = rig.servo.counters.resyncs;
+        if servo_resynced && p_resync > 0.0 && rig.rng.unit() < p_resync {
+            // The robot's previous position ε off the HAL's: its velocity ε/dt lower, its acceleration 2ε/dt² lower;
+            // ε chosen so that the robot's acceleration is half the limit, one way or the other (a robot braking or
+            // speeding up over the state the HAL missed).
+            let f = rig.hal.filter();
+            let (q, mut v, mut a) = (f.position().to_vec(), f.velocity().to_vec(), f.acceleration().to_vec());
+            let dt = 1e-3;
+            for j in 0..n {
+                let a_robot = if rig.rng.unit() < 0.5 { -0.5 } else { 0.5 } * ddq_max[j];
+                let eps = (a[j] - a_robot) * dt * dt / 2.0;
+                v[j] -= eps / dt;
+                a[j] = a_robot;
+            }
+            rig.hal.resync_setpoint(&q, &v, &a);
+            robot_resyncs += 1;
+            // The robot's jerk at the next tick is from its acceleration, not the HAL's last frame's.
+            if let Some(last) = prev.last_mut() {
+                last[..n].copy_from_slice(&a);
+            }
+        }
         let frame = rig.hal_tick(h, &mut to_hal);
         to_hal.append(&mut delayed);
         delaying = false;
-        // The HAL's applied stream, differentiated like the robot does.
-        prev.push(frame.applied_position);
-        if prev.len() > 4 {
+        // The HAL's applied stream, differentiated like the robot does: its frames' velocity and acceleration are
+        // the finite differences over the robot's own history (which a robot resync replaces), the jerk theirs.
+        prev.push(frame.applied_acceleration);
+        if prev.len() > 2 {
             prev.remove(0);
         }
-        if prev.len() == 4 {
+        if prev.len() == 2 {
             for j in 0..n {
-                let v = (prev[3][j] - prev[2][j]) * 1e3;
-                let a = (prev[3][j] - 2.0 * prev[2][j] + prev[1][j]) * 1e6;
-                let jerk = (prev[3][j] - 3.0 * prev[2][j] + 3.0 * prev[1][j] - prev[0][j]) * 1e9;
+                let (v, a) = (frame.applied_velocity[j], frame.applied_acceleration[j]);
+                let jerk = (prev[1][j] - prev[0][j]) * 1e3;
                 let ratios = [v / dq_max[j], a / ddq_max[j], jerk / jerk_max[j]];
                 for (w, x) in worst.iter_mut().zip(ratios) {
                     *w = w.max(x.abs());
@@ -223,7 +260,9 @@ fn run(seed: u64, resets: u64, p_fault: f64) -> Outcome {
         }
         servo_ticks.sort_unstable();
     }
-    rig.finish(worst)
+    let mut o = rig.finish(worst);
+    o.robot_resyncs = robot_resyncs;
+    o
 }
 
 #[test]
@@ -241,6 +280,27 @@ fn a_noisy_servo_timing_never_fails_the_smoother_nor_makes_the_hal_clamp() {
         frameless += o.frameless;
     }
     assert!(late > 100 && frameless > 100, "the timing faults happened: {late} late, {frameless} frameless ticks");
+}
+
+/// franka-sim's occasional clamp (stop 33's open problem in issue 12), reproduced: after the robot extrapolated over
+/// a state the HAL never saw, its q_d is the HAL's last setpoint but its dq_d and ddq_d are not, and the HAL
+/// continues from them. The servo's next command continues its own stream, whose velocity the HAL's frame still
+/// matches; the acceleration it does not, and a command that ignores that jumps the robot's acceleration by up to
+/// a limit's worth in one tick (the HAL clamped "implied jerk" ≈ 2 × the limit). The servo must re-synchronise on
+/// the acceleration too: with a robot resync after every other servo resync, no command is clamped and the applied
+/// stream stays within the limits as the robot differentiates it.
+#[test]
+fn a_robot_setpoint_resync_that_changes_only_velocity_and_acceleration_is_followed_without_a_clamp() {
+    let mut resyncs = 0;
+    for seed in 0..30 {
+        let o = run_with_robot_resyncs(seed, 6, 0.02, 0.5);
+        eprintln!("seed {seed}: {o:?}");
+        assert_eq!(o.stop, Some(StopCause::Finished), "seed {seed}: {o:?}");
+        assert_eq!((o.clamped, o.rejected, o.last_resorts), (0, 0, 0), "seed {seed}: {o:?}");
+        assert!(o.worst.iter().all(|w| *w <= 1.0 + 1e-6), "seed {seed}: {o:?}");
+        resyncs += o.robot_resyncs;
+    }
+    assert!(resyncs > 100, "the robot resynced {resyncs} times");
 }
 
 /// One servo and one HAL on the simulated clock; from HAL tick `nan_from` on, joint 3 measures NaN (as the HAL's
@@ -438,4 +498,43 @@ fn a_chunk_due_in_a_frameless_tick_reports_its_capture_with_the_next_command() {
     assert_eq!(next.adopted_capture_ns, Some(chunk.capture_ns));
     assert_eq!(servo.counters.chunks_adopted, 1);
     assert_eq!(servo.phase(), Phase::Running);
+}
+
+/// The rule the test above exercises, directly: a frame in which the HAL applied the servo's last command (the same
+/// position and velocity) but reports another acceleration (the robot's history moved under it) makes the servo
+/// re-synchronise, and its next command, differentiated from that frame as the robot differentiates, is within the
+/// jerk limit.
+#[test]
+fn a_frame_whose_acceleration_is_not_the_servo_s_makes_it_resync_and_stay_within_the_jerk_limit() {
+    let mut rig = Rig::new(3, 1);
+    let n = rig.q_lo.len();
+    let (ddq_max, jerk_max) = (rig.profile.ddq_max.clone(), rig.profile.jerk_max.clone());
+    let mut to_hal = Vec::new();
+    let mut h = 0;
+    // Lock-step, the servo 0.3 ms after each HAL tick, until the first reset motion is well under way.
+    let frame = loop {
+        h += MS;
+        assert!(h < 20_000 * MS, "the arm never moved");
+        let f = rig.hal_tick(h, &mut to_hal);
+        if f.applied_velocity[..n].iter().any(|v| v.abs() > 0.2) {
+            break f;
+        }
+        if let Some(c) = rig.servo_tick(h + 300_000, &[f]) {
+            to_hal.push(c);
+        }
+    };
+    let before = rig.servo.counters.resyncs;
+    let mut f = frame;
+    for (a, a_max) in f.applied_acceleration.iter_mut().zip(&ddq_max) {
+        *a = if *a > 0.0 { -0.5 } else { 0.5 } * a_max;
+    }
+    let c = rig.servo_tick(h + 300_000, &[f]).expect("a command for the frame");
+    assert_eq!(rig.servo.counters.resyncs, before + 1, "the servo re-synchronised to the frame's acceleration");
+    let dt = 1e-3;
+    for (j, &j_max) in jerk_max.iter().enumerate() {
+        let v = (c.position[j] - f.applied_position[j]) / dt;
+        let a = (v - f.applied_velocity[j]) / dt;
+        let jerk = (a - f.applied_acceleration[j]) / dt;
+        assert!(jerk.abs() <= j_max * (1.0 + 1e-6), "joint {j}: jerk {jerk} against the limit {j_max}");
+    }
 }

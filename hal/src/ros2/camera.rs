@@ -62,20 +62,22 @@ pub struct CameraCounts {
     pub publish_errors: AtomicU64,
 }
 
-impl CameraCounts {
-    /// `(name, value)` of every counter, for logs and reports.
-    pub fn snapshot(&self) -> [(&'static str, u64); 8] {
+/// `taken=… published=… …`: every counter, for the HAL's exit log.
+impl std::fmt::Display for CameraCounts {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         let l = |c: &AtomicU64| c.load(Ordering::Relaxed);
-        [
-            ("taken", l(&self.taken)),
-            ("published", l(&self.published)),
-            ("skipped", l(&self.skipped)),
-            ("not_jpeg", l(&self.not_jpeg)),
-            ("undecodable", l(&self.undecodable)),
-            ("wrong_size", l(&self.wrong_size)),
-            ("unstamped", l(&self.unstamped)),
-            ("publish_errors", l(&self.publish_errors)),
-        ]
+        write!(
+            f,
+            "taken={} published={} skipped={} not_jpeg={} undecodable={} wrong_size={} unstamped={} publish_errors={}",
+            l(&self.taken),
+            l(&self.published),
+            l(&self.skipped),
+            l(&self.not_jpeg),
+            l(&self.undecodable),
+            l(&self.wrong_size),
+            l(&self.unstamped),
+            l(&self.publish_errors)
+        )
     }
 }
 

@@ -92,11 +92,7 @@ pub fn run(profile: &Profile, opts: &RunOptions) -> anyhow::Result<Report> {
         "ROS 2 link"
     );
     for (id, counts) in &backend.link.cameras {
-        let s = counts.snapshot();
-        info!(
-            camera = %id, taken = s[0].1, published = s[1].1, skipped = s[2].1, not_jpeg = s[3].1,
-            undecodable = s[4].1, wrong_size = s[5].1, unstamped = s[6].1, publish_errors = s[7].1, "ROS 2 camera"
-        );
+        info!(camera = %id, "ROS 2 camera: {counts}");
     }
     backend.link.close();
     Ok(report)
