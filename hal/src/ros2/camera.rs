@@ -19,7 +19,7 @@
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::thread::JoinHandle;
-use std::time::{Duration, SystemTime};
+use std::time::Duration;
 
 use mars_ipc::node::create_node;
 use mars_ipc::{ImageEncoding, ImageHeader, ImageWriter, RobotNamespace};
@@ -31,7 +31,7 @@ use zune_jpeg::zune_core::bytestream::ZCursor;
 use zune_jpeg::zune_core::colorspace::ColorSpace;
 use zune_jpeg::zune_core::options::DecoderOptions;
 
-use super::message::{CompressedImage, Time};
+use super::message::{CompressedImage, Time, wall_clock};
 use super::params::{CameraParams, MAX_CAMERA_SIDE};
 
 /// How often a camera thread looks for a frame (cameras send every 33–100 ms: this adds at most 2 ms).
@@ -242,7 +242,7 @@ impl Bridge {
                         if newest.is_some() {
                             counts.skipped.fetch_add(1, Ordering::Relaxed);
                         }
-                        newest = Some((m, monotonic_ns(), wall_now()));
+                        newest = Some((m, monotonic_ns(), wall_clock()));
                     }
                     Ok(None) => break,
                     Err(e) => {
@@ -291,10 +291,6 @@ impl Bridge {
             }
         }
     }
-}
-
-fn wall_now() -> Duration {
-    SystemTime::now().duration_since(SystemTime::UNIX_EPOCH).unwrap_or_default()
 }
 
 #[cfg(test)]

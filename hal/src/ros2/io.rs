@@ -134,11 +134,12 @@ impl Dds {
         // No /rosout and no parameter services: nothing runs this node's spinner, and the HAL logs to stderr.
         let options = NodeOptions::new().enable_rosout(false).start_parameter_services(false);
         let mut node = context.new_node(name, options).map_err(|e| anyhow::anyhow!("creating the node: {e:?}"))?;
-        let type_name = || MessageTypeName::new(SENSOR_MSGS, JOINT_STATE_TYPE);
-        let topic = |node: &Node, ros_name: &str, r: Reliability| {
+        let typed_topic = |node: &Node, ros_name: &str, type_name: &str, r: Reliability| {
             let name = Name::parse(ros_name).map_err(|e| anyhow::anyhow!("topic {ros_name}: {e:?}"))?;
-            node.create_topic(&name, type_name(), &qos(r)).map_err(|e| anyhow::anyhow!("topic {ros_name}: {e:?}"))
+            let type_name = MessageTypeName::new(SENSOR_MSGS, type_name);
+            node.create_topic(&name, type_name, &qos(r)).map_err(|e| anyhow::anyhow!("topic {ros_name}: {e:?}"))
         };
+        let topic = |node: &Node, ros_name: &str, r| typed_topic(node, ros_name, JOINT_STATE_TYPE, r);
         let (fb, tg) = (p.feedback_reliability, p.target_reliability);
         let sub = |node: &mut Node, t| {
             node.create_subscription::<JointState>(&t, Some(qos(fb))).map_err(|e| anyhow::anyhow!("subscribing: {e:?}"))
@@ -172,12 +173,9 @@ impl Dds {
         // a resend once the next is there).
         let mut cameras = Vec::new();
         for c in &p.cameras {
-            let name = Name::parse(&c.topic).map_err(|e| anyhow::anyhow!("topic {}: {e:?}", c.topic))?;
-            let image = MessageTypeName::new(SENSOR_MSGS, COMPRESSED_IMAGE_TYPE);
-            let q = qos(Reliability::BestEffort);
-            let t = node.create_topic(&name, image, &q).map_err(|e| anyhow::anyhow!("topic {}: {e:?}", c.topic))?;
+            let t = typed_topic(&node, &c.topic, COMPRESSED_IMAGE_TYPE, Reliability::BestEffort)?;
             cameras.push(
-                node.create_subscription::<CompressedImage>(&t, Some(q))
+                node.create_subscription::<CompressedImage>(&t, Some(qos(Reliability::BestEffort)))
                     .map_err(|e| anyhow::anyhow!("subscribing {}: {e:?}", c.topic))?,
             );
         }

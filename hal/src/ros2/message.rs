@@ -14,6 +14,11 @@ pub const SENSOR_MSGS: &str = "sensor_msgs";
 pub const JOINT_STATE_TYPE: &str = "JointState";
 pub const COMPRESSED_IMAGE_TYPE: &str = "CompressedImage";
 
+/// The wall clock (CLOCK_REALTIME) since the Unix epoch: what ROS stamps messages with.
+pub fn wall_clock() -> std::time::Duration {
+    std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap_or_default()
+}
+
 /// `builtin_interfaces/msg/Time`.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
 pub struct Time {
@@ -24,7 +29,7 @@ pub struct Time {
 impl Time {
     /// The wall clock now (ROS time without a simulated clock).
     pub fn now() -> Self {
-        let d = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap_or_default();
+        let d = wall_clock();
         Self { sec: d.as_secs() as i32, nanosec: d.subsec_nanos() }
     }
 }
@@ -72,6 +77,19 @@ mod tests {
         b.iter().map(|x| format!("{x:02x}")).collect()
     }
 
+    /// `m` serialises (little-endian CDR, as RustDDS writes it) to `cyclone_hex`, and reads back whole.
+    fn assert_cdr_is<T>(m: &T, cyclone_hex: &str)
+    where
+        T: Serialize + for<'de> Deserialize<'de> + PartialEq + std::fmt::Debug,
+    {
+        let mut bytes = Vec::new();
+        to_writer_with_rep_id(&mut bytes, m, RepresentationIdentifier::CDR_LE).unwrap();
+        assert_eq!(hex(&bytes), cyclone_hex);
+        let (back, used): (T, usize) =
+            deserialize_from_cdr_with_rep_id(&bytes, RepresentationIdentifier::CDR_LE).unwrap();
+        assert_eq!((&back, used), (m, bytes.len()));
+    }
+
     #[test]
     fn the_cdr_bytes_are_cyclone_dds_s_for_the_same_message() {
         let m = JointState {
@@ -80,12 +98,7 @@ mod tests {
             position: vec![1.0],
             ..Default::default()
         };
-        let mut bytes = Vec::new();
-        to_writer_with_rep_id(&mut bytes, &m, RepresentationIdentifier::CDR_LE).unwrap();
-        assert_eq!(hex(&bytes), CYCLONE_BYTES);
-        let (back, used): (JointState, usize) =
-            deserialize_from_cdr_with_rep_id(&bytes, RepresentationIdentifier::CDR_LE).unwrap();
-        assert_eq!((back, used), (m, bytes.len()));
+        assert_cdr_is(&m, CYCLONE_BYTES);
     }
 
     /// `CompressedImage_(Header_(Time_(1, 2), 'a'), 'jpeg', b'\xff\xd8\x01')` as cyclonedds-python 11.0.1 writes
@@ -100,11 +113,6 @@ mod tests {
             format: "jpeg".into(),
             data: serde_bytes::ByteBuf::from(vec![0xff, 0xd8, 0x01]),
         };
-        let mut bytes = Vec::new();
-        to_writer_with_rep_id(&mut bytes, &m, RepresentationIdentifier::CDR_LE).unwrap();
-        assert_eq!(hex(&bytes), CYCLONE_IMAGE_BYTES);
-        let (back, used): (CompressedImage, usize) =
-            deserialize_from_cdr_with_rep_id(&bytes, RepresentationIdentifier::CDR_LE).unwrap();
-        assert_eq!((back, used), (m, bytes.len()));
+        assert_cdr_is(&m, CYCLONE_IMAGE_BYTES);
     }
 }
