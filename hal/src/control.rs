@@ -491,6 +491,12 @@ impl HalControl {
         self.filter.resync(q, v, a);
     }
 
+    /// For this tick's step only: the robot may judge it against this history instead of ours (see
+    /// [`SafetyFilter::also_judged_from`]).
+    pub fn also_judged_from(&mut self, q: &[f64], v: &[f64], a: &[f64]) {
+        self.filter.also_judged_from(q, v, a);
+    }
+
     /// The HAL was asked to exit: stop following, brake the setpoint to rest (see [`Self::stopped`]).
     pub fn begin_stop(&mut self) {
         self.stopping = true;

@@ -31,6 +31,8 @@ pub fn to_json(r: &Report) -> Value {
             "lost_states": rb.lost_states,
             "bunched_states": rb.bunched_states,
             "resyncs": rb.resyncs,
+            "resyncs_thrown_away": rb.resyncs_thrown_away,
+            "judged_twice": rb.judged_twice,
             "min_success_rate": rb.min_success_rate,
             "last_success_rate": rb.last_success_rate,
             "reflexes": rb.reflexes,

@@ -84,6 +84,20 @@ struct Published {
     a: [f64; MAX_JOINTS],
 }
 
+/// A setpoint history: position, velocity and acceleration of every joint.
+#[derive(Debug, Clone, Copy)]
+struct Setpoint {
+    q: [f64; MAX_JOINTS],
+    v: [f64; MAX_JOINTS],
+    a: [f64; MAX_JOINTS],
+}
+
+impl Setpoint {
+    fn of(&self, i: usize) -> (f64, f64, f64) {
+        (self.q[i], self.v[i], self.a[i])
+    }
+}
+
 /// The last position command admitted, for judging the next one by the controller's own step.
 #[derive(Debug, Clone, Copy)]
 struct StreamPoint {
@@ -121,6 +135,8 @@ pub struct SafetyFilter {
     kp: f64,
     kv: f64,
     stream: Option<StreamPoint>,
+    /// For the next step only: another history the robot may judge it against (see [`Self::also_judged_from`]).
+    alternative: Option<Setpoint>,
     /// The setpoints of the last frames published, by frame seq modulo the length.
     published: [Option<Published>; PUBLISHED_KEPT],
     pub rejected: u64,
@@ -172,6 +188,7 @@ impl SafetyFilter {
             kp: KV.min(0.5 * p.rate_hz) / 4.0,
             kv: KV.min(0.5 * p.rate_hz),
             stream: None,
+            alternative: None,
             published: [None; PUBLISHED_KEPT],
             rejected: 0,
             clamped: 0,
@@ -195,6 +212,28 @@ impl SafetyFilter {
         self.q = arr(q);
         self.v = arr(v);
         self.a = arr(a);
+    }
+
+    /// For the next step only: the robot may judge it against this history (position, velocity, acceleration)
+    /// instead of ours, which it cannot tell us yet (franka-sim, when it may have thrown a late command of ours
+    /// away: `fci::setpoint_sync`). The step is then kept within the rate limits from both, for each joint where
+    /// some step is; where none is (the two histories' accelerations a jerk limit or more apart), from ours only:
+    /// ours is the likelier, and a step between the two would break the limits from both (measured: franka-sim's
+    /// reflexes at ±6700 rad/s³, a rerun in 7 of 9 runs of `runtime/tests/franka_sim.rs`).
+    pub fn also_judged_from(&mut self, q: &[f64], v: &[f64], a: &[f64]) {
+        self.alternative = Some(Setpoint { q: arr(q), v: arr(v), a: arr(a) });
+    }
+
+    /// Joint `i`'s step accelerations (the filter's own law, `v += a·dt; q += v·dt`) within the planned jerk and
+    /// acceleration limits from our setpoint and from `alt` alike, if there are any. From `alt` the step reads as
+    /// `a + d` of acceleration: it starts from another position and velocity.
+    fn both_histories_bound(&self, i: usize, alt: &Setpoint) -> Option<(f64, f64)> {
+        let dt = self.dt;
+        let (am, jm) = (self.a_max[i] * OWN_PLAN_FACTOR, self.j_max[i] * OWN_PLAN_FACTOR);
+        let d = ((self.q[i] - alt.q[i]) + (self.v[i] - alt.v[i]) * dt) / (dt * dt);
+        let lo = (self.a[i] - jm * dt).max(alt.a[i] - jm * dt - d).max(-am).max(-am - d);
+        let hi = (self.a[i] + jm * dt).min(alt.a[i] + jm * dt - d).min(am).min(am - d);
+        (lo <= hi).then_some((lo, hi))
     }
 
     /// The setpoint now goes out in state frame `frame`: a command answering that frame may continue from it.
@@ -434,11 +473,21 @@ impl SafetyFilter {
     /// `target` is `None`. Returns the new setpoint positions.
     pub fn step(&mut self, target: Option<&[f64; MAX_JOINTS]>) -> &[f64] {
         let dt = self.dt;
+        // The other history, and for each joint whether a step within the limits from both exists. Not for an arm
+        // held at rest: it stays where it is.
+        let holding = target.is_none() && self.at_rest();
+        let alternative = self.alternative.take().filter(|_| !holding).map(|alt| {
+            let both = std::array::from_fn(|i| i < self.n && self.both_histories_bound(i, &alt).is_some());
+            (alt, both)
+        });
         // A target the setpoint can reach this very tick within every limit is applied exactly, as libfranka
         // applies a compliant command: a controller that streams limit-respecting commands gets them unchanged
         // (and the next command's implied rates are its own finite differences, so it is never clamped).
         if let Some(t) = target
             && self.reachable_in_one_tick(t)
+            && alternative.is_none_or(|(alt, both): (Setpoint, [bool; MAX_JOINTS])| {
+                (0..self.n).all(|i| !both[i] || self.step_excess_from(i, alt.of(i), t[i]).is_none())
+            })
         {
             #[allow(clippy::needless_range_loop)] // q, v, a and t indexed by joint
             for i in 0..self.n {
@@ -489,6 +538,16 @@ impl SafetyFilter {
             // velocity, and the step back to zero acceleration after it, fit within the jerk limit.
             if target.is_none() && v.abs() + a.abs() * dt <= 0.5 * jm * dt * dt && v.abs() <= 0.5 * am * dt {
                 a_new = -v / dt;
+            }
+            // Within the limits from the other history too, where that leaves a step within ours.
+            if let Some((alt, both)) = &alternative
+                && both[i]
+                && let Some((alt_lo, alt_hi)) = self.both_histories_bound(i, alt)
+            {
+                let (both_lo, both_hi) = (lo.max(alt_lo), hi.min(alt_hi));
+                if both_lo <= both_hi {
+                    a_new = a_new.clamp(both_lo, both_hi);
+                }
             }
             let mut v_new = v + a_new * dt;
             let mut q_new = q + v_new * dt;
@@ -776,6 +835,89 @@ mod tests {
             q_prev = q;
         }
         assert_eq!((f.position_guard_hits, f.infeasible_steps), (0, 0));
+    }
+
+    /// The rate of change (v, a, j) of a step from `(q, v, a)` to `c`, as the robot differences it.
+    fn rates_of(c: f64, (q, v, a): (f64, f64, f64), dt: f64) -> (f64, f64, f64) {
+        let v1 = (c - q) / dt;
+        let a1 = (v1 - v) / dt;
+        (v1, a1, (a1 - a) / dt)
+    }
+
+    /// After a state that showed our last command late, franka-sim may yet throw it away and judge the next command
+    /// against its guess: the step is then kept within the limits from both histories (the case of 2026-11-27: a
+    /// command at 4000 rad/s³ from ours, where the guess was 1.3 µrad behind our late command, reads 7900 from it).
+    #[test]
+    fn a_step_judged_from_two_histories_is_within_the_limits_from_both() {
+        let p = fr3();
+        let dt = p.period_s();
+        let mut q = p.home.clone();
+        q[0] = -0.1358503;
+        let (mut v, mut a) = (vec![0.0; p.joints], vec![0.0; p.joints]);
+        (v[0], a[0]) = (0.9393, -0.9);
+        let e = 1.3e-6;
+        let (mut qb, mut vb, mut ab) = (q.clone(), v.clone(), a.clone());
+        (qb[0], vb[0], ab[0]) = (q[0] - e, v[0] - e / dt, a[0] - e / (dt * dt));
+        // The target: 4000 rad/s³ from ours.
+        let mut target = arr(&q);
+        target[0] = q[0] + (v[0] + (a[0] + 4000.0 * dt) * dt) * dt;
+        let from_b = (qb[0], vb[0], ab[0]);
+        assert!(rates_of(target[0], from_b, dt).2 > 7800.0, "the premise: {:?}", rates_of(target[0], from_b, dt));
+
+        let mut f = SafetyFilter::new(&p, &p.home);
+        f.resync(&q, &v, &a);
+        assert_eq!(f.step(Some(&target))[0], target[0], "without the other history: applied exactly");
+
+        let mut f = SafetyFilter::new(&p, &p.home);
+        f.resync(&q, &v, &a);
+        f.also_judged_from(&qb, &vb, &ab);
+        let c = f.step(Some(&target))[0];
+        for (name, from) in [("ours", (q[0], v[0], a[0])), ("the robot's guess", from_b)] {
+            let (_, acc, jerk) = rates_of(c, from, dt);
+            assert!(jerk.abs() <= p.jerk_max[0] && acc.abs() <= p.ddq_max[0], "from {name}: a {acc}, j {jerk}");
+        }
+        assert_eq!(f.infeasible_steps, 0);
+        // For that step only: the next compliant target is applied exactly again.
+        let (qn, vn, an) = (f.position()[0], f.velocity()[0], f.acceleration()[0]);
+        let mut next = arr(f.position());
+        next[0] = qn + (vn + an * dt) * dt;
+        assert_eq!(f.step(Some(&next))[0], next[0]);
+    }
+
+    /// Where the two histories are too far apart for any step to be within the limits from both (the late command
+    /// 4.5 µrad from the guess it replaced: 13500 rad/s³ between them), the step is ours alone: a step between them
+    /// broke the limits from both and raised franka-sim's reflexes.
+    #[test]
+    fn where_no_step_is_within_the_limits_from_both_histories_ours_decide() {
+        let p = fr3();
+        let dt = p.period_s();
+        let mut q = p.home.clone();
+        q[2] = -0.3174507;
+        let (mut v, mut a) = (vec![0.0; p.joints], vec![0.0; p.joints]);
+        (v[2], a[2]) = (-0.13396, 0.001);
+        let e = -4.5e-6;
+        let (mut qb, mut vb, mut ab) = (q.clone(), v.clone(), a.clone());
+        (qb[2], vb[2], ab[2]) = (q[2] - e, v[2] - e / dt, a[2] - e / (dt * dt));
+        let mut target = arr(&q);
+        target[2] = q[2] + (v[2] + (a[2] - 4400.0 * dt) * dt) * dt;
+        let mut f = SafetyFilter::new(&p, &p.home);
+        f.resync(&q, &v, &a);
+        f.also_judged_from(&qb, &vb, &ab);
+        assert_eq!(f.step(Some(&target))[2], target[2], "applied exactly: within the limits from ours");
+        assert_eq!(f.infeasible_steps, 0);
+    }
+
+    /// An arm held at rest stays where it is, whatever other history the robot may judge the hold against.
+    #[test]
+    fn an_arm_held_at_rest_is_not_moved_for_another_history() {
+        let p = fr3();
+        let mut f = SafetyFilter::new(&p, &p.home);
+        let other: Vec<f64> = p.home.iter().map(|q| q + 5e-6).collect();
+        let zero = vec![0.0; p.joints];
+        for _ in 0..10 {
+            f.also_judged_from(&other, &zero, &zero);
+            assert_eq!(f.step(None), &p.home[..]);
+        }
     }
 
     /// A stream that respects every limit (a slow sine) is applied exactly, tick for tick, and never counted as

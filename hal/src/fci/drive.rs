@@ -28,7 +28,7 @@ use tracing::{info, warn};
 use super::hand::{Grasp, Hand};
 use super::recent_cycles::{CycleRecord, RecentCycles};
 use super::report::RobotLoopReport;
-use super::setpoint_sync::RobotSetpoints;
+use super::setpoint_sync::{ResyncFrom, RobotSetpoints};
 use super::state::{JOINTS, measurement};
 use super::{Fci, LateCommands, Realtime, connect};
 use crate::backend::{Backend, BackendError, Measurement, RobotReport};
@@ -231,7 +231,12 @@ fn control(
             if let Some(r) = resync {
                 hal.control.resync_setpoint(&r.q, &r.v, &r.a);
                 report.resyncs += 1;
+                report.resyncs_thrown_away += u64::from(robot_setpoints.last_from == Some(ResyncFrom::LateThrownAway));
                 last_resync = Some((report.cycles, missed));
+            }
+            if let Some(h) = robot_setpoints.if_thrown_away() {
+                hal.control.also_judged_from(&h.q, &h.v, &h.a);
+                report.judged_twice += 1;
             }
             let mut cycle = Cycle {
                 state,

@@ -15,6 +15,11 @@ pub struct RobotLoopReport {
     /// Cycles in which the robot reported another setpoint than our last command (it extrapolated over a lost
     /// one), and the filter continued from the robot's.
     pub resyncs: u64,
+    /// Of them: after a late command of ours that franka-sim threw away for our next one (it kept its guess).
+    pub resyncs_thrown_away: u64,
+    /// Commands kept within the limits from two histories: after a state that showed our last command late, the
+    /// robot may yet throw it away (franka-sim), and judges the next against its guess instead.
+    pub judged_twice: u64,
     /// The robot's control command success rate: the lowest seen once 100 cycles of a motion had passed, and the
     /// last one.
     pub min_success_rate: Option<f64>,
@@ -32,13 +37,15 @@ impl std::fmt::Display for RobotLoopReport {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(
             f,
-            "  robot {}: {} cycles, {} lost states, {} bunched states, {} setpoint resyncs, control success rate min {} \
-             last {:.3}; {} reflexes, {} recoveries",
+            "  robot {}: {} cycles, {} lost states, {} bunched states, {} setpoint resyncs ({} after a late command \
+             thrown away), {} commands judged from two histories, control success rate min {} last {:.3}; {} reflexes, {} recoveries",
             self.addr,
             self.cycles,
             self.lost_states,
             self.bunched_states,
             self.resyncs,
+            self.resyncs_thrown_away,
+            self.judged_twice,
             self.min_success_rate.map_or("n/a".to_string(), |r| format!("{r:.3}")),
             self.last_success_rate,
             self.reflexes.len(),

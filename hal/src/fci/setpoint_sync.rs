@@ -22,6 +22,10 @@
 //!   acceleration, where that guess is our command to float32's last bit, only in the success rate falling.
 //!   And where our last command before unseen states came late, the robot throws away its guesses up to it and
 //!   guesses only the cycles after it: `q_d` shows how many, and our next command is differenced over the rest.
+//!   franka-sim also reads every datagram waiting and keeps only the newest: a late command with our next one
+//!   queued behind it is thrown away, its guess stands ([`LateRun`]); which happened shows a state later, so the
+//!   command in between is kept within the limits from both histories where it can be
+//!   (`SafetyFilter::also_judged_from`).
 
 use super::state::JOINTS;
 
@@ -46,6 +50,8 @@ pub enum ResyncFrom {
     /// it included), or our last command before them did, and the robot's guesses of the cycles it missed were
     /// thrown away but not replaced.
     LateOverCycles(u64),
+    /// Our last command, which came late, thrown away by the robot: it kept its guess of that cycle.
+    LateThrownAway,
     /// The robot's own reported `q_d`, `dq_d`, `ddq_d` (float32, as received).
     RobotReport,
 }
@@ -100,6 +106,25 @@ struct Gap {
     late: (History, u64),
 }
 
+/// Applied mode: our commands that came late, the robot's guesses standing in for them so far. franka-sim replaces
+/// its guesses with a late command once it reads it: it rewinds to the history after the last command it applied
+/// and records the late one over the cycles since. Unless our next command is waiting behind it in the same read:
+/// franka-sim keeps only the newest datagram and throws the late one away; the run goes on, or a command of ours
+/// that arrives in its cycle ends it, recorded after the robot's guesses. The states' velocities tell which.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct LateRun {
+    /// The robot's history after the last command of ours it applied.
+    applied: History,
+    /// The cycles the robot has guessed since (one per state that showed a guess).
+    guessed: u64,
+}
+
+/// Applied mode: the motion's first commands are taken as applied on time, late runs not told apart. franka-sim
+/// seeds its history at a motion's start from the state it last sent, which need not be what its next state's
+/// derivatives continue (a HAL restarted where another left the arm: read as a late command, then a guard toward a
+/// history the robot never had moved the held arm by 3 µrad).
+const SETTLING_COMMANDS: u32 = 3;
+
 /// A gap longer than this is not reconstructed: the robot's communication reflex fires at 20 lost cycles (and
 /// franka-sim stops extrapolating there).
 const MAX_RECONSTRUCTED_CYCLES: u64 = 19;
@@ -113,6 +138,10 @@ pub struct RobotSetpoints {
     late_commands_applied: bool,
     /// Applied mode, after unseen states: which histories our first command after them may be recorded into.
     before_gap: Option<Gap>,
+    /// Applied mode, after a state that showed our last command late (the robot's guess instead): see [`LateRun`].
+    late_run: Option<LateRun>,
+    /// Our commands the robot has recorded since the motion's first state (counted up to [`SETTLING_COMMANDS`]).
+    commands_in_motion: u32,
     /// The robot's success rate in the last state: it falls only when a cycle went without our command in time.
     success_rate: Option<f64>,
     /// How the last resync was made.
@@ -121,7 +150,16 @@ pub struct RobotSetpoints {
 
 impl RobotSetpoints {
     pub fn new(late_commands_applied: bool) -> Self {
-        Self { history: None, sent: None, late_commands_applied, before_gap: None, success_rate: None, last_from: None }
+        Self {
+            history: None,
+            sent: None,
+            late_commands_applied,
+            before_gap: None,
+            late_run: None,
+            commands_in_motion: 0,
+            success_rate: None,
+            last_from: None,
+        }
     }
 
     /// Our command for this cycle.
@@ -146,11 +184,13 @@ impl RobotSetpoints {
         let (Some(h), Some(s)) = (self.history, self.sent.take()) else {
             // The motion's first state (the robot's history is what it reports), or one we did not answer.
             self.history = Some(reported);
+            self.commands_in_motion = 0;
             return (missed_states > 0).then(|| self.continue_from(reported, ResyncFrom::RobotReport));
         };
         let mut ours = h;
         ours.record(&s, 1);
         let before_gap = self.before_gap.take();
+        let late_run = self.late_run.take();
         if missed_states == 0 {
             if let Some(gap) = before_gap {
                 // Our first command after unseen states: recorded after the robot's guesses of the gap, or replacing
@@ -177,8 +217,10 @@ impl RobotSetpoints {
                     return Some(self.continue_from(on_time, ResyncFrom::LateOverCycles(on_time_cycles)));
                 }
             }
-            if within(&s, q_d) || self.late_commands_applied {
-                // Applied on time; or late (applied mode), replacing the robot's one guess one cycle after ours.
+            if self.late_commands_applied {
+                return self.applied_without_gap(h, s, late_run, dq_d);
+            }
+            if within(&s, q_d) {
                 self.history = Some(ours);
                 return None;
             }
@@ -208,6 +250,64 @@ impl RobotSetpoints {
         }
         // Dropped: our last command was lost too.
         Some(self.lost_then_extrapolated(h, missed_states + 1, q_d, reported))
+    }
+
+    /// Applied mode, after a state that showed our last command late: the history the robot judges our next
+    /// command against if it throws that one away and gets the next in its cycle (its guesses), which we learn only
+    /// a state later; the next command must be within the limits from it too.
+    pub fn if_thrown_away(&self) -> Option<History> {
+        self.late_run.map(|r| r.applied.extrapolated(r.guessed))
+    }
+
+    /// Applied mode, no unseen state: what the robot recorded our command `s` into, or will once it arrives. Our
+    /// commands before it applied (`h`), or, where they came late (`run`), thrown away; `s` on time, or late (the
+    /// state shows the robot's guess instead). Of those four, the one whose velocity is the state's `dq_d`, by more
+    /// than float32's rounding, or else the first. Velocity, not position: a guess can be within `q_d`'s rounding of
+    /// our command (0.4 µrad) and 0.4 mrad/s from it in velocity, where float32 rounds to 0.1 µrad/s. Returns where
+    /// to continue from when the robot threw our commands away.
+    fn applied_without_gap(
+        &mut self,
+        h: History,
+        s: [f64; JOINTS],
+        run: Option<LateRun>,
+        dq_d: &[f64; JOINTS],
+    ) -> Option<History> {
+        if self.commands_in_motion < SETTLING_COMMANDS {
+            self.commands_in_motion += 1;
+            let mut next = h;
+            next.record(&s, 1);
+            self.history = Some(next);
+            return None;
+        }
+        let recorded = |from: History, cycles: u64| {
+            let mut r = from;
+            r.record(&s, cycles);
+            r
+        };
+        // (what the state shows, the history `s` goes into, the run of late commands after it, thrown away).
+        let ours_on_time = (recorded(h, 1), recorded(h, 1), None, false);
+        let ours_late = (h.extrapolated(1), recorded(h, 1), Some(LateRun { applied: h, guessed: 1 }), false);
+        let thrown = run.map(|r| {
+            let guesses = r.applied.extrapolated(r.guessed);
+            let on_time = (recorded(guesses, 1), recorded(guesses, 1), None, true);
+            let more = LateRun { applied: r.applied, guessed: r.guessed + 1 };
+            let late = (r.applied.extrapolated(r.guessed + 1), recorded(r.applied, r.guessed + 1), Some(more), true);
+            [on_time, late]
+        });
+        let mut best = ours_on_time;
+        for c in [ours_late].into_iter().chain(thrown.into_iter().flatten()) {
+            if distance(&c.0.v, dq_d) + RESYNC_RAD_S < distance(&best.0.v, dq_d) {
+                best = c;
+            }
+        }
+        let (_, next, run, thrown_away) = best;
+        self.late_run = run;
+        if thrown_away {
+            return Some(self.continue_from(next, ResyncFrom::LateThrownAway));
+        }
+        // Applied on time; or late, replacing the robot's one guess one cycle after ours.
+        self.history = Some(next);
+        None
     }
 
     /// Dropped mode: the robot extrapolated `h` over `cycles` without our command, if that is what `q_d` shows;
@@ -290,7 +390,8 @@ mod tests {
         s.observe(&c(0), &ZERO, &ZERO, ALL_IN_TIME, 0);
         for k in 1..n {
             s.sent(c(k));
-            assert_eq!(s.observe(&c(k).map(|q| q as f32 as f64), &ZERO, &ZERO, ALL_IN_TIME, 0), None, "cycle {k}");
+            let [q, v, a] = report(&history_along(c, k));
+            assert_eq!(s.observe(&q, &v, &a, ALL_IN_TIME, 0), None, "cycle {k}");
         }
         s
     }
@@ -380,9 +481,11 @@ mod tests {
         let mut s = applied_until(10, true);
         // franka-sim reports its guess, then replaces it with our late command: nothing to continue from.
         s.sent(traj(10));
-        assert_eq!(s.observe(&history_at(9).extrapolated(1).q, &ZERO, &ZERO, ALL_IN_TIME, 0), None);
+        let [q, v, a] = report(&history_at(9).extrapolated(1));
+        assert_eq!(s.observe(&q, &v, &a, ALL_IN_TIME, 0), None);
         s.sent(traj(11));
-        assert_eq!(s.observe(&traj(11), &ZERO, &ZERO, ALL_IN_TIME, 0), None);
+        let [q, v, a] = report(&history_at(11));
+        assert_eq!(s.observe(&q, &v, &a, ALL_IN_TIME, 0), None);
         assert_eq!(s.history, Some(history_at(11)));
     }
 
@@ -426,7 +529,9 @@ mod tests {
         assert_eq!(r, robot);
         // And on from there as usual.
         s.sent(traj(13));
-        assert_eq!(s.observe(&traj(13), &ZERO, &ZERO, ALL_IN_TIME, 0), None);
+        robot.record(&traj(13), 1);
+        let [q, v, a] = report(&robot);
+        assert_eq!(s.observe(&q, &v, &a, ALL_IN_TIME, 0), None);
     }
 
     #[test]
@@ -454,6 +559,115 @@ mod tests {
         let c1 = r.extrapolated(1).q;
         s.sent(c1);
         (s, c1)
+    }
+
+    /// The reflex of 2026-11-27 (franka-sim: an acceleration discontinuity on joint 1 with no state unseen, its
+    /// success rate falling twice): our command 10 came late, and the state showed franka-sim's guess of its cycle.
+    /// Our command 11 reached it in the same read as 10; franka-sim keeps the newest datagram only, so it threw 10
+    /// away, kept its guess, and recorded 11 after it — our history had 10 there, so the filter's next command,
+    /// within the jerk limit against ours, read as 8195 rad/s³ to the robot. The state's velocity shows which.
+    #[test]
+    fn applied_a_late_command_thrown_away_for_our_next_leaves_the_robot_s_guess_in_its_history() {
+        let mut s = applied_until(10, true);
+        s.sent(traj(10));
+        let guess = history_at(9).extrapolated(1);
+        let [q, v, a] = report(&guess);
+        assert_eq!(s.observe(&q, &v, &a, 0.99, 0), None, "late: it may yet replace the guess");
+        s.sent(traj(11));
+        let mut robot = guess;
+        robot.record(&traj(11), 1);
+        let [q, v, a] = report(&robot);
+        assert_eq!(s.observe(&q, &v, &a, 0.98, 0), Some(robot), "the robot's history, exactly");
+        assert_eq!(s.last_from, Some(ResyncFrom::LateThrownAway));
+        // Had 10 replaced the guess, the same state would show it: no resync.
+        let mut s = applied_until(10, true);
+        s.sent(traj(10));
+        let [q, v, a] = report(&guess);
+        s.observe(&q, &v, &a, 0.99, 0);
+        s.sent(traj(11));
+        let [q, v, a] = report(&history_at(11));
+        assert_eq!((s.observe(&q, &v, &a, 0.98, 0), s.history), (None, Some(history_at(11))));
+    }
+
+    /// The same, with our command 11 late too (a reflex of 2026-11-27 in this change's second version, after six
+    /// unseen states): the state shows the robot's guess of 11's cycle made after its guess of 10's. When 11
+    /// arrives, franka-sim rewinds both guesses and records it over two cycles from 9, the last command it applied
+    /// — not after its guess of 10 — unless it throws 11 away in turn, which the next state shows.
+    #[test]
+    fn applied_two_late_commands_the_first_thrown_away() {
+        let mut s = applied_until(10, true);
+        s.sent(traj(10));
+        let guess = history_at(9).extrapolated(1);
+        let [q, v, a] = report(&guess);
+        assert_eq!(s.observe(&q, &v, &a, 0.99, 0), None);
+        s.sent(traj(11));
+        let [q, v, a] = report(&guess.extrapolated(1));
+        let mut robot = history_at(9);
+        robot.record(&traj(11), 2);
+        assert_eq!(s.observe(&q, &v, &a, 0.98, 0), Some(robot), "11 over two cycles from 9");
+        assert_eq!(s.last_from, Some(ResyncFrom::LateThrownAway));
+        assert_eq!(s.if_thrown_away(), Some(history_at(9).extrapolated(2)), "should 11 be thrown away too");
+        // 11 applied so; 12 on time after it: in step again.
+        s.sent(traj(12));
+        robot.record(&traj(12), 1);
+        let [q, v, a] = report(&robot);
+        assert_eq!((s.observe(&q, &v, &a, 0.98, 0), s.history), (None, Some(robot)));
+        assert_eq!(s.if_thrown_away(), None);
+    }
+
+    /// Both thrown away, and 12 in its cycle: recorded after the robot's two guesses.
+    #[test]
+    fn applied_two_late_commands_thrown_away_then_one_on_time() {
+        let mut s = applied_until(10, true);
+        s.sent(traj(10));
+        let [q, v, a] = report(&history_at(9).extrapolated(1));
+        s.observe(&q, &v, &a, 0.99, 0);
+        s.sent(traj(11));
+        let [q, v, a] = report(&history_at(9).extrapolated(2));
+        s.observe(&q, &v, &a, 0.98, 0).expect("a resync");
+        s.sent(traj(12));
+        let mut robot = history_at(9).extrapolated(2);
+        robot.record(&traj(12), 1);
+        let [q, v, a] = report(&robot);
+        assert_eq!(s.observe(&q, &v, &a, 0.98, 0), Some(robot));
+        assert_eq!(s.last_from, Some(ResyncFrom::LateThrownAway));
+    }
+
+    /// The reflex of 2026-11-27 in this change's first version (two runs of the franka-sim tests in fifteen): a
+    /// guess 0.4 µrad from our late command (inside `RESYNC_RAD`), its velocity 0.44 mrad/s from ours, read as our
+    /// command over an unexplained velocity; the filter continued from a mix of the two and franka-sim judged
+    /// −5167 rad/s³. The state is the robot's guess, our command will replace it: nothing to resync.
+    #[test]
+    fn applied_a_guess_within_rounding_of_our_command_in_position_is_told_apart_by_its_velocity() {
+        let mut s = applied_until(10, true);
+        // A command 0.4 µrad off the guess: a jerk of 400 rad/s³ from its history.
+        let mut c = history_at(9).extrapolated(1).q;
+        c[1] += 4e-7;
+        s.sent(c);
+        let guess = history_at(9).extrapolated(1);
+        let [q, v, a] = report(&guess);
+        assert!(distance(&q, &c) <= RESYNC_RAD, "the premise: within rounding in position");
+        assert_eq!(s.observe(&q, &v, &a, 0.99, 0), None);
+        let mut ours = history_at(9);
+        ours.record(&c, 1);
+        assert_eq!(s.history, Some(ours), "our command, to replace the guess");
+        assert_eq!(s.if_thrown_away(), Some(guess), "and the guess, should the robot throw it away");
+    }
+
+    /// A HAL restarted where another left the arm: the motion's first state shows the old setpoint, 3 µrad from
+    /// where the arm rests, and franka-sim's next states do not continue its derivatives. Nothing is read as a late
+    /// run there (fci_hal's restart test: the held arm moved by 3 µrad).
+    #[test]
+    fn applied_the_motion_s_first_commands_are_not_read_as_late() {
+        let mut s = RobotSetpoints::new(true);
+        let old = [0.1567053; JOINTS];
+        let rest = old.map(|q| q - 2.8e-6);
+        s.observe(&old, &ZERO, &ZERO, ALL_IN_TIME, 0);
+        for _ in 0..SETTLING_COMMANDS {
+            s.sent(rest);
+            assert_eq!(s.observe(&rest, &ZERO, &ZERO, ALL_IN_TIME, 0), None);
+            assert_eq!(s.if_thrown_away(), None);
+        }
     }
 
     /// The reflex measured under hypervisor steal (franka-sim judged 14.25 rad/s² where the filter braked at 9.5):

@@ -238,6 +238,14 @@ fn table(runs: &[Run], args: &BackendBenchArgs) -> String {
         ("robot states bunched behind a late one", Box::new(|r| show(num(&r.hal, "/robot/bunched_states"), 0))),
         ("setpoint resyncs to the robot's history", Box::new(|r| show(num(&r.hal, "/robot/resyncs"), 0))),
         (
+            "of them: a late command the robot threw away",
+            Box::new(|r| show(num(&r.hal, "/robot/resyncs_thrown_away"), 0)),
+        ),
+        (
+            "commands kept within the limits from two histories",
+            Box::new(|r| show(num(&r.hal, "/robot/judged_twice"), 0)),
+        ),
+        (
             "robot reflexes",
             Box::new(|r| {
                 r.hal.pointer("/robot/reflexes").and_then(Value::as_array).map_or("–".into(), |a| a.len().to_string())
