@@ -477,7 +477,8 @@ impl SafetyFilter {
         // held at rest: it stays where it is.
         let holding = target.is_none() && self.at_rest();
         let alternative = self.alternative.take().filter(|_| !holding).map(|alt| {
-            let both = std::array::from_fn(|i| i < self.n && self.both_histories_bound(i, &alt).is_some());
+            let both: [Option<(f64, f64)>; MAX_JOINTS] =
+                std::array::from_fn(|i| if i < self.n { self.both_histories_bound(i, &alt) } else { None });
             (alt, both)
         });
         // A target the setpoint can reach this very tick within every limit is applied exactly, as libfranka
@@ -485,8 +486,8 @@ impl SafetyFilter {
         // (and the next command's implied rates are its own finite differences, so it is never clamped).
         if let Some(t) = target
             && self.reachable_in_one_tick(t)
-            && alternative.is_none_or(|(alt, both): (Setpoint, [bool; MAX_JOINTS])| {
-                (0..self.n).all(|i| !both[i] || self.step_excess_from(i, alt.of(i), t[i]).is_none())
+            && alternative.as_ref().is_none_or(|(alt, both)| {
+                (0..self.n).all(|i| both[i].is_none() || self.step_excess_from(i, alt.of(i), t[i]).is_none())
             })
         {
             #[allow(clippy::needless_range_loop)] // q, v, a and t indexed by joint
@@ -540,9 +541,8 @@ impl SafetyFilter {
                 a_new = -v / dt;
             }
             // Within the limits from the other history too, where that leaves a step within ours.
-            if let Some((alt, both)) = &alternative
-                && both[i]
-                && let Some((alt_lo, alt_hi)) = self.both_histories_bound(i, alt)
+            if let Some((_, both)) = &alternative
+                && let Some((alt_lo, alt_hi)) = both[i]
             {
                 let (both_lo, both_hi) = (lo.max(alt_lo), hi.min(alt_hi));
                 if both_lo <= both_hi {
@@ -844,6 +844,26 @@ mod tests {
         (v1, a1, (a1 - a) / dt)
     }
 
+    /// The arm at home but joint `i` at `(q, v, a)` (our history), the robot's guess `e` behind our late command
+    /// there (its history, had it thrown that command away), and a target `jerk` rad/s³ from ours.
+    #[allow(clippy::type_complexity)]
+    fn late_by(
+        p: &Profile,
+        i: usize,
+        (q_i, v_i, a_i): (f64, f64, f64),
+        e: f64,
+        jerk: f64,
+    ) -> ([Vec<f64>; 3], [Vec<f64>; 3], [f64; MAX_JOINTS]) {
+        let dt = p.period_s();
+        let (mut q, mut v, mut a) = (p.home.clone(), vec![0.0; p.joints], vec![0.0; p.joints]);
+        (q[i], v[i], a[i]) = (q_i, v_i, a_i);
+        let (mut qb, mut vb, mut ab) = (q.clone(), v.clone(), a.clone());
+        (qb[i], vb[i], ab[i]) = (q_i - e, v_i - e / dt, a_i - e / (dt * dt));
+        let mut target = arr(&q);
+        target[i] = q_i + (v_i + (a_i + jerk * dt) * dt) * dt;
+        ([q, v, a], [qb, vb, ab], target)
+    }
+
     /// After a state that showed our last command late, franka-sim may yet throw it away and judge the next command
     /// against its guess: the step is then kept within the limits from both histories (the case of 2026-11-27: a
     /// command at 4000 rad/s³ from ours, where the guess was 1.3 µrad behind our late command, reads 7900 from it).
@@ -851,16 +871,8 @@ mod tests {
     fn a_step_judged_from_two_histories_is_within_the_limits_from_both() {
         let p = fr3();
         let dt = p.period_s();
-        let mut q = p.home.clone();
-        q[0] = -0.1358503;
-        let (mut v, mut a) = (vec![0.0; p.joints], vec![0.0; p.joints]);
-        (v[0], a[0]) = (0.9393, -0.9);
-        let e = 1.3e-6;
-        let (mut qb, mut vb, mut ab) = (q.clone(), v.clone(), a.clone());
-        (qb[0], vb[0], ab[0]) = (q[0] - e, v[0] - e / dt, a[0] - e / (dt * dt));
         // The target: 4000 rad/s³ from ours.
-        let mut target = arr(&q);
-        target[0] = q[0] + (v[0] + (a[0] + 4000.0 * dt) * dt) * dt;
+        let ([q, v, a], [qb, vb, ab], target) = late_by(&p, 0, (-0.1358503, 0.9393, -0.9), 1.3e-6, 4000.0);
         let from_b = (qb[0], vb[0], ab[0]);
         assert!(rates_of(target[0], from_b, dt).2 > 7800.0, "the premise: {:?}", rates_of(target[0], from_b, dt));
 
@@ -890,16 +902,7 @@ mod tests {
     #[test]
     fn where_no_step_is_within_the_limits_from_both_histories_ours_decide() {
         let p = fr3();
-        let dt = p.period_s();
-        let mut q = p.home.clone();
-        q[2] = -0.3174507;
-        let (mut v, mut a) = (vec![0.0; p.joints], vec![0.0; p.joints]);
-        (v[2], a[2]) = (-0.13396, 0.001);
-        let e = -4.5e-6;
-        let (mut qb, mut vb, mut ab) = (q.clone(), v.clone(), a.clone());
-        (qb[2], vb[2], ab[2]) = (q[2] - e, v[2] - e / dt, a[2] - e / (dt * dt));
-        let mut target = arr(&q);
-        target[2] = q[2] + (v[2] + (a[2] - 4400.0 * dt) * dt) * dt;
+        let ([q, v, a], [qb, vb, ab], target) = late_by(&p, 2, (-0.3174507, -0.13396, 0.001), -4.5e-6, -4400.0);
         let mut f = SafetyFilter::new(&p, &p.home);
         f.resync(&q, &v, &a);
         f.also_judged_from(&qb, &vb, &ab);

@@ -229,8 +229,8 @@ fn pick_cup_attempt(attempt: u32) -> bool {
 /// clamps seen there (marsd's servo ignored the acceleration the robot's history moved; README "Clamped only for
 /// content") is fixed and no run since has shown one, but a few runs do not show the rate is zero: each such clamp
 /// is logged with its frame distance to that resync, and every clamp must be logged (the HAL logs the first ten) and
-/// come at most 2 frames after one. A clamp anywhere else is a fault of marsd's stream. The commands the robot got stayed within its limits either way (the HAL sends the
-/// clamped step; no reflex is asserted separately).
+/// come at most 2 frames after one. A clamp anywhere else is a fault of marsd's stream. The commands the robot got
+/// stayed within its limits either way (the HAL sends the clamped step; no reflex is asserted separately).
 fn assert_clamps_follow_robot_resyncs(clamped: u64, hal_log: &str) {
     let lines: Vec<&str> = hal_log.lines().filter(|l| l.contains("clamped command")).collect();
     assert_eq!(lines.len() as u64, clamped, "every clamp logged (at most 10 are): {}", lines.join("\n"));

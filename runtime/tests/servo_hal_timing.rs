@@ -206,9 +206,9 @@ fn run_with_robot_resyncs(seed: u64, resets: u64, p_fault: f64, p_resync: f64) -
         let servo_resynced = rig.servo.counters.resyncs > servo_resyncs;
         servo_resyncs = rig.servo.counters.resyncs;
         if servo_resynced && p_resync > 0.0 && rig.rng.unit() < p_resync {
-            // The robot's previous position ε off the HAL's: its velocity ε/dt lower, its acceleration 2ε/dt² lower;
-            // ε chosen so that the robot's acceleration is half the limit, one way or the other (a robot braking or
-            // speeding up over the state the HAL missed).
+            // The robot's previous position ε off the HAL's: its velocity ε/dt lower, its acceleration 2ε/dt²
+            // lower; ε chosen so that the robot's acceleration is half the limit, one way or the other (a robot
+            // braking or speeding up over the state the HAL missed).
             let f = rig.hal.filter();
             let (q, mut v, mut a) = (f.position().to_vec(), f.velocity().to_vec(), f.acceleration().to_vec());
             let dt = 1e-3;

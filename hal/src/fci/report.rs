@@ -38,7 +38,8 @@ impl std::fmt::Display for RobotLoopReport {
         write!(
             f,
             "  robot {}: {} cycles, {} lost states, {} bunched states, {} setpoint resyncs ({} after a late command \
-             thrown away), {} commands judged from two histories, control success rate min {} last {:.3}; {} reflexes, {} recoveries",
+             thrown away), {} commands judged from two histories, control success rate min {} last {:.3}; \
+             {} reflexes, {} recoveries",
             self.addr,
             self.cycles,
             self.lost_states,

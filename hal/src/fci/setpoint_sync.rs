@@ -119,6 +119,19 @@ struct LateRun {
     guessed: u64,
 }
 
+/// Applied mode: one reading of a state with no gap before it (see `RobotSetpoints::applied_without_gap`).
+#[derive(Debug, Clone, Copy)]
+struct Reading {
+    /// What the state shows in this reading.
+    shows: History,
+    /// The history our last command goes into.
+    next: History,
+    /// The run of late commands after it.
+    run: Option<LateRun>,
+    /// Our earlier late commands thrown away.
+    thrown_away: bool,
+}
+
 /// Applied mode: the motion's first commands are taken as applied on time, late runs not told apart. franka-sim
 /// seeds its history at a motion's start from the state it last sent, which need not be what its next state's
 /// derivatives continue (a HAL restarted where another left the arm: read as a late command, then a guard toward a
@@ -272,37 +285,44 @@ impl RobotSetpoints {
         run: Option<LateRun>,
         dq_d: &[f64; JOINTS],
     ) -> Option<History> {
-        if self.commands_in_motion < SETTLING_COMMANDS {
-            self.commands_in_motion += 1;
-            let mut next = h;
-            next.record(&s, 1);
-            self.history = Some(next);
-            return None;
-        }
         let recorded = |from: History, cycles: u64| {
             let mut r = from;
             r.record(&s, cycles);
             r
         };
-        // (what the state shows, the history `s` goes into, the run of late commands after it, thrown away).
-        let ours_on_time = (recorded(h, 1), recorded(h, 1), None, false);
-        let ours_late = (h.extrapolated(1), recorded(h, 1), Some(LateRun { applied: h, guessed: 1 }), false);
+        if self.commands_in_motion < SETTLING_COMMANDS {
+            self.commands_in_motion += 1;
+            self.history = Some(recorded(h, 1));
+            return None;
+        }
+        let ours_on_time = Reading { shows: recorded(h, 1), next: recorded(h, 1), run: None, thrown_away: false };
+        let ours_late = Reading {
+            shows: h.extrapolated(1),
+            next: recorded(h, 1),
+            run: Some(LateRun { applied: h, guessed: 1 }),
+            thrown_away: false,
+        };
         let thrown = run.map(|r| {
             let guesses = r.applied.extrapolated(r.guessed);
-            let on_time = (recorded(guesses, 1), recorded(guesses, 1), None, true);
-            let more = LateRun { applied: r.applied, guessed: r.guessed + 1 };
-            let late = (r.applied.extrapolated(r.guessed + 1), recorded(r.applied, r.guessed + 1), Some(more), true);
+            let on_time =
+                Reading { shows: recorded(guesses, 1), next: recorded(guesses, 1), run: None, thrown_away: true };
+            let late = Reading {
+                shows: r.applied.extrapolated(r.guessed + 1),
+                next: recorded(r.applied, r.guessed + 1),
+                run: Some(LateRun { applied: r.applied, guessed: r.guessed + 1 }),
+                thrown_away: true,
+            };
             [on_time, late]
         });
         let mut best = ours_on_time;
         for c in [ours_late].into_iter().chain(thrown.into_iter().flatten()) {
-            if distance(&c.0.v, dq_d) + RESYNC_RAD_S < distance(&best.0.v, dq_d) {
+            if distance(&c.shows.v, dq_d) + RESYNC_RAD_S < distance(&best.shows.v, dq_d) {
                 best = c;
             }
         }
-        let (_, next, run, thrown_away) = best;
-        self.late_run = run;
-        if thrown_away {
+        self.late_run = best.run;
+        let next = best.next;
+        if best.thrown_away {
             return Some(self.continue_from(next, ResyncFrom::LateThrownAway));
         }
         // Applied on time; or late, replacing the robot's one guess one cycle after ours.
@@ -561,6 +581,17 @@ mod tests {
         (s, c1)
     }
 
+    /// Commands 0..=9 applied; 10 late (the state shows the robot's guess of its cycle, which 10 may yet replace:
+    /// nothing to resync); 11 sent.
+    fn with_10_late() -> RobotSetpoints {
+        let mut s = applied_until(10, true);
+        s.sent(traj(10));
+        let [q, v, a] = report(&history_at(9).extrapolated(1));
+        assert_eq!(s.observe(&q, &v, &a, 0.99, 0), None, "late: it may yet replace the guess");
+        s.sent(traj(11));
+        s
+    }
+
     /// The reflex of 2026-11-27 (franka-sim: an acceleration discontinuity on joint 1 with no state unseen, its
     /// success rate falling twice): our command 10 came late, and the state showed franka-sim's guess of its cycle.
     /// Our command 11 reached it in the same read as 10; franka-sim keeps the newest datagram only, so it threw 10
@@ -568,23 +599,14 @@ mod tests {
     /// within the jerk limit against ours, read as 8195 rad/s³ to the robot. The state's velocity shows which.
     #[test]
     fn applied_a_late_command_thrown_away_for_our_next_leaves_the_robot_s_guess_in_its_history() {
-        let mut s = applied_until(10, true);
-        s.sent(traj(10));
-        let guess = history_at(9).extrapolated(1);
-        let [q, v, a] = report(&guess);
-        assert_eq!(s.observe(&q, &v, &a, 0.99, 0), None, "late: it may yet replace the guess");
-        s.sent(traj(11));
-        let mut robot = guess;
+        let mut s = with_10_late();
+        let mut robot = history_at(9).extrapolated(1);
         robot.record(&traj(11), 1);
         let [q, v, a] = report(&robot);
         assert_eq!(s.observe(&q, &v, &a, 0.98, 0), Some(robot), "the robot's history, exactly");
         assert_eq!(s.last_from, Some(ResyncFrom::LateThrownAway));
         // Had 10 replaced the guess, the same state would show it: no resync.
-        let mut s = applied_until(10, true);
-        s.sent(traj(10));
-        let [q, v, a] = report(&guess);
-        s.observe(&q, &v, &a, 0.99, 0);
-        s.sent(traj(11));
+        let mut s = with_10_late();
         let [q, v, a] = report(&history_at(11));
         assert_eq!((s.observe(&q, &v, &a, 0.98, 0), s.history), (None, Some(history_at(11))));
     }
@@ -595,13 +617,8 @@ mod tests {
     /// — not after its guess of 10 — unless it throws 11 away in turn, which the next state shows.
     #[test]
     fn applied_two_late_commands_the_first_thrown_away() {
-        let mut s = applied_until(10, true);
-        s.sent(traj(10));
-        let guess = history_at(9).extrapolated(1);
-        let [q, v, a] = report(&guess);
-        assert_eq!(s.observe(&q, &v, &a, 0.99, 0), None);
-        s.sent(traj(11));
-        let [q, v, a] = report(&guess.extrapolated(1));
+        let mut s = with_10_late();
+        let [q, v, a] = report(&history_at(9).extrapolated(2));
         let mut robot = history_at(9);
         robot.record(&traj(11), 2);
         assert_eq!(s.observe(&q, &v, &a, 0.98, 0), Some(robot), "11 over two cycles from 9");
@@ -618,11 +635,7 @@ mod tests {
     /// Both thrown away, and 12 in its cycle: recorded after the robot's two guesses.
     #[test]
     fn applied_two_late_commands_thrown_away_then_one_on_time() {
-        let mut s = applied_until(10, true);
-        s.sent(traj(10));
-        let [q, v, a] = report(&history_at(9).extrapolated(1));
-        s.observe(&q, &v, &a, 0.99, 0);
-        s.sent(traj(11));
+        let mut s = with_10_late();
         let [q, v, a] = report(&history_at(9).extrapolated(2));
         s.observe(&q, &v, &a, 0.98, 0).expect("a resync");
         s.sent(traj(12));
