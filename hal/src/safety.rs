@@ -218,8 +218,8 @@ impl SafetyFilter {
     /// instead of ours, which it cannot tell us yet (franka-sim, when it may have thrown a late command of ours
     /// away: `fci::setpoint_sync`). The step is then kept within the rate limits from both, for each joint where
     /// some step is; where none is (the two histories' accelerations a jerk limit or more apart), from ours only:
-    /// ours is the likelier, and a step between the two would break the limits from both (measured: franka-sim's
-    /// reflexes at ±6700 rad/s³, a rerun in 7 of 9 runs of `runtime/tests/franka_sim.rs`).
+    /// ours is the likelier, and a step between the two breaks the limits from both (a version that took the middle
+    /// raised franka-sim's reflexes).
     pub fn also_judged_from(&mut self, q: &[f64], v: &[f64], a: &[f64]) {
         self.alternative = Some(Setpoint { q: arr(q), v: arr(v), a: arr(a) });
     }
