@@ -14,6 +14,7 @@ use mars_ipc::*;
 
 // One real-time rig at a time on this machine, across test binaries (see `mars_rt::rig_lock`).
 use mars_rt::rig_lock::{RtRigLock, rt_rig_lock};
+use stall_witness::{Attempt, at_most_one_rerun, witness};
 
 fn profile_path(name: &str) -> String {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs").join(name).display().to_string()
@@ -186,16 +187,13 @@ fn every_bad_command_is_refused_and_never_applied() {
 
 #[test]
 fn brakes_and_holds_when_commands_stop_and_resumes_only_on_a_new_session() {
-    for attempt in 1..=2 {
-        if command_timeout_scenario(attempt) {
-            return;
-        }
-    }
+    witness();
+    at_most_one_rerun("command timeout", command_timeout_scenario);
 }
 
-/// One run of the command-timeout scenario; false if the HAL was frozen (published no frame) long enough between
-/// the last command and its hold to explain a hold later than its bound (first attempt only; the evidence printed).
-fn command_timeout_scenario(attempt: u32) -> bool {
+/// One run of the command-timeout scenario; its excuse if the hold came later than its bound while the stall
+/// witness saw the machine stall at least the excess between the last command and the hold.
+fn command_timeout_scenario(_attempt: u32) -> Attempt {
     let rig = Rig::start("fr3.toml");
     let home = rig.profile.home.clone();
     // Moving at ~0.3 rad/s when the stream stops.
@@ -210,36 +208,8 @@ fn command_timeout_scenario(attempt: u32) -> bool {
     // tick; the hold is published on the tick after the timeout).
     let took_ns = held.timestamp_ns.saturating_sub(stopped_at);
     let bound_ns = timeout_ns + 10_000_000;
-    if took_ns > bound_ns {
-        // The HAL is a process of its own: on a loaded machine it may not run. Time in which it published no frame
-        // (beyond its period) between our last command and the hold is time it could not have held in.
-        let period_ns = (1e9 / rig.profile.rate_hz) as u64;
-        let mut frozen_ns = 0;
-        let mut prev: Option<&RobotState> = Some(&moving);
-        for s in &frames {
-            // Frames this reader missed (a seq jump) say nothing of whether the HAL ran.
-            if let Some(p) = prev.filter(|p| s.seq == p.seq + 1) {
-                let gap = s.timestamp_ns.saturating_sub(p.timestamp_ns);
-                if gap * 2 > period_ns * 3 {
-                    frozen_ns += gap - period_ns;
-                }
-            }
-            prev = Some(s);
-        }
-        let evidence = format!(
-            "the hold came {:.1} ms after the last command (bound {:.1} ms); the HAL published no frame for {:.1} ms \
-             of that beyond its period ({} frames between)",
-            took_ns as f64 * 1e-6,
-            bound_ns as f64 * 1e-6,
-            frozen_ns as f64 * 1e-6,
-            frames.len()
-        );
-        if attempt == 1 && took_ns - frozen_ns <= bound_ns {
-            eprintln!("RERUN command timeout: attempt 1 is inconclusive: {evidence}");
-            return false;
-        }
-        panic!("{evidence}");
-    }
+    let (took_ms, bound_ms) = (took_ns as f64 * 1e-6, bound_ns as f64 * 1e-6);
+    witness().within_or_excused("last command → hold", took_ms, bound_ms, stopped_at, held.timestamp_ns)?;
     let rest = rig.wait_for("rest", Duration::from_secs(2), |s| s.is(status::AT_REST));
     assert!(rest.timestamp_ns - held.timestamp_ns < 500_000_000, "braking took too long");
     for i in 0..7 {
@@ -257,7 +227,7 @@ fn command_timeout_scenario(attempt: u32) -> bool {
     let after_new = rig.stream(2, 0.3, |_| far.clone());
     assert!(after_new.is(status::ACTIVE) && after_new.session == 2);
     assert!(after_new.applied_position[0] < held_at[0] - 0.01);
-    true
+    Ok(())
 }
 
 #[test]
@@ -467,6 +437,17 @@ fn hal_sees_a_sigkilled_controller_die_through_iceoryx2_events_long_before_the_c
 
 #[test]
 fn controller_sees_a_sigkilled_hal_die_through_iceoryx2_events() {
+    witness();
+    at_most_one_rerun("a SIGKILLed HAL seen dead", sigkilled_hal_seen_dead);
+}
+
+/// README's figure for a SIGKILLed HAL seen dead (the upper end of "13–21 ms"), and the test's bound on it.
+const DEATH_SEEN_MS: f64 = 21.0;
+const DEATH_SEEN_BOUND_MS: f64 = 1.5 * DEATH_SEEN_MS;
+
+/// One run of the test above; its excuse if the death was seen later than the bound while the stall witness saw
+/// the machine stall at least the excess meanwhile.
+fn sigkilled_hal_seen_dead(_attempt: u32) -> Attempt {
     let mut rig = Rig::start("fr3.toml");
     let hal = HalLiveness::hal(&rig.ns).unwrap();
     let start = Instant::now();
@@ -479,18 +460,17 @@ fn controller_sees_a_sigkilled_hal_die_through_iceoryx2_events() {
     assert_ne!(hal.peer(), Peer::Dead, "a running HAL must not be declared dead");
     assert_eq!(hal.deaths(), 0);
     rig.hal.0.kill().unwrap();
-    let killed = Instant::now();
+    let (killed, killed_ns) = (Instant::now(), stall_witness::monotonic_ns());
     rig.hal.0.wait().unwrap();
     while hal.peer() != Peer::Dead {
         assert!(killed.elapsed() < Duration::from_secs(3), "still {:?} 3 s after SIGKILL", hal.peer());
         std::thread::sleep(Duration::from_micros(200));
     }
-    let waited = killed.elapsed();
+    let (waited_ms, seen_ns) = (killed.elapsed().as_secs_f64() * 1e3, stall_witness::monotonic_ns());
     assert_eq!(hal.deaths(), 1);
-    // README: marsd sees a SIGKILLed HAL die "13–21 ms later" through the same liveness watch; bounded at 3× that,
-    // a margin a noisy 2-core VM meets.
-    eprintln!("HAL death seen {waited:?} after SIGKILL (README: 13–21 ms; bound 63 ms)");
-    assert!(waited < Duration::from_millis(63), "{waited:?}");
+    // README: marsd sees a SIGKILLed HAL die "13–21 ms later" through the same liveness watch.
+    eprintln!("HAL death seen {waited_ms:.1} ms after SIGKILL (README: 13–21 ms; bound {DEATH_SEEN_BOUND_MS} ms)");
+    witness().within_or_excused("SIGKILL → HAL seen dead", waited_ms, DEATH_SEEN_BOUND_MS, killed_ns, seen_ns)
 }
 
 #[test]

@@ -66,6 +66,9 @@ pub fn decode(path: &Path, width: u32, height: u32) -> Result<DecodedVideo, LeRo
     }
 }
 
+/// Whether this build reads and writes videos (the `video` feature).
+pub const SUPPORTED: bool = cfg!(feature = "video");
+
 /// Why a build without FFmpeg refuses a video file, and what to do about it.
 pub const NO_VIDEO: &str = "this build has no video support (FFmpeg): build with `--features video` \
     (needs FFmpeg's development libraries, libclang and pkg-config; Debian: libavcodec-dev libavformat-dev \

@@ -2,15 +2,11 @@
 //! a panic or a silently shorter dataset. Each case breaks one thing in a copy of the LeRobot-written fixture.
 
 use std::path::Path;
-use std::sync::Arc;
 
 mod common;
 
-use arrow_array::{ArrayRef, Float64Array, RecordBatch};
 use common::{copy, fixture, keys};
 use mars_lerobot::{Keys, LeRobotDataset, LeRobotError, ReadOptions};
-use parquet::arrow::ArrowWriter;
-use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
 
 fn read(root: &Path) -> Result<usize, LeRobotError> {
     let ds = LeRobotDataset::open(root)?;
@@ -29,9 +25,22 @@ fn truncate(path: &Path, keep: f64) {
     std::fs::write(path, &bytes[..(bytes.len() as f64 * keep) as usize]).unwrap();
 }
 
+#[cfg(feature = "video")]
 #[test]
 fn the_fixture_itself_reads() {
     assert_eq!(read(&fixture()).unwrap(), 180);
+}
+
+/// A build without FFmpeg reads the vectors of a dataset with videos, and refuses its camera saying how to build
+/// one that reads it — never a shorter or blank episode.
+#[cfg(not(feature = "video"))]
+#[test]
+fn without_video_support_the_vectors_read_and_a_camera_is_refused_with_the_remedy() {
+    let ds = LeRobotDataset::open(&fixture()).unwrap();
+    let vectors = Keys { images: vec![], ..keys() };
+    assert_eq!(ds.read_with(&vectors, (64, 64), &ReadOptions::no_cache()).unwrap().1.frames, 180);
+    let msg = read(&fixture()).unwrap_err().to_string();
+    assert!(msg.contains("file-000.mp4") && msg.contains("--features video"), "{msg}");
 }
 
 #[test]
@@ -82,6 +91,7 @@ fn a_truncated_parquet_file_is_refused() {
     }
 }
 
+#[cfg(feature = "video")]
 #[test]
 fn a_truncated_video_is_refused_not_read_short() {
     let video = "videos/observation.images.top/chunk-000/file-000.mp4";
@@ -97,8 +107,13 @@ fn a_truncated_video_is_refused_not_read_short() {
 }
 
 /// The last episode's video range moved 5 s past the end of the file it names.
+#[cfg(feature = "video")]
 #[test]
 fn an_episode_whose_video_range_falls_outside_its_file_is_refused() {
+    use arrow_array::{ArrayRef, Float64Array, RecordBatch};
+    use parquet::arrow::ArrowWriter;
+    use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
+    use std::sync::Arc;
     let d = copy();
     let path = d.path().join("meta/episodes/chunk-000/file-000.parquet");
     let batch = {

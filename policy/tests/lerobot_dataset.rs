@@ -7,7 +7,9 @@ mod mars_cli;
 use std::path::{Path, PathBuf};
 
 use mars_cli::mars_with_env;
+#[cfg(feature = "video")]
 use mars_policy::inference::MarsPolicy;
+#[cfg(feature = "video")]
 use mars_tasks::rollout::ChunkPolicy;
 
 const FIXTURE: &str = "tests/fixtures/lerobot/push_t";
@@ -38,6 +40,7 @@ fn train(dir: &Path, cfg: &Path, extra: &[&str]) -> (std::process::Output, PathB
     train_into(dir, "ckpt", cfg, extra)
 }
 
+#[cfg(feature = "video")] // it reads the fixture's camera
 #[test]
 fn a_vision_policy_trains_on_a_lerobot_dataset_and_acts() {
     let dir = tempfile::tempdir().unwrap();
@@ -95,6 +98,7 @@ fn a_policy_the_dataset_does_not_fit_is_refused_before_anything_is_written() {
 /// `--normalize-from stats`: the checkpoint carries the mean and std of the dataset's meta/stats.json (made
 /// different here from what the frames give, so the two sources can be told apart), cameras raw; by default it
 /// carries the frames' own; without a stats.json, `stats` is refused before anything is written.
+#[cfg(feature = "video")] // it reads the fixture's camera
 #[test]
 fn normalisation_comes_from_stats_json_when_asked_and_from_the_frames_otherwise() {
     let dir = tempfile::tempdir().unwrap();
@@ -134,6 +138,7 @@ fn normalisation_comes_from_stats_json_when_asked_and_from_the_frames_otherwise(
     assert!(!ckpt.exists(), "a refused run wrote {}", ckpt.display());
 }
 
+#[cfg(feature = "video")]
 fn copy_dir(from: &Path, to: &Path) {
     std::fs::create_dir_all(to).unwrap();
     for e in std::fs::read_dir(from).unwrap() {
@@ -144,4 +149,16 @@ fn copy_dir(from: &Path, to: &Path) {
             std::fs::copy(e.path(), to.join(e.file_name())).unwrap();
         }
     }
+}
+
+/// A build without FFmpeg refuses a camera key before anything is written, saying how to build one that reads it.
+#[cfg(not(feature = "video"))]
+#[test]
+fn without_video_support_a_camera_is_refused_with_the_remedy_and_nothing_is_written() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = config(dir.path(), |t| t);
+    let (out, ckpt) = train(dir.path(), &cfg, &["--image-key", "observation.images.top"]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("--features video"), "{err}");
+    assert!(!ckpt.exists(), "a checkpoint was written");
 }

@@ -107,6 +107,12 @@ pub fn prepare(cfg: DaemonConfig) -> anyhow::Result<Prepared> {
             "record: {} exists; a recording never overwrites (give a new path)",
             path.display()
         );
+        let camera = matches!(task, HilTask::PushT(_));
+        anyhow::ensure!(
+            !camera || mars_lerobot::video::SUPPORTED,
+            "record: the task's camera: {}",
+            mars_lerobot::video::NO_VIDEO
+        );
     }
     let rate = task.policy_rate_hz();
     anyhow::ensure!(

@@ -5,7 +5,8 @@
 //! The HAL is the highest-priority process of a rig (SCHED_FIFO 85 on the servo core): if it published no
 //! frame for 15 ms, nothing of the rig ran, so marsd's timing trip in that window was the machine's, not
 //! marsd's. A gap elsewhere in the run, or steal at another time, explains nothing and is not evidence.
-//! Used by the HIL tests (to decide a rerun) and by `mars-hil demo` (to say why a run stopped).
+//! Used by `mars-hil demo` to say why a run stopped. (The tests decide whether a failure may be rerun on the
+//! evidence of `stall-witness` alone, which shares no code with marsd or the HAL: this is the product's own view.)
 
 use std::fmt;
 
@@ -177,64 +178,6 @@ fn frozen_ms(gaps: &[FrameGap], from_ns: u64, to_ns: u64, period_ms: f64) -> f64
         .sum()
 }
 
-/// What the machine did while a late chunk was computed, from the policy loop's wake-up to the chunk being ready.
-#[derive(Debug, Clone, Copy)]
-pub struct LateEvidence {
-    /// How late the chunk was (ms after the servo needed it).
-    pub late_ms: f64,
-    /// Time in the window in which the HAL — the rig's highest-priority thread — published nothing beyond its
-    /// period (ms, summed over its frame gaps).
-    pub hal_frozen_ms: f64,
-    /// Steal that grew across the window (ms, all CPUs), where the samples bracket it.
-    pub steal_ms: Option<f64>,
-}
-
-impl LateEvidence {
-    /// Whether the machine took at least as much time in the window as the chunk was late: the HAL froze that
-    /// long, or the hypervisor took that much CPU time (from the policy's core, if the HAL ran on).
-    pub fn is_stall(&self) -> bool {
-        self.hal_frozen_ms >= self.late_ms || self.steal_ms.is_some_and(|s| s >= self.late_ms)
-    }
-}
-
-impl fmt::Display for LateEvidence {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(
-            f,
-            "a chunk {:.1} ms late; while it was computed the HAL froze {:.1} ms",
-            self.late_ms, self.hal_frozen_ms
-        )?;
-        match self.steal_ms {
-            Some(s) => write!(f, " and the VM lost {s:.0} ms to steal"),
-            None => write!(f, " (VM steal unknown)"),
-        }
-    }
-}
-
-/// The evidence for one late chunk: computed from `woke_ns`, needed at `need_ns`, ready at `ready_ns`; `gaps`
-/// are the HAL's frame gaps (at any threshold above its period `period_ms`), `steal` the VM's steal samples.
-pub fn around_late_chunk(
-    woke_ns: u64,
-    need_ns: u64,
-    ready_ns: u64,
-    gaps: &[FrameGap],
-    period_ms: f64,
-    steal: &[StealSample],
-) -> LateEvidence {
-    let hal_frozen_ms = frozen_ms(gaps, woke_ns, ready_ns, period_ms);
-    LateEvidence {
-        late_ms: ready_ns.saturating_sub(need_ns) as f64 * 1e-6,
-        hal_frozen_ms,
-        steal_ms: steal_between(steal, woke_ns, ready_ns),
-    }
-}
-
-/// Periods the HAL itself failed to run in `gaps` (a 15 ms gap at 1 ms is 14 missed periods): a count to set
-/// against the servo loop's missed periods of the same run.
-pub fn hal_missed_periods(gaps: &[FrameGap], period_ms: f64) -> u64 {
-    gaps.iter().map(|g| ((g.ms() / period_ms).round() as u64).saturating_sub(1)).sum()
-}
-
 /// Seconds since UTC midnight of a tracing log line's timestamp (`2026-11-21T11:51:57.722514Z ...`).
 pub fn log_time_of_day(line: &str) -> Option<f64> {
     let t = line.get(11..26)?;
@@ -399,23 +342,5 @@ mod tests {
         assert_eq!(time_of_day_to_monotonic(86_399.0, 1.0, 10_000 * MS), 8_000 * MS);
         let stat = "cpu  1 2 3 4 5 6 7 250 0 0\ncpu0 1 2 3 4 5 6 7 250 0 0\n";
         assert_eq!(steal_ms_of(stat, 100.0), Some(2_500.0));
-    }
-
-    #[test]
-    fn a_late_chunk_is_explained_only_by_as_much_stall_in_its_own_window() {
-        // Woke at 1 s, needed at 1.080 s, ready 6 ms late.
-        let (woke, need, ready) = (1_000 * MS, 1_080 * MS, 1_086 * MS);
-        // A 30 ms HAL gap before the window: nothing. One of 5 ms inside it: 4 ms frozen, short of 6.
-        let e = around_late_chunk(woke, need, ready, &[gap(900, 930), gap(1_040, 1_045)], 1.0, &[]);
-        assert!((e.late_ms - 6.0).abs() < 1e-9 && (e.hal_frozen_ms - 4.0).abs() < 1e-9, "{e:?}");
-        assert!(!e.is_stall());
-        // An 18 ms gap that ends inside the window, 9 ms of it there: enough.
-        let e = around_late_chunk(woke, need, ready, &[gap(991, 1_009)], 1.0, &[]);
-        assert!((e.hal_frozen_ms - 9.0).abs() < 1e-9, "{e:?}");
-        assert!(e.is_stall(), "{e}");
-        // No HAL gap, but 10 ms of steal across the window (the policy's core stalled): enough; 0 ms: not.
-        let s = |at_ms: u64, steal: f64| StealSample { at_ns: at_ms * MS, steal_ms: steal };
-        assert!(around_late_chunk(woke, need, ready, &[], 1.0, &[s(995, 40.0), s(1_090, 50.0)]).is_stall());
-        assert!(!around_late_chunk(woke, need, ready, &[], 1.0, &[s(995, 50.0), s(1_090, 50.0)]).is_stall());
     }
 }

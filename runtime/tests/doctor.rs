@@ -1,6 +1,7 @@
 //! `marsd doctor` as a user runs it: it measures for the time asked, prints its measurements and a verdict, and
-//! writes doctor.json with every field. No pass mark on the figures themselves: they are what this machine did
-//! (the verdict's logic is unit-tested on synthetic machines in src/doctor.rs).
+//! writes doctor.json with every field. No pass mark on a quiet machine's figures (they are what this machine did;
+//! the verdict's logic is unit-tested on synthetic machines in src/doctor.rs), but a stall made for it — a thread
+//! above its probe taking the servo core for 40 ms — must show in its figures and its verdict.
 
 use std::path::Path;
 use std::process::Command;
@@ -10,24 +11,70 @@ use std::time::{Duration, Instant};
 // `mars_rt::rig_lock`).
 use mars_runtime::rt::rig_lock::rt_rig_lock;
 
-#[test]
-fn marsd_doctor_measures_prints_a_verdict_and_writes_every_field() {
-    let _rt = rt_rig_lock().expect("taking the real-time rig lock");
-    let out = std::env::temp_dir().join(format!("mars-doctor-test-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&out);
+/// `marsd doctor --seconds 1 --out <out>`: its stdout, doctor.json and how long it took.
+fn doctor(out: &Path) -> (String, serde_json::Value, Duration) {
+    let _ = std::fs::remove_dir_all(out);
     let started = Instant::now();
     let o = Command::new(env!("CARGO_BIN_EXE_marsd"))
         .current_dir(Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/..")))
         .args(["doctor", "--seconds", "1"])
         .env(mars_runtime::rt::rig_lock::HELD_BY_PARENT, std::process::id().to_string())
         .arg("--out")
-        .arg(&out)
+        .arg(out)
         .output()
         .unwrap();
     let took = started.elapsed();
-    let stdout = String::from_utf8_lossy(&o.stdout);
+    let stdout = String::from_utf8_lossy(&o.stdout).into_owned();
     assert!(o.status.success(), "{:?}\n{stdout}\n{}", o.status, String::from_utf8_lossy(&o.stderr));
     eprintln!("{stdout}");
+    let json = serde_json::from_str(&std::fs::read_to_string(out.join("doctor.json")).unwrap()).unwrap();
+    let _ = std::fs::remove_dir_all(out);
+    (stdout, json, took)
+}
+
+/// Takes `core` for `ms` from every thread below SCHED_FIFO 99 (doctor's probe runs at the servo's 80); false if
+/// this process may not.
+fn hog(core: usize, ms: u64) -> bool {
+    // SAFETY: the calling thread's own affinity and scheduling.
+    let mut set: libc::cpu_set_t = unsafe { std::mem::zeroed() };
+    unsafe { libc::CPU_SET(core, &mut set) };
+    let pinned = unsafe { libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &set) } == 0;
+    let param = libc::sched_param { sched_priority: 99 };
+    let fifo = unsafe { libc::pthread_setschedparam(libc::pthread_self(), libc::SCHED_FIFO, &param) } == 0;
+    let end = Instant::now() + Duration::from_millis(ms);
+    while pinned && fifo && Instant::now() < end {
+        std::hint::spin_loop();
+    }
+    pinned && fifo
+}
+
+#[test]
+fn marsd_doctor_sees_its_core_taken_for_40_ms_and_says_what_to_expect() {
+    let _rt = rt_rig_lock().expect("taking the real-time rig lock");
+    let cfg = mars_runtime::config::DaemonConfig::load(Path::new(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../configs/marsd.toml"
+    )));
+    let core = cfg.unwrap().servo.core.expect("the shipped config pins the servo loop");
+    let out = std::env::temp_dir().join(format!("mars-doctor-stall-test-{}", std::process::id()));
+    let stall = std::thread::spawn(move || {
+        std::thread::sleep(Duration::from_millis(500));
+        hog(core, 40)
+    });
+    let (stdout, json, _) = doctor(&out);
+    assert!(stall.join().unwrap(), "a root test run takes SCHED_FIFO 99 as the doctor takes 80");
+    let w = &json["wakeups"];
+    let (late_max_us, missed) = (w["late_max_us"].as_f64().unwrap(), w["missed_periods"].as_u64().unwrap());
+    // 40 ms at 1 kHz: the wake-up after it comes ~40 ms late, and the periods in between are missed.
+    assert!(late_max_us >= 35_000.0 && missed >= 35, "the 40 ms stall is not in the figures: {w:#}");
+    assert!(!stdout.lines().any(|l| l.starts_with("doctor: good:")), "a 40 ms stall judged good:\n{stdout}");
+}
+
+#[test]
+fn marsd_doctor_measures_prints_a_verdict_and_writes_every_field() {
+    let _rt = rt_rig_lock().expect("taking the real-time rig lock");
+    let out = std::env::temp_dir().join(format!("mars-doctor-test-{}", std::process::id()));
+    let (stdout, json, took) = doctor(&out);
     assert!(took >= Duration::from_secs(1), "measured for only {took:?}");
     let verdict = stdout.lines().find(|l| {
         ["good:", "expect missed servo periods", "expect occasional watchdog trips", "expect watchdog trips"]
@@ -35,8 +82,6 @@ fn marsd_doctor_measures_prints_a_verdict_and_writes_every_field() {
             .any(|v| l.starts_with(&format!("doctor: {v}")))
     });
     assert!(verdict.is_some(), "no verdict line:\n{stdout}");
-    let json: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("doctor.json")).unwrap()).unwrap();
     for field in [
         "/wakeups/seconds",
         "/wakeups/period_us",
@@ -80,5 +125,4 @@ fn marsd_doctor_measures_prints_a_verdict_and_writes_every_field() {
         json["wakeups"]["late_max_us"].as_f64().unwrap(),
     );
     assert!(0.0 <= p50 && p50 <= p99 && p99 <= max, "{p50} {p99} {max}");
-    let _ = std::fs::remove_dir_all(&out);
 }

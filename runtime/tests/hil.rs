@@ -14,17 +14,6 @@ use std::time::{Duration, Instant};
 use common::*;
 use mars_ipc::{HoldReason, RobotNamespace, RobotState, StateWriter, status};
 
-/// README's reaction times (the upper end of each claimed range) are bounded by this multiple: a margin a noisy
-/// 2-core VM meets, tight enough that a reaction outside the claimed order of magnitude fails.
-const CLAIM_MARGIN: f64 = 3.0;
-
-/// Asserts a measured reaction time against README's claim for it (ms), printing both.
-fn assert_near_claim(what: &str, measured_ms: f64, claim_ms: f64) {
-    let bound = CLAIM_MARGIN * claim_ms;
-    eprintln!("{what}: {measured_ms:.1} ms (README: {claim_ms} ms; bound {bound:.0} ms)");
-    assert!(measured_ms <= bound, "{what}: {measured_ms:.1} ms, more than {CLAIM_MARGIN}× README's {claim_ms} ms");
-}
-
 /// How long a stop from `v` (rad/s) takes braking at `a` (rad/s²), plus the jerk-limited ramps into and out of the
 /// braking acceleration (2·a/J with the FR3's J = 5000 rad/s³): the physics part of a reaction time.
 fn braking_ms(v: f64, a: f64) -> f64 {
@@ -64,7 +53,7 @@ const R1_LITE_PICK_VEGETABLE: ShippedDemo = ShippedDemo {
 #[test]
 fn demo_episodes_succeed_in_both_modes_within_limits() {
     let _rt = rt_rig_lock();
-    with_one_rerun(|attempt| demo_attempt(&FR3_PICK_CUP, attempt));
+    at_most_one_rerun("demo (FR3 Pick Cup)", |attempt| demo_attempt(&FR3_PICK_CUP, attempt));
 }
 
 /// Test 1 on the R1 Lite (`mars-hil demo --robot r1-lite`): Pick Vegetable through its 200 Hz mock HAL, both
@@ -73,7 +62,7 @@ fn demo_episodes_succeed_in_both_modes_within_limits() {
 #[test]
 fn r1_lite_demo_picks_both_vegetables_within_its_limits() {
     let _rt = rt_rig_lock();
-    with_one_rerun(|attempt| demo_attempt(&R1_LITE_PICK_VEGETABLE, attempt));
+    at_most_one_rerun("demo (R1 Lite Pick Vegetable)", |attempt| demo_attempt(&R1_LITE_PICK_VEGETABLE, attempt));
 }
 
 /// The R1 Lite over ROS 2: `mars-hil demo --robot r1-lite --backend r1-lite-standin` — Pick Vegetable through marsd,
@@ -83,18 +72,20 @@ fn r1_lite_demo_picks_both_vegetables_within_its_limits() {
 #[test]
 fn r1_lite_demo_picks_both_vegetables_over_ros2_through_a_cyclone_dds_stand_in() {
     let _rt = rt_rig_lock();
-    with_one_rerun(r1_lite_ros2_attempt);
+    at_most_one_rerun("demo (R1 Lite over ROS 2)", r1_lite_ros2_attempt);
 }
 
-fn r1_lite_ros2_attempt(attempt: u32) -> bool {
+fn r1_lite_ros2_attempt(attempt: u32) -> Attempt {
     let logs = TempDir::new(&format!("r1ros2{attempt}"));
     let out = logs.join("out");
     let mut cmd = std::process::Command::new(env!("CARGO_BIN_EXE_mars-hil"));
     cmd.current_dir(root()).args(["demo", "--robot", "r1-lite", "--backend", "r1-lite-standin"]).arg("--out").arg(&out);
     let mut demo = spawn_named(cmd, "demo", &logs);
     let code = demo.exit_code(Duration::from_secs(300));
-    if code == 3 && attempt == 1 && demo_tripped_on_a_machine_stall(&out, "the R1 Lite over ROS 2") {
-        return false;
+    if code == 3
+        && let Some(e) = demo_trip_excuse(&out)
+    {
+        return Err(e);
     }
     assert_eq!(code, 0, "{}", demo.logs());
     let s: serde_json::Value =
@@ -115,36 +106,28 @@ fn r1_lite_ros2_attempt(attempt: u32) -> bool {
     assert_eq!(counts["bad_targets"], 0, "{last}");
     let sent = u64_at(&s, "/commands_sent");
     assert!(counts["arm_targets"].as_u64().unwrap() as f64 > 0.9 * sent as f64, "{last} of {sent} commands");
-    true
+    Ok(())
 }
 
-/// One run of test 1 on `demo`'s robot; false if a whole-VM stall explains its failure (first attempt only).
-fn demo_attempt(demo: &ShippedDemo, attempt: u32) -> bool {
+/// One run of test 1 on `demo`'s robot; its excuse if it failed while the stall witness saw the machine stall.
+fn demo_attempt(demo: &ShippedDemo, attempt: u32) -> Attempt {
     let logs = TempDir::new(&format!("{}{attempt}", demo.name));
     let robot = robot(&format!("{}{attempt}", demo.name));
     let (mut hal, rec) = hal_of_with_recorder(demo.profile, &robot, &[], &logs);
-    let (started, steal0) = (Instant::now(), steal_ms());
+    let started = Instant::now();
     let mut marsd = spawn_marsd(&robot, &root().join(demo.config), 10, &[], &logs);
     let code = marsd.exit_code(Duration::from_secs(240));
     eprintln!("10 episodes took {:.1} s", started.elapsed().as_secs_f64());
     std::thread::sleep(Duration::from_millis(100)); // the HAL's frames after the final hold command
     let r = rec.finish();
-    let (gap, gap_seq, gap_at) = largest_frame_gap(&r.states);
-    let steal = steal_ms() - steal0;
-    eprintln!(
-        "largest gap between the HAL's frames: {gap:.1} ms (before seq {gap_seq}, at {}); VM steal time {steal:.0} ms; HAL major faults {:?}",
-        clock_text(gap_at),
-        major_faults(hal.pid())
-    );
+    eprintln!("{}; HAL major faults {:?}", witness_account(&r), major_faults(hal.pid()));
     assert!(hal.running(), "the HAL died\n{}", hal.logs());
     let s = summary(&logs, "marsd");
     eprintln!("{}", marsd.stdout_text());
     if code != 0
-        && attempt == 1
-        && let Some(why) = machine_stall_explains(&r, &s, &marsd, u64::MAX)
+        && let Some(e) = run_excuse(&s, &marsd, &r, u64::MAX)
     {
-        eprintln!("RERUN demo: attempt 1 is inconclusive: {why}; running it again");
-        return false;
+        return Err(e);
     }
     assert_eq!(code, 0, "marsd failed\n{}", marsd.logs());
     assert_eq!(s["stop"], "finished");
@@ -182,7 +165,7 @@ fn demo_attempt(demo: &ShippedDemo, attempt: u32) -> bool {
     let last = r.states.last().unwrap().0;
     assert!(last.is(status::HOLDING) && last.is(status::AT_REST), "status {:#b}", last.status);
     assert_eq!(hold_reason(&last), Some(HoldReason::ControllerRequested));
-    true
+    Ok(())
 }
 
 /// HAL + marsd (episodes 0) + recorder, with the arm moving in an episode.
@@ -195,29 +178,24 @@ struct Moving {
     frame: RobotState,
 }
 
-/// Starts the rig and waits for motion. If marsd stops before the arm moves on a timing trip with evidence of
-/// a machine stall around it (see [`machine_stall_explains`]), nothing was tested yet: the evidence is printed
-/// and the rig is started once more. Any other early stop fails the test. The caller holds the rig lock.
-fn start_moving(name: &str) -> Moving {
-    for attempt in 1..=2 {
-        let logs = TempDir::new(&format!("{name}{attempt}"));
-        let robot = robot(&format!("{name}{attempt}"));
-        let (hal, rec) = hal_with_recorder(&robot, &[], &logs);
-        let mut marsd = spawn_marsd(&robot, &shipped_config(), 0, &[], &logs);
-        if let Some((_, frame)) = rec.wait_moving(START, || marsd.running()) {
-            return Moving { logs, hal, rec, marsd, frame };
-        }
-        let code = marsd.exit_code(Duration::from_secs(5));
-        let s = summary(&logs, "marsd");
-        let r = rec.finish();
-        let why = (code == 3).then(|| machine_stall_explains(&r, &s, &marsd, u64::MAX)).flatten();
-        let Some(why) = why.filter(|_| attempt == 1) else {
-            panic!("marsd stopped before the arm moved (exit {code}, trip {})\n{}", s["trip"], marsd.logs());
-        };
-        eprintln!("RERUN {name}: marsd tripped before the arm moved: {why}; starting again");
-        drop(hal);
+/// Starts the rig (`name`, `attempt`) and waits for motion. If marsd stops before the arm moves on a timing trip
+/// the stall witness excuses ([`run_excuse`]), that is the attempt's excuse; any other early stop fails the test.
+/// The caller holds the rig lock.
+fn start_moving(name: &str, attempt: u32) -> Result<Moving, Excuse> {
+    let logs = TempDir::new(&format!("{name}{attempt}"));
+    let robot = robot(&format!("{name}{attempt}"));
+    let (hal, rec) = hal_with_recorder(&robot, &[], &logs);
+    let mut marsd = spawn_marsd(&robot, &shipped_config(), 0, &[], &logs);
+    if let Some((_, frame)) = rec.wait_moving(START, || marsd.running()) {
+        return Ok(Moving { logs, hal, rec, marsd, frame });
     }
-    unreachable!()
+    let code = marsd.exit_code(Duration::from_secs(5));
+    let s = summary(&logs, "marsd");
+    let r = rec.finish();
+    match (code == 3).then(|| run_excuse(&s, &marsd, &r, u64::MAX)).flatten() {
+        Some(e) => Err(e),
+        None => panic!("marsd stopped before the arm moved (exit {code}, trip {})\n{}", s["trip"], marsd.logs()),
+    }
 }
 
 /// Test 2: SIGKILL marsd while the arm moves: the HAL brakes on its own (liveness watch or command timeout) within
@@ -225,7 +203,11 @@ fn start_moving(name: &str) -> Moving {
 #[test]
 fn sigkill_of_marsd_makes_the_hal_brake_to_rest_within_limits() {
     let _rt = rt_rig_lock();
-    let Moving { logs: _logs, mut hal, rec, mut marsd, frame: moving } = start_moving("kill-marsd");
+    at_most_one_rerun("SIGKILL of marsd", kill_marsd_attempt);
+}
+
+fn kill_marsd_attempt(attempt: u32) -> Attempt {
+    let Moving { logs: _logs, mut hal, rec, mut marsd, frame: moving } = start_moving("kill-marsd", attempt)?;
     let v = moving.applied_velocity[..7].iter().fold(0.0f64, |m, v| m.max(v.abs()));
     let killed_at = monotonic_ns();
     marsd.signal(libc::SIGKILL);
@@ -248,10 +230,10 @@ fn sigkill_of_marsd_makes_the_hal_brake_to_rest_within_limits() {
         "SIGKILL of marsd at {v:.3} rad/s: HAL holding ({reason:?}) after {reaction_ms:.1} ms (HAL clock), \
          at rest after {rest_ms:.1} ms"
     );
-    // README: "SIGKILL of marsd → the HAL holds after 14–19 ms and is at rest v/(10 rad/s²) after that", the
-    // HAL braking at the FR3's acceleration limit from the speed it had.
-    assert_near_claim("SIGKILL of marsd → HAL holding", reaction_ms, 19.0);
-    assert_near_claim("SIGKILL of marsd → HAL at rest", rest_ms, 19.0 + braking_ms(v, 10.0));
+    // README: "SIGKILL of marsd → the HAL holds within ~19 ms and then brakes at the FR3's acceleration limit: at
+    // rest v/(10 rad/s²) + 4 ms later", from the speed it had.
+    near_claim("SIGKILL of marsd → HAL holding", reaction_ms, 19.0, (killed_at, held.timestamp_ns))?;
+    near_claim("SIGKILL of marsd → HAL at rest", rest_ms, 19.0 + braking_ms(v, 10.0), (killed_at, rest.timestamp_ns))?;
     // It stays held where it stopped.
     let after: Vec<&RobotState> = r.states.iter().map(|(s, _)| s).filter(|s| s.seq > rest.seq).collect();
     assert!(after.len() > 50);
@@ -262,6 +244,7 @@ fn sigkill_of_marsd_makes_the_hal_brake_to_rest_within_limits() {
     let st = assert_limits(&r, &Limits::fr3(), "SIGKILL marsd");
     assert!(st.jerk_samples > 500);
     assert!(hal.running());
+    Ok(())
 }
 
 /// Test 3: SIGKILL the HAL while the arm moves: marsd sees it die (iceoryx2 liveness), stops, names the HAL in its
@@ -269,44 +252,35 @@ fn sigkill_of_marsd_makes_the_hal_brake_to_rest_within_limits() {
 #[test]
 fn sigkill_of_the_hal_makes_marsd_trip_and_exit_3() {
     let _rt = rt_rig_lock();
-    with_one_rerun(kill_hal_attempt);
+    at_most_one_rerun("SIGKILL of the HAL", kill_hal_attempt);
 }
 
 /// README's figure for SIGKILL of the HAL → marsd's trip line (ms).
 const KILL_HAL_TRIP_MS: f64 = 32.0;
 
-/// One run of the HAL-kill test; false if marsd named the dead HAL too late and the hypervisor took at least the
-/// excess in CPU time between the kill and marsd's exit (first attempt only): the reaction time is the VM's.
-fn kill_hal_attempt(attempt: u32) -> bool {
-    let Moving { logs, hal, rec, mut marsd, .. } = start_moving(&format!("kill-hal{attempt}-"));
+/// One run of the HAL-kill test; its excuse if a reaction was slower than README's figure allows while the stall
+/// witness saw the machine stall at least the excess meanwhile.
+fn kill_hal_attempt(attempt: u32) -> Attempt {
+    let Moving { logs, hal, rec, mut marsd, .. } = start_moving("kill-hal", attempt)?;
     let commands_before = rec.commands_len();
-    let steal0 = steal_ms();
-    let (killed_at, killed_tod) = (Instant::now(), now_time_of_day());
+    let (killed_at, killed_ns) = (Instant::now(), monotonic_ns());
     hal.signal(libc::SIGKILL);
     let status = marsd.wait_timeout(Duration::from_secs(10));
-    let exit_after = killed_at.elapsed();
-    let steal = steal_ms() - steal0;
+    let (exit_after, exited_ns) = (killed_at.elapsed(), monotonic_ns());
     let r = rec.finish();
     let status = status.unwrap_or_else(|| panic!("marsd still running 10 s after the HAL died\n{}", marsd.logs()));
     let err = marsd.stderr_text();
     let trip_text = "the HAL process died or left (iceoryx2 liveness)";
     let line = find_line(&err, &["watchdog trip", trip_text]);
-    let logged_ms = line.and_then(log_time_of_day).map(|t| (t - killed_tod) * 1e3);
+    let logged_ns = line.and_then(stall_witness::log_time::monotonic_of_line);
+    let logged_ms = logged_ns.map(|t| t.saturating_sub(killed_ns) as f64 * 1e-6);
     eprintln!(
         "SIGKILL of the HAL: marsd logged the trip {} ms and exited {:.1} ms after the kill; {} commands sent \
-         meanwhile; VM steal time meanwhile {steal:.0} ms",
+         meanwhile",
         logged_ms.map_or("?".into(), |t| format!("{t:.1}")),
         exit_after.as_secs_f64() * 1e3,
         r.commands.len() - commands_before
     );
-    if attempt == 1
-        && let Some(t) = logged_ms
-        && t > CLAIM_MARGIN * KILL_HAL_TRIP_MS
-        && steal >= t - KILL_HAL_TRIP_MS
-    {
-        eprintln!("RERUN kill-hal: the trip came {t:.1} ms after the kill while the hypervisor took {steal:.0} ms");
-        return false;
-    }
     assert_eq!(status.code(), Some(3), "{status:?}\n{}", marsd.logs());
     let s = summary(&logs, "marsd");
     // Two detectors race here: the liveness watch (HalDied, typically 13-21 ms after the kill on this machine)
@@ -319,13 +293,13 @@ fn kill_hal_attempt(attempt: u32) -> bool {
         s["trip"]
     );
     // README: "SIGKILL of the HAL → marsd logs the trip within ~32 ms ... and exits 3 within ~0.17 s".
-    let logged_ms = logged_ms.expect("the trip line has a timestamp");
-    assert_near_claim("SIGKILL of the HAL → marsd logs the trip", logged_ms, KILL_HAL_TRIP_MS);
-    assert_near_claim("SIGKILL of the HAL → marsd exits", exit_after.as_secs_f64() * 1e3, 171.0);
+    let (logged_ms, logged_ns) = (logged_ms.expect("the trip line has a timestamp"), logged_ns.unwrap());
+    near_claim("SIGKILL of the HAL → marsd logs the trip", logged_ms, KILL_HAL_TRIP_MS, (killed_ns, logged_ns))?;
+    near_claim("SIGKILL of the HAL → marsd exits", exit_after.as_secs_f64() * 1e3, 171.0, (killed_ns, exited_ns))?;
     assert_eq!(s["stop"], "trip");
     assert_eq!(s["trip"], trip_text);
     check_commands(&r.commands, &Limits::fr3()).unwrap();
-    true
+    Ok(())
 }
 
 /// Test 4: A slow engine (every ODE step busy-waits 15 ms; the lead is 80 ms): the deadline caps K, every chunk is
@@ -333,35 +307,26 @@ fn kill_hal_attempt(attempt: u32) -> bool {
 #[test]
 fn slow_engine_caps_k_and_the_servo_keeps_its_rate() {
     let _rt = rt_rig_lock();
-    with_one_rerun(slow_engine_attempt);
+    at_most_one_rerun("slow engine", slow_engine_attempt);
 }
 
 /// The servo periods test 4 allows to be missed.
 const SLOW_MISSED_LIMIT: u64 = 50;
 
-/// One run of test 4; false if a whole-VM stall explains its failure (first attempt only).
-fn slow_engine_attempt(attempt: u32) -> bool {
+/// One run of test 4; its excuse if it failed while the stall witness saw the machine stall then.
+fn slow_engine_attempt(attempt: u32) -> Attempt {
     let logs = TempDir::new(&format!("slow{attempt}"));
     let robot = robot(&format!("slow{attempt}"));
     let (hal, rec) = hal_with_recorder(&robot, &[], &logs);
-    let steal0 = steal_ms();
     let mut marsd = spawn_marsd(&robot, &shipped_config(), 2, &["--engine-step-delay-ms", "15"], &logs);
     let code = marsd.exit_code(Duration::from_secs(120));
     let r = rec.finish();
-    let (gap, gap_seq, gap_at) = largest_frame_gap(&r.states);
-    let steal = steal_ms() - steal0;
-    eprintln!(
-        "largest gap between the HAL's frames: {gap:.1} ms (before seq {gap_seq}, at {}); VM steal time {steal:.0} ms; HAL major faults {:?}",
-        clock_text(gap_at),
-        major_faults(hal.pid())
-    );
+    eprintln!("{}; HAL major faults {:?}", witness_account(&r), major_faults(hal.pid()));
     let s = summary(&logs, "marsd");
     eprintln!("{}", marsd.stdout_text());
-    if attempt == 1
-        && let Some(why) = machine_stall_explains(&r, &s, &marsd, SLOW_MISSED_LIMIT)
-    {
-        eprintln!("RERUN slow engine: attempt 1 is inconclusive: {why}; running it again");
-        return false;
+    let failed = code != 0 || u64_at(&s, "/deadline_misses/late_chunks") > 0;
+    if failed && let Some(e) = run_excuse(&s, &marsd, &r, SLOW_MISSED_LIMIT) {
+        return Err(e);
     }
     // Whatever the episodes' outcome (a capped K may fail the task), a slow engine is no fault: the deadline
     // cap keeps every chunk on time, so the run ends normally, without a trip.
@@ -379,15 +344,15 @@ fn slow_engine_attempt(attempt: u32) -> bool {
     let p99 = latency(&s, "wake_jitter", "p99");
     // The policy spins ~75 ms per call at SCHED_FIFO 70 on its own core: had it taken the servo's core, every
     // call would cost the servo ~75 periods (over 1000 in this run). What remains is the machine's own stalls
-    // (a 10-15 ms VM-wide stall costs 10-15 periods; seen on this CI VM a few times a minute under load). Those
-    // the HAL — the highest-priority thread of the rig, on the servo's core — missed too in this very run were
-    // the machine's, not the servo's: only what the servo missed beyond them is held to the limit.
-    let hal_missed = hal_missed_periods(&r);
-    eprintln!("servo missed {missed} periods; the HAL itself missed {hal_missed} in the same run");
+    // (a 10-15 ms VM-wide stall costs 10-15 periods; seen on this CI VM a few times a minute under load). Those the
+    // stall witness saw taken from the servo's core in this very run were the machine's, not the servo's: only what
+    // the servo missed beyond them is held to the limit.
+    let lost = lost_servo_periods(&r);
+    eprintln!("servo missed {missed} periods; the stall witness saw {lost} taken from its core in the same run");
     assert!(
-        missed <= SLOW_MISSED_LIMIT + hal_missed,
-        "the servo loop missed {missed} periods, {} more than the HAL itself missed ({hal_missed})",
-        missed.saturating_sub(hal_missed)
+        missed <= SLOW_MISSED_LIMIT + lost,
+        "the servo loop missed {missed} periods, {} more than the machine took from its core ({lost})",
+        missed.saturating_sub(lost)
     );
     assert!(p99 < 1000.0, "servo wake-up jitter p99 {p99} µs");
     assert_eq!(u64_at(&s, "/limit_violations/final_check"), 0);
@@ -396,7 +361,7 @@ fn slow_engine_attempt(attempt: u32) -> bool {
     // had to clamp is out of limits.
     assert_eq!(u64_at(&s, "/limit_violations/hal_clamped"), 0);
     assert_limits(&r, &Limits::fr3(), "slow engine");
-    true
+    Ok(())
 }
 
 /// Test 5a: A NaN sensor: marsd refuses the frames, trips on the missing usable state and brakes; no NaN ever
@@ -404,12 +369,12 @@ fn slow_engine_attempt(attempt: u32) -> bool {
 #[test]
 fn nan_frames_are_refused_and_marsd_trips_on_stale_state() {
     let _rt = rt_rig_lock();
-    with_one_rerun(nan_attempt);
+    at_most_one_rerun("NaN frames", nan_attempt);
 }
 
-/// One run of test 5a; false if marsd tripped on another timing check before any NaN was refused and a stall of
-/// the machine explains that trip (first attempt only).
-fn nan_attempt(attempt: u32) -> bool {
+/// One run of test 5a; its excuse if marsd tripped on another timing check before any NaN was refused while the
+/// stall witness saw the machine stall around that trip.
+fn nan_attempt(attempt: u32) -> Attempt {
     let logs = TempDir::new(&format!("nan{attempt}"));
     let robot = robot(&format!("nan{attempt}"));
     let (_hal, rec) = hal_with_recorder(&robot, &["--nan-joint", "3", "--nan-at-tick", "3000"], &logs);
@@ -420,13 +385,11 @@ fn nan_attempt(attempt: u32) -> bool {
     let s = summary(&logs, "marsd");
     let trip = "no usable state frame from the HAL within the allowed gap";
     let refused = u64_at(&s, "/frames/non_finite") + u64_at(&s, "/frames/sensor_fault");
-    if attempt == 1
-        && refused == 0
+    if refused == 0
         && s["trip"] != trip
-        && let Some(why) = machine_stall_explains(&r, &s, &marsd, u64::MAX)
+        && let Some(e) = run_excuse(&s, &marsd, &r, u64::MAX)
     {
-        eprintln!("RERUN NaN frames: attempt 1 is inconclusive, it tripped before the NaNs: {why}; running it again");
-        return false;
+        return Err(e);
     }
     assert_eq!(code, 3, "{}", marsd.logs());
     assert!(u64_at(&s, "/frames/used") > 100, "marsd never handshook before the NaNs: {}", s["frames"]);
@@ -440,7 +403,7 @@ fn nan_attempt(attempt: u32) -> bool {
     // marsd ended its session with a hold command after braking.
     let last = r.commands.last().unwrap().0;
     assert_eq!(last.mode, mars_ipc::CommandMode::Hold as u32);
-    true
+    Ok(())
 }
 
 /// Test 5b: Every frame published 5 ms late (older than stale_state_ms = 3 when read): marsd never finds a usable
@@ -572,14 +535,18 @@ fn bad_config_or_checkpoint_is_refused_with_status_2_and_nothing_moves() {
 #[test]
 fn sigterm_brings_the_arm_to_rest_and_exits_0() {
     let _rt = rt_rig_lock();
-    let Moving { logs, mut hal, rec, mut marsd, frame: moving } = start_moving("term");
+    at_most_one_rerun("SIGTERM", sigterm_attempt);
+}
+
+fn sigterm_attempt(attempt: u32) -> Attempt {
+    let Moving { logs, mut hal, rec, mut marsd, frame: moving } = start_moving("term", attempt)?;
     let v = moving.applied_velocity[..7].iter().fold(0.0f64, |m, v| m.max(v.abs()));
     let from = rec.states_len();
     let signalled = Instant::now();
     let signalled_ns = monotonic_ns();
     marsd.signal(libc::SIGTERM);
     let status = marsd.wait_timeout(Duration::from_secs(10));
-    let took = signalled.elapsed();
+    let (took, exited_ns) = (signalled.elapsed(), monotonic_ns());
     let held = rec.wait_state(from, Duration::from_secs(2), |s| s.is(status::HOLDING) && s.is(status::AT_REST));
     std::thread::sleep(Duration::from_millis(100));
     let r = rec.finish();
@@ -591,14 +558,16 @@ fn sigterm_brings_the_arm_to_rest_and_exits_0() {
         took.as_secs_f64() * 1e3
     );
     assert_eq!(status.code(), Some(0), "{status:?}\n{}", marsd.logs());
-    // README: "SIGTERM → the arm is at rest and held v/(9 rad/s²) after the signal (marsd brakes at 90 % of the
-    // acceleration limit), marsd exits 0 within ~0.15 s of that".
-    assert_near_claim("SIGTERM → marsd exits", took.as_secs_f64() * 1e3, 150.0 + braking_ms(v, 9.0));
+    // README: "SIGTERM → the arm is at rest and held v/(9 rad/s²) + ~5 ms after the signal (marsd brakes at 90 % of
+    // the acceleration limit), marsd exits 0 within ~0.15 s of that".
+    let exit_ms = took.as_secs_f64() * 1e3;
+    near_claim("SIGTERM → marsd exits", exit_ms, 150.0 + braking_ms(v, 9.0), (signalled_ns, exited_ns))?;
     let s = summary(&logs, "marsd");
     assert_eq!(s["stop"], "signal");
     assert!(s["trip"].is_null());
     let (_, held) = held.expect("the HAL never showed HOLDING and AT_REST after the SIGTERM");
-    assert_near_claim("SIGTERM → arm at rest and held", stop_ms.unwrap(), 5.0 + braking_ms(v, 9.0));
+    let rest_window = (signalled_ns, held.timestamp_ns);
+    near_claim("SIGTERM → arm at rest and held", stop_ms.unwrap(), 5.0 + braking_ms(v, 9.0), rest_window)?;
     assert_eq!(held.session, moving.session);
     assert_eq!(hold_reason(&held), Some(HoldReason::ControllerRequested));
     let last = r.states.last().unwrap().0;
@@ -607,6 +576,7 @@ fn sigterm_brings_the_arm_to_rest_and_exits_0() {
     assert_eq!(r.commands.last().unwrap().0.mode, mars_ipc::CommandMode::Hold as u32);
     assert_limits(&r, &Limits::fr3(), "SIGTERM");
     assert!(hal.running());
+    Ok(())
 }
 
 /// The pids of the processes started with `<exe> <subcommand> ... --robot <robot>` (found by command line).

@@ -107,31 +107,36 @@ fn a_recording_never_overwrites_and_leaves_nothing_when_no_episode_completed() {
 /// replay` makes its calls again bit for bit, and `mars-hil replay` its trajectory through the mock HAL.
 #[test]
 fn a_recorded_demo_reads_back_trains_and_replays() {
-    for attempt in 1..=2 {
-        if recorded_demo(attempt) {
-            return;
-        }
-    }
+    let _rt = rt_rig_lock();
+    at_most_one_rerun("a recorded demo", recorded_demo);
 }
 
-/// One run of the test above; false if a stall of this machine stopped the HAL replay, or the replay's outcome
-/// differed while one of the two runs missed servo periods (first attempt only; the evidence printed).
-fn recorded_demo(attempt: u32) -> bool {
-    let _rt = rt_rig_lock();
+/// The least stall of the servo's core in a run that explains a replay ending another way than its recording:
+/// two periods, in which commands come late.
+const REPLAY_STALL_MS: f64 = 2.0;
+
+/// One run of the test above; its excuse if marsd tripped, or the replay's outcome differed from the recording's,
+/// while the stall witness saw the machine stall then.
+fn recorded_demo(attempt: u32) -> Attempt {
     let logs = TempDir::new(&format!("record{attempt}"));
     let robot = robot(&format!("record{attempt}"));
     let path = logs.join("dataset");
     let _hal = spawn_hal(&robot, &[], &logs);
+    let recorded_from = monotonic_ns();
     let mut marsd = spawn_marsd(&robot, &shipped_config(), 2, &["--record", path.to_str().unwrap()], &logs);
     let code = marsd.exit_code(Duration::from_secs(120));
+    let recorded = (recorded_from, monotonic_ns());
     let s = summary(&logs, "marsd");
     let out = marsd.stdout_text();
+    if code == 3
+        && let Some(e) = marsd_trip_excuse(&s, &marsd)
+    {
+        return Err(e);
+    }
+    assert_eq!(code, 0, "{}", marsd.logs());
     assert!(out.contains("recorded "), "{out}");
     let written = u64_at(&s, "/record/episodes_written");
-    // A trip (a stalled VM) ends the run early: the episodes completed before it are still a dataset.
-    let completed = s["episode_results"].as_array().unwrap().len() as u64;
-    assert!(code == 0 || written >= 1, "marsd exited {code} before any episode was recorded\n{out}");
-    assert_eq!(written, completed, "{out}");
+    assert_eq!(written, 2, "{out}");
     assert_eq!(u64_at(&s, "/record/frames_dropped"), 0, "{out}");
 
     let ds = LeRobotDataset::open(&path).unwrap();
@@ -196,14 +201,18 @@ fn recorded_demo(attempt: u32) -> bool {
     let out = logs.join("hil-replay");
     let mut cmd = std::process::Command::new(env!("CARGO_BIN_EXE_mars-hil"));
     cmd.arg("replay").arg(&path).args(["--episode", "0"]).arg("--out").arg(&out);
+    let replayed_from = monotonic_ns();
     let mut replay = spawn_named(cmd, "hil-replay", &logs);
     let code = replay.exit_code(Duration::from_secs(120));
+    let replayed = (replayed_from, monotonic_ns());
     eprintln!(
         "{}",
         replay.stdout_text().lines().skip_while(|l| !l.starts_with("replay of")).collect::<Vec<_>>().join("\n")
     );
-    if attempt == 1 && code == 3 && demo_tripped_on_a_machine_stall(&out, "the recorded demo's replay") {
-        return false;
+    if code == 3
+        && let Some(e) = demo_trip_excuse(&out)
+    {
+        return Err(e);
     }
     assert!(code == 0 || code == 2, "the replay did not run to its end\n{}", replay.logs());
     let r: serde_json::Value =
@@ -222,10 +231,15 @@ fn recorded_demo(attempt: u32) -> bool {
         "in episode 0 the recorded run had {late} late chunks and {missed} missed servo periods, the replay \
          {replay_missed} missed servo periods"
     );
-    // The episode ends the same way whatever the timing: the grasp is the actions'.
-    if r["recorded_outcome"] != r["replayed_outcome"] && attempt == 1 && !on_time {
-        eprintln!("RERUN the recorded demo: attempt 1 is inconclusive: the outcome differs and {timing}");
-        return false;
+    // The episode ends the same way whatever the timing (the grasp is the actions'), unless the machine stalled
+    // the servo's core in one of the two runs.
+    if r["recorded_outcome"] != r["replayed_outcome"] {
+        let failure =
+            format!("the replay ended {} where the recording ended {}", r["replayed_outcome"], r["recorded_outcome"]);
+        let excuse = |(from, to)| witness().excuse_on(servo_core(), failure.clone(), from, to, REPLAY_STALL_MS);
+        if let Some(e) = excuse(recorded).or_else(|| excuse(replayed)) {
+            return Err(e);
+        }
     }
     assert_eq!(r["recorded_outcome"], r["replayed_outcome"], "{timing}: {r:#}");
     let t = &r["trajectory"];
@@ -247,7 +261,7 @@ fn recorded_demo(attempt: u32) -> bool {
         eprintln!("the replay of episode 0 against episode 1: worst {:.3}", other.worst);
         assert!(other.worst > 5.0 * worst.max(tolerance / 10.0), "{other:?}");
     }
-    true
+    Ok(())
 }
 
 /// The same through marsd with a writer that sleeps 300 ms per frame: the run goes on as without a recording
@@ -262,9 +276,10 @@ fn marsd_with_a_writer_that_cannot_keep_up_drops_and_counts() {
     let _hal = spawn_hal(&robot, &[], &logs);
     let extra = ["--record", path.to_str().unwrap(), "--record-writer-delay-ms", "300"];
     let mut marsd = spawn_marsd(&robot, &shipped_config(), 1, &extra, &logs);
-    marsd.exit_code(Duration::from_secs(120));
+    let code = marsd.exit_code(Duration::from_secs(120));
     let s = summary(&logs, "marsd");
     let out = marsd.stdout_text();
+    assert_eq!(code, 0, "a writer that cannot keep up is no reason to stop\n{}", marsd.logs());
     assert!(u64_at(&s, "/record/frames_dropped") > 0, "{out}");
     assert_eq!(u64_at(&s, "/record/episodes_written"), 0, "{out}");
     assert_eq!(u64_at(&s, "/record/episodes_incomplete"), 1, "{out}");

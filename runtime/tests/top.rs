@@ -22,6 +22,34 @@ fn cell(view: &str, channel: &str, col: usize) -> Option<f64> {
     row.split_whitespace().nth(col)?.parse().ok()
 }
 
+/// The (count, p50, p99, max) of every `tag` interval in marsd's interval log, formatted as top formats a time
+/// channel (µs, one decimal).
+fn logged_intervals(hlog: &std::path::Path, tag: &str) -> Vec<[String; 4]> {
+    use base64::Engine;
+    use hdrhistogram::serialization::interval_log::{IntervalLogIterator, LogEntry};
+    let bytes = std::fs::read(hlog).unwrap_or_else(|e| panic!("{}: {e}", hlog.display()));
+    let mut deserializer = hdrhistogram::serialization::Deserializer::new();
+    let us = |ns: u64| format!("{:.1}", ns as f64 / 1e3);
+    let mut out = Vec::new();
+    for entry in IntervalLogIterator::new(&bytes) {
+        let LogEntry::Interval(i) = entry.expect("a parsable log") else { continue };
+        if i.tag().is_some_and(|t| t.as_str() == tag) {
+            let raw = base64::engine::general_purpose::STANDARD.decode(i.encoded_histogram()).unwrap();
+            let h: hdrhistogram::Histogram<u64> = deserializer.deserialize(&mut &raw[..]).unwrap();
+            let q = |p: f64| us(h.value_at_quantile(p));
+            out.push([h.len().to_string(), q(0.5), q(0.99), us(h.max())]);
+        }
+    }
+    out
+}
+
+/// The (count, p50, p99, max) cells of `channel`'s row in a view, as printed.
+fn row_cells(view: &str, channel: &str) -> Option<[String; 4]> {
+    let row = view.lines().find(|l| l.split_whitespace().next() == Some(channel))?;
+    let cells: Vec<&str> = row.split_whitespace().collect();
+    Some([cells.get(2)?, cells.get(3)?, cells.get(4)?, cells.get(5)?].map(|c| c.to_string()))
+}
+
 /// `servo ticks N` in a view's header.
 fn ticks(view: &str) -> Option<u64> {
     let rest = view.split("servo ticks ").nth(1)?;
@@ -91,4 +119,14 @@ fn top_follows_a_running_demo() {
     assert_eq!(number_before(last, " commands rejected"), Some(0), "{last}");
     let ticks: Vec<u64> = views.iter().filter_map(|v| ticks(v)).collect();
     assert!(ticks.windows(2).all(|w| w[0] <= w[1]) && ticks.last() > ticks.first(), "{ticks:?}");
+    // What top shows is what marsd measured: each view's tick_compute interval is one of those marsd logged
+    // (latency.hlog, written by marsd's collector from the same intervals), count and percentiles alike.
+    let logged = logged_intervals(&logs.join("marsd-out/latency.hlog"), "tick_compute");
+    for v in &servo_views {
+        let shown = row_cells(v, "tick_compute").unwrap();
+        assert!(logged.contains(&shown), "top showed {shown:?}, no interval marsd logged:\n{v}\nlogged: {logged:?}");
+    }
+    // And its counters reach marsd's final ones: never more than marsd sent in all.
+    let total = u64_at(&summary(&logs, "marsd"), "/commands_sent");
+    assert!(sent <= total, "top showed {sent} commands sent, marsd's report {total}");
 }

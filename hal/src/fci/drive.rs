@@ -216,8 +216,7 @@ fn control(
             cycles_in_motion += 1;
             report.last_success_rate = state.control_command_success_rate;
             if cycles_in_motion > 100 {
-                let r = state.control_command_success_rate;
-                report.min_success_rate = Some(report.min_success_rate.map_or(r, |m| m.min(r)));
+                report.success_rate(state.control_command_success_rate);
             }
             // The robot's q_d is the setpoint it applied last cycle: ours, unless it extrapolated over a command it
             // did not get or over states we never saw (see `setpoint_sync`).

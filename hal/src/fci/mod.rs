@@ -5,8 +5,7 @@
 //! the filtered setpoint out, in the same cycle), holds on a reflex and recovers only when asked; [`state`] turns
 //! a `franka::RobotState` into our measurement; [`hand`] drives the Franka Hand on threads of its own.
 //! `mars-hal fci-status` ([`status`]) reads one state and commands nothing; `mars-hal recover` ([`recover`]) clears
-//! a reflex when no HAL is running. [`franka_sim`] starts the simulator that speaks the same protocol; [`sim_evidence`] says when a reflex
-//! there is the simulator's timing.
+//! a reflex when no HAL is running. [`franka_sim`] starts the simulator that speaks the same protocol.
 
 pub mod connect;
 pub mod drive;
@@ -18,7 +17,6 @@ pub mod recent_cycles;
 pub mod recover;
 pub mod report;
 pub mod setpoint_sync;
-pub mod sim_evidence;
 pub mod state;
 pub mod status;
 

@@ -20,9 +20,10 @@ pub struct RobotLoopReport {
     /// Commands kept within the limits from two histories: after a state that showed our last command late, the
     /// robot may yet throw it away (franka-sim), and judges the next against its guess instead.
     pub judged_twice: u64,
-    /// The robot's control command success rate: the lowest seen once 100 cycles of a motion had passed, and the
-    /// last one.
+    /// The robot's control command success rate: the lowest seen once 100 cycles of a motion had passed (and when,
+    /// CLOCK_MONOTONIC ns: a test asks the stall witness about that moment), and the last one.
     pub min_success_rate: Option<f64>,
+    pub min_success_rate_at_ns: u64,
     pub last_success_rate: f64,
     /// Each reflex, with the robot's own reasons (libfranka's error names).
     pub reflexes: Vec<String>,
@@ -33,12 +34,23 @@ pub struct RobotLoopReport {
     pub gripper: Option<super::hand::HandCounts>,
 }
 
+impl RobotLoopReport {
+    /// The robot's success rate of this cycle, kept when it is the lowest so far (with the time: a clock read, no
+    /// allocation, fit for the robot's callback).
+    pub fn success_rate(&mut self, r: f64) {
+        if self.min_success_rate.is_none_or(|m| r < m) {
+            self.min_success_rate = Some(r);
+            self.min_success_rate_at_ns = mars_ipc::clock::monotonic_ns();
+        }
+    }
+}
+
 impl std::fmt::Display for RobotLoopReport {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(
             f,
             "  robot {}: {} cycles, {} lost states, {} bunched states, {} setpoint resyncs ({} after a late command \
-             thrown away), {} commands judged from two histories, control success rate min {} last {:.3}; \
+             thrown away), {} commands judged from two histories, control success rate min {}{} last {:.3}; \
              {} reflexes, {} recoveries",
             self.addr,
             self.cycles,
@@ -48,6 +60,7 @@ impl std::fmt::Display for RobotLoopReport {
             self.resyncs_thrown_away,
             self.judged_twice,
             self.min_success_rate.map_or("n/a".to_string(), |r| format!("{r:.3}")),
+            self.min_success_rate.map_or(String::new(), |_| format!(" (at {})", utc_of(self.min_success_rate_at_ns))),
             self.last_success_rate,
             self.reflexes.len(),
             self.recoveries
@@ -67,4 +80,14 @@ impl std::fmt::Display for RobotLoopReport {
         }
         Ok(())
     }
+}
+
+/// A CLOCK_MONOTONIC time as a UTC time of day (`13:30:43.672805 UTC`, the clock of the logs' timestamps), by the
+/// two clocks' offset now.
+fn utc_of(monotonic_ns: u64) -> String {
+    let now = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap_or_default();
+    let ago = mars_ipc::clock::monotonic_ns().saturating_sub(monotonic_ns);
+    let at = now.saturating_sub(std::time::Duration::from_nanos(ago));
+    let secs = at.as_secs() % 86_400;
+    format!("{:02}:{:02}:{:02}.{:06} UTC", secs / 3600, secs / 60 % 60, secs % 60, at.subsec_micros())
 }

@@ -3,4 +3,5 @@
 #![allow(dead_code)]
 
 pub mod franka_sim;
+pub mod reflex;
 pub mod standin;

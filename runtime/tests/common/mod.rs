@@ -8,6 +8,9 @@
 
 #![allow(dead_code)] // each test binary uses a different part of this module
 
+pub mod rerun;
+pub use rerun::*;
+
 use std::fs::File;
 use std::os::unix::process::CommandExt;
 use std::path::{Path, PathBuf};
@@ -19,16 +22,26 @@ use std::time::{Duration, Instant};
 
 use mars_ipc::node::create_node;
 use mars_ipc::{CommandReader, HoldReason, JointCommand, RobotNamespace, RobotState, StateReader, status};
-use mars_runtime::stall::{self, Evidence, FrameGap, StealSample};
-#[allow(unused_imports)] // each test binary uses a different part of this module
-pub use mars_runtime::stall::{log_time_of_day, now_time_of_day};
 
 #[allow(unused_imports)]
 pub use mars_runtime::rt::rig_lock::{RtRigLock, rt_rig_lock_held, rt_rig_lock_path};
 
-/// Takes the machine-wide real-time rig lock (see `mars_rt::rig_lock`) for the test's whole run.
+/// Takes the machine-wide real-time rig lock (see `mars_rt::rig_lock`) for the test's whole run, and starts the
+/// stall witness (once per test binary) so that it watches the whole run.
 pub fn rt_rig_lock() -> RtRigLock {
+    start_witness();
     mars_runtime::rt::rig_lock::rt_rig_lock().expect("taking the real-time rig lock")
+}
+
+/// Starts this process's stall witness ([`rerun`]), saying once if it cannot witness (then no test reruns).
+pub fn start_witness() {
+    static SAID: std::sync::Once = std::sync::Once::new();
+    let w = witness();
+    SAID.call_once(|| {
+        if let Some(why) = w.unable() {
+            eprintln!("the stall witness cannot witness here, so no test will be rerun: {why}");
+        }
+    });
 }
 
 fn assert_rig_locked(what: &str) {
@@ -244,6 +257,12 @@ pub fn servo_core() -> usize {
     cfg.servo.core.expect("configs/marsd.toml pins the servo loop")
 }
 
+/// The policy loop's core in the shipped config.
+pub fn policy_core() -> usize {
+    let cfg = mars_runtime::config::DaemonConfig::load(&shipped_config()).unwrap();
+    cfg.policy.core.expect("configs/marsd.toml pins the policy loop")
+}
+
 /// `mars-hil hal --profile configs/fr3.toml --robot <robot> --core <servo core> --rt-priority 85 [extra]` (the
 /// `mars-hal` process), as `mars-hil demo` runs it: a robot's own control loop is real-time, above the servo loop
 /// it shares a core with (the HAL's ticks are short and phase-shifted from the servo's; the policy thread, which
@@ -327,8 +346,6 @@ pub struct Recorded {
     pub states: Vec<(RobotState, u64)>,
     pub commands: Vec<(JointCommand, u64)>,
     pub errors: u64,
-    /// The VM's steal counter every 10 ms while recording (empty where /proc/stat has none).
-    pub steal: Vec<StealSample>,
 }
 
 impl Recorded {
@@ -378,15 +395,7 @@ impl Recorder {
                 let mut s_buf = Vec::with_capacity(64);
                 let mut c_buf = Vec::with_capacity(64);
                 let mut errors = 0;
-                let mut next_steal = 0;
                 while !stop2.load(Ordering::Acquire) {
-                    let now = monotonic_ns();
-                    if now >= next_steal {
-                        next_steal = now + 10_000_000;
-                        if let Some(steal_ms) = stall::steal_ms() {
-                            data2.lock().unwrap().steal.push(StealSample { at_ns: now, steal_ms });
-                        }
-                    }
                     loop {
                         match states.receive() {
                             Ok(Some(s)) => s_buf.push((s, monotonic_ns())),
@@ -486,7 +495,7 @@ impl Recorder {
         })
     }
 
-    /// Stops the thread (after one more steal sample) and returns everything it recorded.
+    /// Stops the thread (after a last read of the services) and returns everything it recorded.
     pub fn finish(mut self) -> Recorded {
         std::thread::sleep(Duration::from_millis(20));
         self.stop.store(true, Ordering::Release);
@@ -710,49 +719,10 @@ pub fn find_line<'a>(text: &'a str, needles: &[&str]) -> Option<&'a str> {
     text.lines().find(|l| needles.iter().all(|n| l.contains(n)))
 }
 
-/// The largest gap between the HAL's stamps of consecutive recorded frames: (ms, seq after it, UTC time of day
-/// of its end in s). A gap far above one period means the HAL itself did not run.
-pub fn largest_frame_gap(states: &[(RobotState, u64)]) -> (f64, u64, f64) {
-    let offset = now_time_of_day() - monotonic_ns() as f64 * 1e-9;
-    states
-        .windows(2)
-        .filter(|w| w[1].0.seq == w[0].0.seq + 1)
-        .map(|w| {
-            let gap = w[1].0.timestamp_ns.saturating_sub(w[0].0.timestamp_ns) as f64 * 1e-6;
-            (gap, w[1].0.seq, (offset + w[1].0.timestamp_ns as f64 * 1e-9).rem_euclid(86_400.0))
-        })
-        .fold((0.0, 0, 0.0), |m, g| if g.0 > m.0 { g } else { m })
-}
-
-/// `hh:mm:ss.mmm` of a UTC time of day in seconds.
-pub fn clock_text(tod: f64) -> String {
-    let ms = (tod * 1e3).round() as u64;
-    format!("{:02}:{:02}:{:02}.{:03}", ms / 3_600_000, ms / 60_000 % 60, ms / 1000 % 60, ms % 1000)
-}
-
 /// Major page faults of a process so far (/proc/<pid>/stat field 12).
 pub fn major_faults(pid: libc::pid_t) -> Option<u64> {
     let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
     stat.rsplit_once(')')?.1.split_whitespace().nth(9)?.parse().ok()
-}
-
-/// CPU time the hypervisor took from this VM so far, summed over its CPUs (ms; /proc/stat's `steal`; 0 where
-/// there is no such column).
-pub fn steal_ms() -> f64 {
-    stall::steal_ms().unwrap_or(0.0)
-}
-
-/// The HAL's pauses (frame gaps of at least [`stall::PAUSE_PERIODS`] periods) in the recorded frames.
-pub fn hal_gaps(r: &Recorded) -> Vec<FrameGap> {
-    stall::frame_gaps(r.states.iter().map(|(s, _)| (s.seq, s.timestamp_ns)), stall::PAUSE_PERIODS * r.period_ms())
-}
-
-/// What the machine did around marsd's watchdog trip: the time is that of marsd's "watchdog trip" log line
-/// (summary.json has none), the evidence a HAL frame gap or steal growth in the window around it. `None` if
-/// marsd logged no trip.
-pub fn trip_evidence(r: &Recorded, marsd: &Proc) -> Option<Evidence> {
-    let trip_ns = stall::trip_time_from_log(&marsd.stderr_text())?;
-    Some(stall::around_trip(trip_ns, &hal_gaps(r), r.period_ms(), &r.steal))
 }
 
 /// Generous: the first start may include iceoryx2 setup and the checkpoint's warm-up on a loaded machine.
@@ -785,95 +755,4 @@ pub fn assert_limits(r: &Recorded, lim: &Limits, what: &str) -> AppliedStats {
         st.frames, st.jerk_samples, st.max_ratio[0], st.max_ratio[1], st.max_ratio[2]
     );
     st
-}
-
-/// Whether a `mars-hil demo` (or `mars-hil replay`) whose output folder is `out` was stopped by marsd tripping on a
-/// timing check while this machine stalled: the demo's own account, `out/trip.json` (see `mars-hil demo`). When it
-/// was, prints `RERUN <what>: …` with the evidence.
-pub fn demo_tripped_on_a_machine_stall(out: &Path, what: &str) -> bool {
-    let Ok(text) = std::fs::read_to_string(out.join("trip.json")) else { return false };
-    let t: serde_json::Value = serde_json::from_str(&text).unwrap();
-    let stalled = t["timing_check"] == true && t["machine_stalled"] == true;
-    if stalled {
-        eprintln!("RERUN {what}: marsd tripped ({}) at {} and {}", t["trip"], t["logged_at"], t["said"]);
-    }
-    stalled
-}
-
-/// Whether a failed run is explained by a stall of the machine rather than by marsd, with the evidence tied to
-/// that very failure (printed before the scenario runs again, once):
-/// - marsd stopped on a timing trip (stale state, tick overruns, the HAL's command timeout), and in the window
-///   around the trip (its time from marsd's "watchdog trip" log line) the HAL — the highest-priority process,
-///   SCHED_FIFO 85 — published no frame for ≥ 15 ms, or the VM's steal time grew;
-/// - or, without a trip, chunks were late, and while each was computed the HAL froze, or the hypervisor stole, at
-///   least as long as the chunk was late — and its servo missed no more than `missed_limit` periods beyond those
-///   the HAL itself missed in the same run ([`hal_missed_periods`]: nothing of the rig ran then; the tests hold
-///   the servo to the same count).
-pub fn machine_stall_explains(r: &Recorded, s: &serde_json::Value, marsd: &Proc, missed_limit: u64) -> Option<String> {
-    let trip = s["trip"].as_str();
-    if let Some(trip) = trip {
-        if !mars_runtime::stall::is_timing_trip(trip) {
-            return None;
-        }
-        let Some(e) = trip_evidence(r, marsd) else {
-            eprintln!("marsd reported trip {trip:?} but logged no watchdog trip line: no evidence");
-            return None;
-        };
-        eprintln!("around the trip ({trip}): {e}");
-        return e.is_stall().then(|| format!("marsd tripped ({trip}) and {e}"));
-    }
-    let mut explained = Vec::new();
-    let missed = u64_at(s, "/deadline_misses/servo_missed_periods");
-    // Missed periods the HAL itself missed too are no failure (the tests hold the servo to the rest); more than that
-    // is the servo's own, and nothing here explains it.
-    if missed > missed_limit.saturating_add(hal_missed_periods(r)) {
-        return None;
-    }
-    let late = u64_at(s, "/deadline_misses/late_chunks");
-    if late > 0 {
-        let times = s["deadline_misses"]["late_chunk_times"].as_array().cloned().unwrap_or_default();
-        if times.len() as u64 != late {
-            eprintln!("{late} late chunks, {} of them timed: no evidence for the rest", times.len());
-            return None;
-        }
-        // Any pause of the HAL longer than its period counts here: the lateness may be a few ms.
-        let gaps = hal_pauses(r);
-        for t in &times {
-            let at = |k: &str| t[k].as_u64().unwrap_or_else(|| panic!("late chunk without {k}: {t}"));
-            let e = mars_runtime::stall::around_late_chunk(
-                at("woke_ns"),
-                at("need_ns"),
-                at("ready_ns"),
-                &gaps,
-                1.0,
-                &r.steal,
-            );
-            eprintln!("late chunk: {e}");
-            if !e.is_stall() {
-                return None;
-            }
-            explained.push(e.to_string());
-        }
-    }
-    (!explained.is_empty()).then(|| explained.join("; "))
-}
-
-/// The HAL's frame gaps above 1.5 of its periods in a recorded run: where the HAL — the highest-priority thread of the
-/// rig, on the servo's core — did not run.
-pub fn hal_pauses(r: &Recorded) -> Vec<mars_runtime::stall::FrameGap> {
-    mars_runtime::stall::frame_gaps(r.states.iter().map(|(s, _)| (s.seq, s.timestamp_ns)), 1.5 * r.period_ms())
-}
-
-/// Periods the HAL itself failed to run in a recorded run: those the servo missed too were the machine's, not the
-/// servo's.
-pub fn hal_missed_periods(r: &Recorded) -> u64 {
-    mars_runtime::stall::hal_missed_periods(&hal_pauses(r), r.period_ms())
-}
-
-/// Runs `attempt(1)`, and `attempt(2)` if the first said a whole-VM stall spoiled it (returned false); the second
-/// must pass.
-pub fn with_one_rerun(attempt: impl Fn(u32) -> bool) {
-    if !attempt(1) && !attempt(2) {
-        panic!("two runs in a row were spoiled by stalls of the whole VM (see above)");
-    }
 }

@@ -1,0 +1,51 @@
+//! What the witness saw in a window, as a test prints it.
+
+use std::fmt;
+
+use crate::core_watch::LatenessSeen;
+use crate::steal::StealSeen;
+
+/// The witness's account of a window (CLOCK_MONOTONIC ns): the core whose witness was late longest in it, and
+/// the CPU the hypervisor took most from.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Evidence {
+    pub window: (u64, u64),
+    pub lateness: Option<LatenessSeen>,
+    pub steal: Option<StealSeen>,
+}
+
+impl Evidence {
+    /// How long the machine stalled in the window, by the larger of the two accounts (ms).
+    pub fn stalled_ms(&self) -> f64 {
+        let late = self.lateness.map_or(0.0, |l| l.ms);
+        late.max(self.steal.map_or(0.0, |s| s.ms))
+    }
+}
+
+impl fmt::Display for Evidence {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let (from, to) = self.window;
+        write!(f, "stall witness, {}–{}: ", time_of_day(from), time_of_day(to))?;
+        match self.lateness {
+            Some(l) if l.count > 0 => write!(
+                f,
+                "core {} woke {} time(s) late, {:.1} ms in all (longest {:.1} ms)",
+                l.core, l.count, l.ms, l.longest_ms
+            )?,
+            _ => write!(f, "no late wake-up")?,
+        }
+        match self.steal {
+            Some(s) => write!(f, "; steal {:.0} ms on cpu {}", s.ms, s.cpu),
+            None => write!(f, "; steal unknown"),
+        }
+    }
+}
+
+/// `hh:mm:ss.mmm` (UTC) of a CLOCK_MONOTONIC time, for matching the log lines of the processes under test.
+pub fn time_of_day(monotonic_ns: u64) -> String {
+    let now_mono = crate::monotonic_ns() as f64 * 1e-9;
+    let now_wall = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0.0, |d| d.as_secs_f64());
+    let tod = (now_wall - now_mono + monotonic_ns as f64 * 1e-9).rem_euclid(86_400.0);
+    let ms = (tod * 1e3).round() as u64;
+    format!("{:02}:{:02}:{:02}.{:03}", ms / 3_600_000, ms / 60_000 % 60, ms / 1000 % 60, ms % 1000)
+}

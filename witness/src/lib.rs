@@ -1,0 +1,188 @@
+//! A witness of machine stalls that is not the code under test.
+//!
+//! A timing test (the HIL rigs, the franka-sim tests) may blame the machine for a failure, and run once more, only
+//! when this witness saw the machine stall at the failure's time. Its evidence is its own:
+//!
+//! - [`core_watch`]: one thread per core, pinned to it, SCHED_FIFO [`PRIORITY`] — above every loop of a rig (the
+//!   HAL at 85, marsd's servo at 80) — waking every millisecond on an absolute deadline and recording each wake-up
+//!   later than [`core_watch::LATE_NS`]. Nothing of a rig can delay it: only the kernel, interrupts, a
+//!   higher-priority thread of another program, or the hypervisor. A late wake-up is a stretch in which its core ran
+//!   nothing of the rig either.
+//! - [`steal`]: the kernel's per-CPU `steal` counter (/proc/stat), sampled every 10 ms: CPU time the hypervisor
+//!   took.
+//!
+//! It shares no code with the HAL or marsd (its one dependency is libc), so a bug there cannot make it excuse
+//! itself. Where it cannot run above the loops (no SCHED_FIFO: an unprivileged user) it gives no evidence at all:
+//! a witness under the normal scheduler would see the loops' own work as stalls.
+//!
+//! [`rerun`] is the rule the tests follow: at most one rerun per test, only with the witness's evidence for that
+//! very failure's time, printed to the test's stderr (past libtest's capture) and appended to `$MARS_RERUN_LOG`,
+//! which `.ci/run` sums up in its last line.
+//!
+//! ```no_run
+//! let w = stall_witness::witness(); // started once per process, at the start of each timing test
+//! let (from, to) = (stall_witness::monotonic_ns() - 100_000_000, stall_witness::monotonic_ns());
+//! if let Some(e) = w.stall_in(from, to, 15.0) {
+//!     println!("the machine stalled: {e}");
+//! }
+//! ```
+
+pub mod core_watch;
+pub mod evidence;
+pub mod log_time;
+pub mod rerun;
+pub mod steal;
+
+use std::sync::OnceLock;
+
+pub use evidence::Evidence;
+pub use rerun::{Attempt, Excuse, at_most_one_rerun};
+
+use core_watch::CoreWatch;
+use steal::StealWatch;
+
+/// The witness threads' SCHED_FIFO priority: above the HAL (85) and marsd's loops (80, 70), below the kernel's
+/// own threads at 99.
+pub const PRIORITY: i32 = 95;
+
+/// The stall witness of this process: a [`CoreWatch`] per core and a [`StealWatch`].
+pub struct Witness {
+    cores: Vec<CoreWatch>,
+    steal: StealWatch,
+}
+
+/// The process's witness, started on the first call. Call it when a timing test starts: it sees only what happens
+/// after.
+pub fn witness() -> &'static Witness {
+    static WITNESS: OnceLock<Witness> = OnceLock::new();
+    WITNESS.get_or_init(Witness::start)
+}
+
+impl Witness {
+    fn start() -> Self {
+        let cores = online_cores().into_iter().map(CoreWatch::start).collect();
+        Self { cores, steal: StealWatch::start() }
+    }
+
+    /// Why this witness can give no evidence, if it cannot: some core's thread could not be pinned or made
+    /// SCHED_FIFO at [`PRIORITY`].
+    pub fn unable(&self) -> Option<String> {
+        let problems: Vec<String> = self.cores.iter().filter_map(CoreWatch::setup_problem).collect();
+        if self.cores.is_empty() {
+            return Some("no core to watch".into());
+        }
+        (!problems.is_empty()).then(|| problems.join("; "))
+    }
+
+    /// The witness's evidence that the machine stalled for at least `min_ms` within `[from_ns, to_ns]`
+    /// (CLOCK_MONOTONIC): on one core, its late wake-ups inside the window adding up to `min_ms`; or the steal the
+    /// hypervisor took over the window at least `min_ms` on one CPU. `None` when it saw less, did not watch the
+    /// whole window, or cannot witness at all ([`Self::unable`]).
+    pub fn stall_in(&self, from_ns: u64, to_ns: u64, min_ms: f64) -> Option<Evidence> {
+        self.stall_on(None, from_ns, to_ns, min_ms)
+    }
+
+    /// [`Self::stall_in`] on one core (`Some`): the core a loop that failed runs on, for the lateness and the steal.
+    pub fn stall_on(&self, core: Option<usize>, from_ns: u64, to_ns: u64, min_ms: f64) -> Option<Evidence> {
+        let e = self.seen_on(core, from_ns, to_ns)?;
+        (e.stalled_ms() >= min_ms).then_some(e)
+    }
+
+    /// An [`Excuse`] for `failure`, if the witness saw the machine stall for at least `min_ms` within `[from_ns,
+    /// to_ns]` ([`Self::stall_in`]); the only way to make one.
+    pub fn excuse(&self, failure: impl Into<String>, from_ns: u64, to_ns: u64, min_ms: f64) -> Option<Excuse> {
+        self.stall_in(from_ns, to_ns, min_ms).map(|e| Excuse::new(failure.into(), e))
+    }
+
+    /// [`Self::excuse`] with the stall on `core`, the one the loop that failed runs on.
+    pub fn excuse_on(
+        &self,
+        core: usize,
+        failure: impl Into<String>,
+        from: u64,
+        to: u64,
+        min_ms: f64,
+    ) -> Option<Excuse> {
+        self.stall_on(Some(core), from, to, min_ms).map(|e| Excuse::new(failure.into(), e))
+    }
+
+    /// A measured time of `what` (ms) against its bound: `Ok` within it; beyond it, the excuse if the witness saw
+    /// the machine stall at least the excess within `[from_ns, to_ns]`; otherwise a failure (it panics, saying what
+    /// the witness saw).
+    pub fn within_or_excused(&self, what: &str, measured_ms: f64, bound_ms: f64, from_ns: u64, to_ns: u64) -> Attempt {
+        if measured_ms <= bound_ms {
+            return Ok(());
+        }
+        let failure = format!("{what}: {measured_ms:.1} ms, over its bound of {bound_ms:.1} ms");
+        match self.excuse(failure.clone(), from_ns, to_ns, measured_ms - bound_ms) {
+            Some(e) => Err(e),
+            None => match self.seen_in(from_ns, to_ns) {
+                Some(seen) => panic!("{failure}; {seen}"),
+                None => panic!("{failure}; the stall witness did not watch it"),
+            },
+        }
+    }
+
+    /// An [`Excuse`] for failures a log gives one line each (`lines`, each starting with its UTC timestamp, as
+    /// tracing writes them): every one needs the witness's stall of at least `min_ms` from `before_ns` before its
+    /// time to `after_ns` after it. `None` if there is no such line, a line has no time, or one was not excused.
+    pub fn excuse_logged<'a>(
+        &self,
+        lines: impl IntoIterator<Item = &'a str>,
+        before_ns: u64,
+        after_ns: u64,
+        min_ms: f64,
+    ) -> Option<Excuse> {
+        let mut excuses = Vec::new();
+        for line in lines {
+            let t = log_time::monotonic_of_line(line)?;
+            excuses.push(self.excuse(line.trim(), t.saturating_sub(before_ns), t + after_ns, min_ms)?);
+        }
+        excuses.into_iter().max_by(|a, b| a.evidence().stalled_ms().total_cmp(&b.evidence().stalled_ms()))
+    }
+
+    /// What the witness saw within `[from_ns, to_ns]`, stalled or not (for a test's log); `None` when it cannot
+    /// witness or did not watch the whole window.
+    pub fn seen_in(&self, from_ns: u64, to_ns: u64) -> Option<Evidence> {
+        self.seen_on(None, from_ns, to_ns)
+    }
+
+    /// [`Self::seen_in`] on one core (`Some`) or the one that lost most (`None`).
+    pub fn seen_on(&self, core: Option<usize>, from_ns: u64, to_ns: u64) -> Option<Evidence> {
+        self.unable().is_none().then_some(())?;
+        let window = (from_ns, to_ns.max(from_ns));
+        let watched = self.cores.iter().filter(|c| core.is_none_or(|k| c.core() == k));
+        let lateness: Vec<_> = watched.map(|c| c.lateness_in(window)).collect::<Option<_>>()?;
+        let lateness = lateness.into_iter().max_by(|a, b| a.ms.total_cmp(&b.ms));
+        let steal = self.steal.largest_in(window, core);
+        Some(Evidence { window, lateness, steal })
+    }
+
+    /// Whole periods of `period_ns` lost on `core` within `[from_ns, to_ns]`: its witness's late wake-ups, each
+    /// rounded down to whole periods (0 when the core is not watched or the witness cannot witness).
+    pub fn lost_periods(&self, core: usize, from_ns: u64, to_ns: u64, period_ns: u64) -> u64 {
+        if self.unable().is_some() {
+            return 0;
+        }
+        let Some(c) = self.cores.iter().find(|c| c.core() == core) else { return 0 };
+        c.lost_periods((from_ns, to_ns.max(from_ns)), period_ns)
+    }
+}
+
+/// CLOCK_MONOTONIC in ns: the clock of the witness's records (and of the rig's frame stamps).
+pub fn monotonic_ns() -> u64 {
+    let mut ts = libc::timespec { tv_sec: 0, tv_nsec: 0 };
+    // SAFETY: clock_gettime writes the timespec it is given.
+    unsafe { libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut ts) };
+    ts.tv_sec as u64 * 1_000_000_000 + ts.tv_nsec as u64
+}
+
+/// The cores this process may run on (its affinity mask).
+fn online_cores() -> Vec<usize> {
+    // SAFETY: a zeroed cpu_set_t is a valid empty set; sched_getaffinity fills it.
+    let mut set: libc::cpu_set_t = unsafe { std::mem::zeroed() };
+    if unsafe { libc::sched_getaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &mut set) } != 0 {
+        return vec![0];
+    }
+    (0..libc::CPU_SETSIZE as usize).filter(|&c| unsafe { libc::CPU_ISSET(c, &set) }).collect()
+}

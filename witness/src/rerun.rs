@@ -1,0 +1,59 @@
+//! The rerun rule of the timing tests: a failure the stall witness explains — its evidence for that very
+//! failure's time — may be run once more; a second failure fails, explained or not.
+//!
+//! An [`Excuse`] can only be made by [`crate::Witness::excuse`], so no test can rerun on its own evidence.
+//! Every rerun is printed to the real stderr (libtest's capture does not hide it) and appended, one line each, to
+//! the file `$MARS_RERUN_LOG` names, if any (`.ci/run` sums it up in its last line).
+
+use std::fmt;
+use std::io::Write;
+
+use crate::Evidence;
+
+/// A failure and the witness's evidence that the machine stalled at its time.
+#[derive(Debug, Clone)]
+pub struct Excuse {
+    failure: String,
+    evidence: Evidence,
+}
+
+impl Excuse {
+    pub(crate) fn new(failure: String, evidence: Evidence) -> Self {
+        Self { failure, evidence }
+    }
+
+    pub fn evidence(&self) -> &Evidence {
+        &self.evidence
+    }
+}
+
+impl fmt::Display for Excuse {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{} — {}", self.failure, self.evidence)
+    }
+}
+
+/// How an attempt of a timing test ended, when it did not panic: passed, or failed with the witness's excuse
+/// (an attempt returns `Err` only where it would otherwise fail; `?` passes an excuse on).
+pub type Attempt = Result<(), Excuse>;
+
+/// Runs `attempt(1)`; if it was excused, reports the rerun and runs `attempt(2)`, which must pass.
+pub fn at_most_one_rerun(test: &str, mut attempt: impl FnMut(u32) -> Attempt) {
+    let Err(first) = attempt(1) else { return };
+    report(test, &first);
+    if let Err(second) = attempt(2) {
+        panic!("{test}: failed on its one rerun too ({second}); a test is rerun at most once");
+    }
+}
+
+/// Prints `RERUN <test>: <excuse>` past libtest's capture and appends it to `$MARS_RERUN_LOG`.
+pub fn report(test: &str, excuse: &Excuse) {
+    let line = format!("RERUN {test}: {excuse}");
+    let _ = writeln!(std::io::stderr(), "{line}");
+    if let Some(path) = std::env::var_os("MARS_RERUN_LOG") {
+        let file = std::fs::OpenOptions::new().create(true).append(true).open(&path);
+        if let Err(e) = file.and_then(|mut f| writeln!(f, "{line}")) {
+            let _ = writeln!(std::io::stderr(), "cannot append to MARS_RERUN_LOG {}: {e}", path.display());
+        }
+    }
+}

@@ -1,0 +1,59 @@
+//! The witness against stalls made for it: a thread above it (SCHED_FIFO 99) that takes a core for 40 ms.
+
+use std::time::{Duration, Instant};
+
+use stall_witness::{core_watch, monotonic_ns, witness};
+
+/// Takes `core` for `ms` from everything below SCHED_FIFO 99, the witness included. False if it could not.
+fn hog(core: usize, ms: u64) -> bool {
+    std::thread::spawn(move || {
+        // SAFETY: the calling thread's own affinity and scheduling.
+        let mut set: libc::cpu_set_t = unsafe { std::mem::zeroed() };
+        unsafe { libc::CPU_SET(core, &mut set) };
+        let pinned = unsafe { libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &set) } == 0;
+        let param = libc::sched_param { sched_priority: 99 };
+        let fifo = unsafe { libc::pthread_setschedparam(libc::pthread_self(), libc::SCHED_FIFO, &param) } == 0;
+        let end = Instant::now() + Duration::from_millis(ms);
+        while pinned && fifo && Instant::now() < end {
+            std::hint::spin_loop();
+        }
+        pinned && fifo
+    })
+    .join()
+    .unwrap()
+}
+
+#[test]
+fn a_core_taken_for_40_ms_is_witnessed_on_that_core_and_excuses_a_failure_there() {
+    let w = witness();
+    if let Some(why) = w.unable() {
+        // Without SCHED_FIFO the witness gives no evidence at all, so nothing can be rerun.
+        eprintln!("the witness cannot witness here: {why}");
+        assert!(w.stall_in(0, monotonic_ns(), 0.0).is_none());
+        return;
+    }
+    std::thread::sleep(Duration::from_millis(20));
+    let from = monotonic_ns();
+    assert!(hog(0, 40), "a root test run can take SCHED_FIFO 99 when the witness could take 95");
+    let to = monotonic_ns();
+    let e = w.stall_in(from, to, 30.0).expect("the witness saw core 0 taken");
+    eprintln!("{e}");
+    let l = e.lateness.unwrap();
+    assert_eq!(l.core, 0);
+    assert!(l.longest_ms >= 30.0 && l.ms <= (to - from) as f64 * 1e-6 + 1.0, "{l:?}");
+    assert!(w.lost_periods(0, from, to, core_watch::PERIOD_NS) >= 30);
+    // An excuse needs the stall inside the failure's window: 50 ms later, the same stall excuses nothing.
+    let later = to + 50_000_000;
+    std::thread::sleep(Duration::from_millis(60));
+    let after = w.seen_in(later, later + 5_000_000).unwrap();
+    assert!(after.lateness.unwrap().ms < 30.0, "{after}");
+    assert!(w.excuse("a failure", from, to, 30.0).is_some());
+    assert!(w.excuse("a failure", from, to, 1e9).is_none(), "an excuse needs as long a stall as asked for");
+}
+
+#[test]
+fn a_window_before_the_witness_began_is_not_witnessed() {
+    let w = witness();
+    assert!(w.stall_in(0, 1, 0.0).is_none());
+    assert!(w.seen_in(0, 1).is_none());
+}
