@@ -17,6 +17,7 @@ pub mod config;
 pub mod daemon;
 pub mod doctor;
 pub mod effector;
+pub mod faults;
 pub mod frame;
 pub mod hil_replay;
 pub mod latency;
