@@ -35,6 +35,7 @@ pub mod servo;
 pub mod servo_loop;
 pub mod shared;
 pub mod smoothing;
+pub mod soak;
 pub mod stall;
 pub mod stall_watch;
 pub mod standin;

@@ -43,8 +43,8 @@ pub struct Report {
 /// profile).
 pub fn report(args: &CheckArgs) -> anyhow::Result<Report> {
     let limits = Limits::load(&args.profile)?;
-    let text = std::fs::read_to_string(&args.recording)
-        .with_context(|| format!("reading {}", args.recording.display()))?;
+    let text =
+        std::fs::read_to_string(&args.recording).with_context(|| format!("reading {}", args.recording.display()))?;
     let frames = stream::parse(&text).with_context(|| format!("{}", args.recording.display()))?;
     let verdict = judge(&frames, &limits, args.fault_at_ns);
     let robot_log_reflexes = match &args.robot_log {

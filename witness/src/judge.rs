@@ -164,7 +164,7 @@ fn check_differences(v: &mut Verdict, run: &[&Frame], lim: &Limits) {
         for j in 0..lim.joints {
             let a = (q(0, j) - 2.0 * q(1, j) + q(2, j)) / (dt * dt);
             v.max_ratio.acceleration = v.max_ratio.acceleration.max(a.abs() / lim.ddq_max[j]);
-            if !(a.abs() <= lim.ddq_max[j] * (1.0 + REL_TOL)) {
+            if !within(a, lim.ddq_max[j]) {
                 v.violate(run[k - 1].seq, j, "acceleration", a, lim.ddq_max[j]);
             }
         }
@@ -174,11 +174,16 @@ fn check_differences(v: &mut Verdict, run: &[&Frame], lim: &Limits) {
         for j in 0..lim.joints {
             let jerk = (q(0, j) - 3.0 * q(1, j) + 3.0 * q(2, j) - q(3, j)) / (dt * dt * dt);
             v.max_ratio.jerk = v.max_ratio.jerk.max(jerk.abs() / lim.jerk_max[j]);
-            if !(jerk.abs() <= lim.jerk_max[j] * (1.0 + REL_TOL)) {
+            if !within(jerk, lim.jerk_max[j]) {
                 v.violate(run[k - 1].seq, j, "jerk", jerk, lim.jerk_max[j]);
             }
         }
     }
+}
+
+/// |value| ≤ limit up to rounding; a NaN or an infinity never is.
+fn within(value: f64, limit: f64) -> bool {
+    value.is_finite() && value.abs() <= limit * (1.0 + REL_TOL)
 }
 
 /// How the HAL answered a fault at `fault_at` (recorder clock): the first frame holding the session that ran then,

@@ -74,11 +74,7 @@ impl Limits {
     /// (lowest, highest) velocity joint `j` may have at `q`.
     pub fn velocity_bounds(&self, j: usize, q: f64) -> (f64, f64) {
         let cap = self.dq_max[j];
-        if self.fr3_velocity {
-            (fr3_velocity::lower(j, q, cap), fr3_velocity::upper(j, q, cap))
-        } else {
-            (-cap, cap)
-        }
+        if self.fr3_velocity { (fr3_velocity::lower(j, q, cap), fr3_velocity::upper(j, q, cap)) } else { (-cap, cap) }
     }
 }
 
@@ -104,7 +100,8 @@ mod tests {
     fn a_bad_profile_is_refused_with_the_reason() {
         let good = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/fr3.toml")).unwrap();
         for (from, to, says) in [
-            ("joints = 7", "joints = 6", "has 7 values for 6 joints"),
+            ("joints = 7", "joints = 6", "FR3 velocity limits need 7 joints, not 6"),
+            ("q_min = [-2.9007,", "q_min = [", "`q_min` has 6 values for 7 joints"),
             ("rate_hz = 1000.0", "rate_hz = 0.0", "rate_hz"),
             ("velocity_limits = \"fr3\"", "velocity_limits = \"fast\"", "velocity_limits"),
             ("jerk_max = [5000.0,", "jerk_max = [-5000.0,", "jerk_max must be positive"),

@@ -65,7 +65,10 @@ pub fn run(args: &RecordArgs) -> anyhow::Result<()> {
     drop(tx);
     let written = writer.join().map_err(|_| anyhow::anyhow!("the writer thread panicked"))??;
     let (frames, errors) = read;
-    eprintln!("mars-witness: {frames} frames read, {written} written to {}, {errors} receive errors", args.out.display());
+    eprintln!(
+        "mars-witness: {frames} frames read, {written} written to {}, {errors} receive errors",
+        args.out.display()
+    );
     Ok(())
 }
 

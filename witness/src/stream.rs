@@ -63,7 +63,9 @@ impl Frame {
 
     /// The robot reports a reflex in this frame (its mode, its reflex reasons, or the HAL's fault bit for it).
     pub fn in_reflex(&self) -> bool {
-        self.robot_mode == bits::MODE_REFLEX || self.robot_reflex_errors != 0 || self.fault & bits::FAULT_ROBOT_REFLEX != 0
+        self.robot_mode == bits::MODE_REFLEX
+            || self.robot_reflex_errors != 0
+            || self.fault & bits::FAULT_ROBOT_REFLEX != 0
     }
 
     /// Appends this frame as one CSV line (with its newline) to `out`.

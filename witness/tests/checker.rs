@@ -10,8 +10,12 @@ fn profile() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/fr3.toml")
 }
 
-/// libfranka's example start pose (the profile's `home`).
-const HOME: [f64; 7] = [0.0, -0.7854, 0.0, -2.3562, 0.0, 1.5708, 0.7854];
+/// The profile's `home` (libfranka's example start pose), far from every limit.
+fn home() -> [f64; 7] {
+    let t: toml::Table = toml::from_str(&std::fs::read_to_string(profile()).unwrap()).unwrap();
+    let v: Vec<f64> = t["home"].as_array().unwrap().iter().map(|x| x.as_float().unwrap()).collect();
+    v.try_into().unwrap()
+}
 
 /// Frames at 1 kHz, one per position list, the arm followed (ACTIVE) and at the end held at rest.
 fn frames(positions: &[[f64; 7]]) -> Vec<Frame> {
@@ -38,12 +42,12 @@ fn smooth_move(j: usize, amplitude: f64, seconds: f64) -> Vec<[f64; 7]> {
     let w = 2.0 * std::f64::consts::PI / seconds;
     let mut out: Vec<[f64; 7]> = (0..=n)
         .map(|i| {
-            let mut q = HOME;
+            let mut q = home();
             q[j] += amplitude * (1.0 - (w * i as f64 * 1e-3).cos());
             q
         })
         .collect();
-    out.extend(std::iter::repeat_n(HOME, 50));
+    out.extend(std::iter::repeat_n(home(), 50));
     out
 }
 
@@ -86,7 +90,7 @@ fn a_velocity_under_the_cap_but_over_the_bound_near_a_limit_is_caught() {
     // braking curve allows only √(2·6·0.0501) − 0.3 ≈ 0.475 rad/s. Constant speed: no acceleration, no jerk.
     let positions: Vec<[f64; 7]> = (0..=20)
         .map(|i| {
-            let mut q = HOME;
+            let mut q = home();
             q[0] = 2.69 + 0.0005 * i as f64;
             q
         })
@@ -107,9 +111,9 @@ fn too_much_acceleration_or_jerk_is_caught() {
     assert_eq!(code, 1, "{text}");
     assert!(text.contains("acceleration"), "{text}");
     // A step of acceleration: 0 → 9 rad/s² in one period is 9000 rad/s³ > 5000, while every acceleration is ≤ 10.
-    let mut positions = vec![HOME; 5];
+    let mut positions = vec![home(); 5];
     let mut v = 0.0;
-    let mut q = HOME;
+    let mut q = home();
     for _ in 0..20 {
         v += 9.0 * 1e-3;
         q[2] += v * 1e-3;
@@ -122,11 +126,12 @@ fn too_much_acceleration_or_jerk_is_caught() {
 
 #[test]
 fn a_position_outside_the_range_is_caught() {
-    let mut q = HOME;
-    q[3] = -0.1; // joint 4's upper limit is −0.1169
+    let q_max = mars_witness::limits::Limits::load(&profile()).unwrap().q_max[3];
+    let mut q = home();
+    q[3] = q_max + 0.01;
     let (code, text) = check("position", &frames(&[q, q, q]), &[]);
     assert_eq!(code, 1, "{text}");
-    assert!(text.contains("joint 3: position above q_max -0.1"), "{text}");
+    assert!(text.contains(&format!("joint 3: position above q_max {} (limit {q_max})", q[3])), "{text}");
 }
 
 #[test]

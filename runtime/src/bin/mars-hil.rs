@@ -63,6 +63,13 @@ enum Command {
         #[command(flatten)]
         args: mars_runtime::faults::FaultArgs,
     },
+    /// The demo loop for a long time (default 1 h per backend; Pick Cup until stopped) on the mock HAL and on
+    /// franka-sim, with marsd's and the HAL's RSS sampled: prints RSS after warm-up (start / end / max), the loops'
+    /// allocations after warm-up and any trip; exit status 1 on a trip or an allocation.
+    Soak {
+        #[command(flatten)]
+        args: mars_runtime::soak::SoakArgs,
+    },
     /// The controller daemon (the same as the `marsd` binary; the demo starts it this way).
     Marsd {
         #[command(flatten)]
@@ -178,6 +185,10 @@ fn main() -> std::process::ExitCode {
         Command::Bench { args } => mars_runtime::bench::run(args),
         Command::BenchBackends { args } => mars_runtime::bench::backends::run(args),
         Command::Faults { args } => match mars_runtime::faults::run(&args) {
+            Ok(clean) => return std::process::ExitCode::from(if clean { 0 } else { 1 }),
+            Err(e) => Err(e),
+        },
+        Command::Soak { args } => match mars_runtime::soak::run(&args) {
             Ok(clean) => return std::process::ExitCode::from(if clean { 0 } else { 1 }),
             Err(e) => Err(e),
         },

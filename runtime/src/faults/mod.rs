@@ -9,6 +9,8 @@ mod table;
 mod trial;
 mod watch;
 
+pub use rig::wait_child;
+
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
@@ -106,7 +108,8 @@ fn run_backend(
     let dir = args.out.join(backend_name(backend));
     eprintln!("== faults on {}: {} trials → {}", backend_name(backend), args.trials, dir.display());
     let mut rig = rig::Rig::start(exe, &args.config, backend, &args.franka_sim_venv, &dir)?;
-    let baseline = trial::run(&mut rig, witness, &dir.join("baseline"), Plan { fault: Fault::None, at: Duration::ZERO })?;
+    let baseline =
+        trial::run(&mut rig, witness, &dir.join("baseline"), Plan { fault: Fault::None, at: Duration::ZERO })?;
     let episode = baseline.session_time;
     eprintln!("   a clean episode: {:.2} s, witness: {}", episode.as_secs_f64(), summary(&baseline));
     let mut rng = rand::rngs::StdRng::seed_from_u64(args.seed);

@@ -36,7 +36,8 @@ impl Rig {
         let cfg = crate::config::DaemonConfig::load(config)?;
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
         let lock = mars_rt::rig_lock::rt_rig_lock().context("taking the real-time rig lock")?;
-        let robot = format!("faults-{}-{}", std::process::id(), if backend == DemoRobot::Mock { "mock" } else { "sim" });
+        let robot =
+            format!("faults-{}-{}", std::process::id(), if backend == DemoRobot::Mock { "mock" } else { "sim" });
         let sim = match backend {
             DemoRobot::FrankaSim => Some(start_franka_sim(venv, dir)?),
             DemoRobot::Mock => None,
@@ -63,7 +64,11 @@ impl Rig {
             let Rig { watch, hal, .. } = &mut rig;
             watch.wait(HAL_START, |_| true, || !matches!(hal.try_wait(), Ok(None)))
         };
-        anyhow::ensure!(first.is_some(), "the HAL published no state within {HAL_START:?}; its log:\n{}", rig.hal_log());
+        anyhow::ensure!(
+            first.is_some(),
+            "the HAL published no state within {HAL_START:?}; its log:\n{}",
+            rig.hal_log()
+        );
         Ok(rig)
     }
 

@@ -60,13 +60,33 @@ pub fn render(rows: &[BackendResult], args: &FaultArgs) -> String {
             let _ = writeln!(s, "  NOT RUN: {e}");
         }
     }
-    let dirty: Vec<String> = rows
-        .iter()
-        .flat_map(|r| r.outcomes.iter().filter(|o| !o.clean).map(move |o| (r.backend, o)))
-        .map(|(b, o)| format!("{} {:?}", backend_name(b), o.plan))
-        .collect();
-    let _ = writeln!(s, "\nnot clean: {}", if dirty.is_empty() { "none".into() } else { dirty.join("; ") });
+    let dirty: Vec<String> =
+        rows.iter().flat_map(|r| r.outcomes.iter().filter(|o| !o.clean)).map(describe_dirty).collect();
+    let _ = writeln!(s, "\nnot clean: {}", if dirty.is_empty() { "none".into() } else { dirty.join("\n  ") });
     s
+}
+
+/// A trial that was not clean: where, what was planned, the witness's counts and its first violation.
+fn describe_dirty(o: &Outcome) -> String {
+    let v = &o.verdict;
+    let first = &v["first_violations"][0];
+    let first = if first.is_object() {
+        format!(
+            "; first: seq {} joint {} {} {} (limit {})",
+            first["seq"], first["joint"], first["what"], first["value"], first["limit"]
+        )
+    } else {
+        String::new()
+    };
+    format!(
+        "{} ({:?}, {}): {} violations, {} reflexes, ends at rest: {}{first}",
+        o.dir.display(),
+        o.plan,
+        if o.delivered { "sent" } else { "not sent: marsd had ended" },
+        v["violations"],
+        super::trial::reflexes(v),
+        v["ends_at_rest"]
+    )
 }
 
 fn label(kind: &str) -> &str {

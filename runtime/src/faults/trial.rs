@@ -11,7 +11,7 @@ use serde_json::Value;
 
 use super::rig::{Rig, wait_child};
 use super::watch::held_at_rest;
-use mars_ipc::status;
+use mars_ipc::{HoldReason, status};
 
 /// What is done to marsd.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -44,6 +44,8 @@ pub struct Plan {
 #[derive(Debug)]
 pub struct Outcome {
     pub plan: Plan,
+    /// Where its recording, logs and verdict are.
+    pub dir: std::path::PathBuf,
     /// The fault was sent (false: marsd had ended before the moment came).
     pub delivered: bool,
     /// marsd's exit status (None: killed).
@@ -66,6 +68,8 @@ const TAIL: Duration = Duration::from_millis(100);
 /// The witness reads at this SCHED_FIFO priority: below the HAL (85) and marsd's loops (80, 70), above everything
 /// else, so a busy machine does not make it miss frames.
 const WITNESS_PRIORITY: &str = "10";
+/// Recoveries asked for after a reflex, 3 s apart.
+const RECOVERY_TRIES: usize = 5;
 
 pub fn run(rig: &mut Rig, witness: &Path, dir: &Path, plan: Plan) -> anyhow::Result<Outcome> {
     std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
@@ -78,7 +82,7 @@ pub fn run(rig: &mut Rig, witness: &Path, dir: &Path, plan: Plan) -> anyhow::Res
     let mut marsd = rig.marsd(dir, 1)?;
     let started = rig.watch.wait(
         SESSION_START,
-        |s| s.session > last_session && s.is(status::ACTIVE),
+        |s| s.session != last_session && s.session != 0 && s.is(status::ACTIVE),
         || !matches!(marsd.try_wait(), Ok(None)),
     );
     let Some(first) = started else {
@@ -100,7 +104,7 @@ pub fn run(rig: &mut Rig, witness: &Path, dir: &Path, plan: Plan) -> anyhow::Res
     if reflexes(&verdict) > 0 {
         recover(rig);
     }
-    Ok(Outcome { plan, delivered, marsd_exit, session_time, verdict, clean })
+    Ok(Outcome { plan, dir: dir.to_path_buf(), delivered, marsd_exit, session_time, verdict, clean })
 }
 
 /// Sends the planned fault at its moment; (sent, when: CLOCK_MONOTONIC ns).
@@ -170,14 +174,19 @@ pub fn reflexes(v: &Value) -> u64 {
     v["reflexes"].as_u64().unwrap_or(0) + v["robot_log_reflexes"].as_u64().unwrap_or(0)
 }
 
-/// After a reflex: the HAL recovers the robot on SIGUSR1 (as a person would have it), so the next trials can run.
+/// After a reflex: the HAL recovers the robot on SIGUSR1 (as a person would have it), so the next trials can run. The
+/// HAL takes over only an arm at rest, and franka-sim's arm may still settle after its recovery: asked again until
+/// the HAL no longer holds for the robot's fault.
 fn recover(rig: &mut Rig) {
-    // SAFETY: kill(2) on our own child's pid.
-    unsafe { libc::kill(rig.hal_pid(), libc::SIGUSR1) };
-    let ok = rig.watch.wait(Duration::from_secs(10), |s| s.robot_mode != mars_ipc::robot_mode::REFLEX, || false);
-    if ok.is_none() {
-        eprintln!("faults: the robot is still in its reflex 10 s after the HAL was asked to recover it");
+    let recovered = |s: &mars_ipc::RobotState| s.fault == 0 && s.hold_reason != HoldReason::RobotFault as u32;
+    for _ in 0..RECOVERY_TRIES {
+        // SAFETY: kill(2) on our own child's pid.
+        unsafe { libc::kill(rig.hal_pid(), libc::SIGUSR1) };
+        if rig.watch.wait(Duration::from_secs(3), recovered, || false).is_some() {
+            return;
+        }
     }
+    eprintln!("faults: the HAL still holds for the robot's fault after {RECOVERY_TRIES} recoveries");
 }
 
 /// SIGTERM, then SIGKILL after 5 s.
