@@ -212,3 +212,39 @@ fn render(soaked: &[Soaked], args: &SoakArgs) -> String {
     }
     s
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_rss_of_a_running_process_is_read_and_of_none_is_not() {
+        // SAFETY: getpid(2) has no preconditions.
+        let me = unsafe { libc::getpid() };
+        assert!(rss_kb(me).is_some_and(|kb| kb > 0));
+        assert_eq!(rss_kb(-1), None);
+    }
+
+    fn soaked(samples: &[(f64, u64, u64)]) -> Soaked {
+        Soaked {
+            backend: "mock",
+            ran_s: 10.0,
+            samples: samples.iter().map(|&(at_s, marsd_kb, hal_kb)| Sample { at_s, marsd_kb, hal_kb }).collect(),
+            demo_exit: Some(0),
+            marsd: serde_json::json!({"trip": null, "servo_allocations": {"system": 0}}),
+            hal: serde_json::json!({"loop_allocations": 3}),
+        }
+    }
+
+    #[test]
+    fn rss_is_judged_after_the_warm_up_only() {
+        let s =
+            soaked(&[(0.0, 100 * 1024, 1024), (5.0, 10 * 1024, 2048), (6.0, 12 * 1024, 2048), (7.0, 11 * 1024, 4096)]);
+        assert_eq!(rss_after_warmup(&s, 5.0, 0), "10.0 / 11.0 / 12.0");
+        assert_eq!(rss_after_warmup(&s, 5.0, 1), "2.0 / 4.0 / 4.0");
+        assert!(rss_after_warmup(&s, 8.0, 0).contains("no sample"));
+        // The HAL's 3 allocations are reported; marsd did not trip.
+        assert_eq!(allocations(&s), [Some(0), Some(3)]);
+        assert_eq!(trip(&s), None);
+    }
+}

@@ -63,9 +63,15 @@ impl std::fmt::Display for Report {
         let v = &self.verdict;
         writeln!(
             f,
-            "{} frames ({} lost by the recording, {} after robot cycles the HAL never saw); steps judged: {} \
-             velocity, {} acceleration, {} jerk",
-            v.frames, v.lost_frames, v.robot_gaps, v.velocity_steps, v.acceleration_steps, v.jerk_steps
+            "{} frames ({} lost by the recording, {} after robot cycles the HAL never saw, the longest pause of the \
+             HAL's stamps {:.1} ms); steps judged: {} velocity, {} acceleration, {} jerk",
+            v.frames,
+            v.lost_frames,
+            v.robot_gaps,
+            v.largest_gap_ms,
+            v.velocity_steps,
+            v.acceleration_steps,
+            v.jerk_steps
         )?;
         writeln!(
             f,

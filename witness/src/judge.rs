@@ -51,6 +51,9 @@ pub struct Verdict {
     pub lost_frames: u64,
     /// Frames after robot cycles the HAL never saw: judged by the mean velocity over those cycles.
     pub robot_gaps: u64,
+    /// The longest time between the HAL's stamps of two consecutive frames (ms): how long the HAL (or the robot
+    /// pacing it) did not publish.
+    pub largest_gap_ms: f64,
     pub velocity_steps: u64,
     pub acceleration_steps: u64,
     pub jerk_steps: u64,
@@ -93,12 +96,20 @@ pub fn judge(frames: &[Frame], lim: &Limits, fault_at_ns: Option<u64>) -> Verdic
             continue;
         }
         check_positions(&mut v, f, lim);
+        if let Some(p) = run.last().filter(|p| f.seq == p.seq + 1) {
+            v.largest_gap_ms = v.largest_gap_ms.max(f.hal_ns.saturating_sub(p.hal_ns) as f64 * 1e-6);
+        }
+        if f.in_reflex() {
+            // The robot stopped itself: what the HAL reports as applied is the robot's own held reference, not a
+            // command, and a motion after the recovery starts afresh. The reflex is counted, not differenced.
+            v.reflexes += u64::from(!was_reflex);
+            was_reflex = true;
+            run.clear();
+            continue;
+        }
+        was_reflex = false;
         continue_run(&mut v, &mut run, f, lim);
         check_differences(&mut v, &run, lim);
-        if f.in_reflex() && !was_reflex {
-            v.reflexes += 1;
-        }
-        was_reflex = f.in_reflex();
     }
     v.ends_at_rest = frames.last().is_some_and(|f| f.is(bits::HOLDING) && f.is(bits::AT_REST));
     v.reaction = fault_at_ns.and_then(|t| reaction(frames, t));

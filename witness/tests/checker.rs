@@ -141,6 +141,16 @@ fn a_reflex_or_an_arm_not_left_at_rest_is_not_clean() {
     let (code, text) = check("reflex", &f, &[]);
     assert_eq!(code, 1, "{text}");
     assert!(text.contains("0 violations, 1 reflexes"), "{text}");
+    // In a reflex the robot holds a reference of its own (the HAL reports it as applied): a jump into it is not a
+    // command, and the motion after the recovery starts afresh. One reflex of ten frames.
+    let mut f = frames(&smooth_move(0, 0.1, 2.0));
+    for x in &mut f[1000..1010] {
+        x.robot_mode = bits::MODE_REFLEX;
+        x.q[0] += 1e-3;
+    }
+    let (code, text) = check("reflex-hold", &f, &[]);
+    assert_eq!(code, 1, "{text}");
+    assert!(text.contains("0 violations, 1 reflexes"), "{text}");
     let mut f = frames(&smooth_move(0, 0.1, 2.0));
     f.last_mut().unwrap().status = bits::ACTIVE;
     let (code, text) = check("moving", &f, &[]);

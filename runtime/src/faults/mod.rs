@@ -12,6 +12,8 @@ mod watch;
 pub use rig::wait_child;
 
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, LazyLock};
 use std::time::Duration;
 
 use anyhow::Context;
@@ -19,6 +21,9 @@ use rand::{Rng, SeedableRng};
 
 use crate::cli::DemoRobot;
 use trial::{Fault, Plan};
+
+/// Set by SIGTERM or SIGINT: no further trial starts.
+static STOP: LazyLock<Arc<AtomicBool>> = LazyLock::new(|| Arc::new(AtomicBool::new(false)));
 
 #[derive(clap::Args, Debug, Clone)]
 pub struct FaultArgs {
@@ -80,13 +85,18 @@ pub fn run(args: &FaultArgs) -> anyhow::Result<bool> {
         Backends::FrankaSim => vec![DemoRobot::FrankaSim],
         Backends::Both => vec![DemoRobot::Mock, DemoRobot::FrankaSim],
     };
-    let mut rows = Vec::new();
-    let mut all_clean = true;
-    for backend in backends {
-        let (outcomes, errors, hal) = run_backend(args, &exe, &witness, backend)?;
-        all_clean &= errors.is_empty() && outcomes.iter().all(|o| o.clean);
-        rows.push(table::BackendResult { backend, outcomes, errors, hal });
+    // A termination request ends the run after the trial under way; the rig then stops as after the last trial.
+    for signal in [signal_hook::consts::SIGTERM, signal_hook::consts::SIGINT] {
+        signal_hook::flag::register(signal, Arc::clone(&STOP)).context("registering the termination handler")?;
     }
+    let mut rows = Vec::new();
+    for backend in backends {
+        if STOP.load(Ordering::Acquire) {
+            break;
+        }
+        rows.push(run_backend(args, &exe, &witness, backend)?);
+    }
+    let all_clean = rows.iter().all(|r| r.errors.is_empty() && r.outcomes.iter().all(|o| o.clean));
     let text = table::render(&rows, args);
     print!("{text}");
     std::fs::create_dir_all(&args.out)?;
@@ -98,16 +108,23 @@ fn backend_name(b: DemoRobot) -> &'static str {
     if b == DemoRobot::Mock { "mock" } else { "franka-sim" }
 }
 
-/// One backend's trials: a clean episode first (its length bounds the moments drawn), then the faults.
+/// One backend's trials: a clean episode first (its length bounds the moments drawn), then the faults. A reflex the
+/// HAL cannot recover from (franka-sim's arm may not settle after one) restarts the rig, as a person would restart
+/// the robot, in `<dir>/rig-<n>/`.
 fn run_backend(
     args: &FaultArgs,
     exe: &Path,
     witness: &Path,
     backend: DemoRobot,
-) -> anyhow::Result<(Vec<trial::Outcome>, Vec<String>, table::HalEnd)> {
+) -> anyhow::Result<table::BackendResult> {
     let dir = args.out.join(backend_name(backend));
     eprintln!("== faults on {}: {} trials → {}", backend_name(backend), args.trials, dir.display());
-    let mut rig = rig::Rig::start(exe, &args.config, backend, &args.franka_sim_venv, &dir)?;
+    let start_rig = |n: usize| {
+        let at = if n == 0 { dir.clone() } else { dir.join(format!("rig-{n}")) };
+        rig::Rig::start(exe, &args.config, backend, &args.franka_sim_venv, &at)
+    };
+    let mut rig = start_rig(0)?;
+    let mut hal = Vec::new();
     let baseline =
         trial::run(&mut rig, witness, &dir.join("baseline"), Plan { fault: Fault::None, at: Duration::ZERO })?;
     let episode = baseline.session_time;
@@ -115,11 +132,21 @@ fn run_backend(
     let mut rng = rand::rngs::StdRng::seed_from_u64(args.seed);
     let (mut outcomes, mut errors) = (vec![baseline], Vec::new());
     for i in 0..args.trials {
+        if STOP.load(Ordering::Acquire) {
+            errors.push(format!("stopped by a signal after {i} trials"));
+            break;
+        }
         let plan = draw(&mut rng, episode, args);
         match trial::run(&mut rig, witness, &dir.join(format!("trial-{i:03}")), plan) {
             Ok(o) => {
                 eprintln!("   {:>3}/{} {}: {}", i + 1, args.trials, describe(&plan), summary(&o));
+                let reflex = trial::reflexes(&o.verdict) > 0;
                 outcomes.push(o);
+                if reflex && !trial::recover(&mut rig) {
+                    eprintln!("   the HAL could not take the arm over after the reflex: the rig is restarted");
+                    hal.push(rig.stop());
+                    rig = start_rig(hal.len())?;
+                }
             }
             Err(e) => {
                 eprintln!("   {:>3}/{} {}: could not run: {e:#}", i + 1, args.trials, describe(&plan));
@@ -127,8 +154,8 @@ fn run_backend(
             }
         }
     }
-    let (code, report) = rig.stop();
-    Ok((outcomes, errors, table::HalEnd { code, report }))
+    hal.push(rig.stop());
+    Ok(table::BackendResult { backend, outcomes, errors, hal })
 }
 
 /// A trial's fault: SIGKILL or SIGSTOP with equal odds, at a moment uniform over a clean episode's length, a stop's

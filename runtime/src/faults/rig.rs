@@ -100,12 +100,12 @@ impl Rig {
 
     /// Stops the HAL as systemd would (SIGTERM: it brakes to rest and releases the robot), then the simulator;
     /// returns the HAL's exit status and its report (stdout).
-    pub fn stop(mut self) -> (Option<i32>, String) {
+    pub fn stop(mut self) -> super::table::HalEnd {
         // SAFETY: kill(2) on our own child's pid.
         unsafe { libc::kill(self.hal_pid(), libc::SIGTERM) };
         let code = wait_child(&mut self.hal, Duration::from_secs(15));
         let report = std::fs::read_to_string(self.dir.join("hal.out")).unwrap_or_default();
-        (code, report)
+        super::table::HalEnd { code, report }
     }
 }
 

@@ -19,7 +19,8 @@ pub struct BackendResult {
     pub backend: DemoRobot,
     pub outcomes: Vec<Outcome>,
     pub errors: Vec<String>,
-    pub hal: HalEnd,
+    /// One per rig (a rig is restarted after a reflex the HAL could not recover from).
+    pub hal: Vec<HalEnd>,
 }
 
 /// A JSON number of milliseconds as text ("–" when absent).
@@ -46,18 +47,20 @@ pub fn render(rows: &[BackendResult], args: &FaultArgs) -> String {
         }
     }
     for r in rows {
-        // The HAL report's line of the robot's own side (fci): "robot <address>: … N reflexes, …".
-        let robot = r.hal.report.lines().map(str::trim).find(|l| l.starts_with("robot ") && l.contains(" reflexes"));
-        let robot = robot.unwrap_or("");
-        let _ = writeln!(
-            s,
-            "\n{}: HAL exit {} after the trials{}",
-            backend_name(r.backend),
-            r.hal.code.map_or("– (killed)".into(), |c| c.to_string()),
-            if robot.is_empty() { String::new() } else { format!("; {robot}") }
-        );
+        for (n, hal) in r.hal.iter().enumerate() {
+            // The HAL report's line of the robot's own side (fci): "robot <address>: … N reflexes, …".
+            let robot = hal.report.lines().map(str::trim).find(|l| l.starts_with("robot ") && l.contains(" reflexes"));
+            let _ = writeln!(
+                s,
+                "\n{} (rig {}): HAL exit {}{}",
+                backend_name(r.backend),
+                n + 1,
+                hal.code.map_or("– (killed)".into(), |c| c.to_string()),
+                robot.map_or(String::new(), |l| format!("; {l}"))
+            );
+        }
         for e in &r.errors {
-            let _ = writeln!(s, "  NOT RUN: {e}");
+            let _ = writeln!(s, "  NOT RUN: {}", e.lines().next().unwrap_or(""));
         }
     }
     let dirty: Vec<String> =
@@ -79,13 +82,14 @@ fn describe_dirty(o: &Outcome) -> String {
         String::new()
     };
     format!(
-        "{} ({:?}, {}): {} violations, {} reflexes, ends at rest: {}{first}",
+        "{} ({:?}, {}): {} violations, {} reflexes, ends at rest: {}, the HAL's longest pause {} ms{first}",
         o.dir.display(),
         o.plan,
         if o.delivered { "sent" } else { "not sent: marsd had ended" },
         v["violations"],
         super::trial::reflexes(v),
-        v["ends_at_rest"]
+        v["ends_at_rest"],
+        ms(&v["largest_gap_ms"])
     )
 }
 

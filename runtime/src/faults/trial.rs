@@ -101,9 +101,6 @@ pub fn run(rig: &mut Rig, witness: &Path, dir: &Path, plan: Plan) -> anyhow::Res
     std::fs::write(&robot_log, rig.sim_log().get(sim_log_from..).unwrap_or_default())?;
     let verdict = check(witness, &recording, &rig.profile, delivered.then_some(fault_at_ns), &robot_log)?;
     let clean = verdict["clean"].as_bool() == Some(true);
-    if reflexes(&verdict) > 0 {
-        recover(rig);
-    }
     Ok(Outcome { plan, dir: dir.to_path_buf(), delivered, marsd_exit, session_time, verdict, clean })
 }
 
@@ -176,17 +173,17 @@ pub fn reflexes(v: &Value) -> u64 {
 
 /// After a reflex: the HAL recovers the robot on SIGUSR1 (as a person would have it), so the next trials can run. The
 /// HAL takes over only an arm at rest, and franka-sim's arm may still settle after its recovery: asked again until
-/// the HAL no longer holds for the robot's fault.
-fn recover(rig: &mut Rig) {
+/// the HAL no longer holds for the robot's fault. False when it still does.
+pub fn recover(rig: &mut Rig) -> bool {
     let recovered = |s: &mars_ipc::RobotState| s.fault == 0 && s.hold_reason != HoldReason::RobotFault as u32;
     for _ in 0..RECOVERY_TRIES {
         // SAFETY: kill(2) on our own child's pid.
         unsafe { libc::kill(rig.hal_pid(), libc::SIGUSR1) };
         if rig.watch.wait(Duration::from_secs(3), recovered, || false).is_some() {
-            return;
+            return true;
         }
     }
-    eprintln!("faults: the HAL still holds for the robot's fault after {RECOVERY_TRIES} recoveries");
+    false
 }
 
 /// SIGTERM, then SIGKILL after 5 s.
