@@ -43,7 +43,11 @@ fn marsd_killed_or_stopped_mid_episode_leaves_the_arm_within_limits_on_both_back
         .unwrap();
     let stdout = String::from_utf8_lossy(&run.stdout);
     let stderr = String::from_utf8_lossy(&run.stderr);
-    assert_eq!(run.status.code(), Some(0), "{stdout}\n{stderr}");
+    if run.status.code() != Some(0) {
+        // Each trial's recording, logs and verdict stay for a look.
+        let kept = out.keep();
+        panic!("exit status {:?}; the trials are kept in {}:\n{stdout}\n{stderr}", run.status.code(), kept.display());
+    }
     for backend in ["mock", "franka-sim"] {
         for fault in ["SIGKILL", "SIGSTOP"] {
             let row = stdout

@@ -166,9 +166,10 @@ fn check(witness: &Path, recording: &Path, profile: &Path, fault_at: Option<u64>
     serde_json::from_slice(&out.stdout).context("reading the witness's verdict")
 }
 
-/// The reflexes a verdict counts: in the recorded frames and in the robot's own log.
+/// The reflexes a verdict counts: the same reflex shows in the recorded frames and in the robot's own log, so the
+/// larger of the two counts.
 pub fn reflexes(v: &Value) -> u64 {
-    v["reflexes"].as_u64().unwrap_or(0) + v["robot_log_reflexes"].as_u64().unwrap_or(0)
+    v["reflexes"].as_u64().unwrap_or(0).max(v["robot_log_reflexes"].as_u64().unwrap_or(0))
 }
 
 /// After a reflex: the HAL recovers the robot on SIGUSR1 (as a person would have it), so the next trials can run. The
