@@ -1,5 +1,5 @@
 //! `mars-hil faults` in short, as CI runs it: marsd killed or stopped at random moments of Pick Cup on the mock HAL
-//! and on franka-sim, each trial judged by `mars-witness` (its own program; witness/tests/checker.rs shows it
+//! and on franka-sim, each trial judged by `mars-checker` (its own program; checker/tests/checker.rs shows it
 //! catching out-of-limit streams). The full set is `mars-hil faults` with its default 100 trials per backend.
 
 use std::path::{Path, PathBuf};
@@ -20,12 +20,12 @@ fn franka_sim_lock() -> std::fs::File {
 
 #[test]
 fn marsd_killed_or_stopped_mid_episode_leaves_the_arm_within_limits_on_both_backends() {
-    let witness = Path::new(env!("CARGO_BIN_EXE_mars-hil")).with_file_name("mars-witness");
+    let checker = Path::new(env!("CARGO_BIN_EXE_mars-hil")).with_file_name("mars-checker");
     assert!(
-        witness.exists(),
-        "{} is missing: `cargo test --workspace` builds it (the mars-witness crate's tests need it), or \
-         `cargo build -p mars-witness`",
-        witness.display()
+        checker.exists(),
+        "{} is missing: `cargo test --workspace` builds it (the mars-checker crate's tests need it), or \
+         `cargo build -p mars-checker`",
+        checker.display()
     );
     let installed = Command::new(root().join(".ci/franka-sim-venv")).current_dir(root()).status().unwrap();
     assert!(installed.success(), ".ci/franka-sim-venv failed");
@@ -36,8 +36,8 @@ fn marsd_killed_or_stopped_mid_episode_leaves_the_arm_within_limits_on_both_back
     let run = Command::new(env!("CARGO_BIN_EXE_mars-hil"))
         .args(["faults", "--trials", "4", "--seed", "0", "--out"])
         .arg(out.path())
-        .arg("--witness")
-        .arg(&witness)
+        .arg("--checker")
+        .arg(&checker)
         .current_dir(root())
         .output()
         .unwrap();
@@ -61,7 +61,7 @@ fn marsd_killed_or_stopped_mid_episode_leaves_the_arm_within_limits_on_both_back
         }
     }
     assert!(stdout.contains("not clean: none"), "{stdout}");
-    // Every trial left a recording the witness judged.
+    // Every trial left a recording the checker judged.
     let recordings = std::fs::read_dir(out.path().join("mock"))
         .unwrap()
         .flatten()

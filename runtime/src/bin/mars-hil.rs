@@ -56,7 +56,7 @@ enum Command {
         args: mars_runtime::bench::backends::BackendBenchArgs,
     },
     /// marsd killed (SIGKILL) or stopped (SIGSTOP 1–300 ms) at a random moment of Pick Cup, trial after trial, on
-    /// the mock HAL and on franka-sim; each trial's applied stream judged by `mars-witness` (a program of its own:
+    /// the mock HAL and on franka-sim; each trial's applied stream judged by `mars-checker` (a program of its own:
     /// the FR3's position-dependent velocity bounds, acceleration, jerk, position, the robot's reflexes). Prints
     /// the table (and writes <out>/results.md); exit status 1 on any violation, reflex or arm not left at rest.
     Faults {

@@ -1,8 +1,8 @@
 //! `mars-hil faults`: marsd killed (SIGKILL) or stopped (SIGSTOP for 1–300 ms, then SIGCONT) at a random moment of
 //! a Pick Cup episode, again and again, on the mock HAL and on franka-sim. Each trial's applied stream is recorded
-//! and judged by `mars-witness`, a program of its own that shares no limit code with the HAL or marsd (the FR3's
+//! and judged by `mars-checker`, a program of its own that shares no limit code with the HAL or marsd (the FR3's
 //! position-dependent velocity bounds, acceleration, jerk and position by finite differences, the robot's
-//! reflexes); this command only injects the faults, times them and tabulates the witness's verdicts.
+//! reflexes); this command only injects the faults, times them and tabulates the checker's verdicts.
 
 mod rig;
 mod table;
@@ -41,16 +41,16 @@ pub struct FaultArgs {
     pub stop_min_ms: f64,
     #[arg(long, default_value_t = 300.0)]
     pub stop_max_ms: f64,
-    /// Daemon configuration (TOML): the task, the profile whose limits the witness judges with.
+    /// Daemon configuration (TOML): the task, the profile whose limits the checker judges with.
     #[arg(long, default_value = crate::cli::DEFAULT_CONFIG)]
     pub config: PathBuf,
     /// Each trial's recording, logs and verdict go to <out>/<backend>/trial-<n>/; the table to <out>/results.md.
     #[arg(long, default_value = "runs/faults")]
     pub out: PathBuf,
-    /// The witness program (default: `mars-witness` next to this executable; `cargo build --release -p
-    /// mars-witness` builds it).
+    /// The checker program (default: `mars-checker` next to this executable; `cargo build --release -p
+    /// mars-checker` builds it).
     #[arg(long)]
-    pub witness: Option<PathBuf>,
+    pub checker: Option<PathBuf>,
     /// franka-sim's virtual environment (made by `.ci/franka-sim-venv`, run first when it is missing).
     #[arg(long, default_value = crate::cli::FRANKA_SIM_VENV)]
     pub franka_sim_venv: PathBuf,
@@ -74,11 +74,11 @@ pub fn run(args: &FaultArgs) -> anyhow::Result<bool> {
         args.stop_max_ms
     );
     let exe = std::env::current_exe().context("locating this executable")?;
-    let witness = args.witness.clone().unwrap_or_else(|| exe.with_file_name("mars-witness"));
+    let checker = args.checker.clone().unwrap_or_else(|| exe.with_file_name("mars-checker"));
     anyhow::ensure!(
-        witness.exists(),
-        "{} not found: build it with `cargo build --release -p mars-witness`, or pass --witness",
-        witness.display()
+        checker.exists(),
+        "{} not found: build it with `cargo build --release -p mars-checker`, or pass --checker",
+        checker.display()
     );
     let backends = match args.backend {
         Backends::Mock => vec![DemoRobot::Mock],
@@ -94,7 +94,7 @@ pub fn run(args: &FaultArgs) -> anyhow::Result<bool> {
         if STOP.load(Ordering::Acquire) {
             break;
         }
-        rows.push(run_backend(args, &exe, &witness, backend)?);
+        rows.push(run_backend(args, &exe, &checker, backend)?);
     }
     let all_clean = rows.iter().all(|r| r.errors.is_empty() && r.outcomes.iter().all(|o| o.clean));
     let text = table::render(&rows, args);
@@ -114,7 +114,7 @@ fn backend_name(b: DemoRobot) -> &'static str {
 fn run_backend(
     args: &FaultArgs,
     exe: &Path,
-    witness: &Path,
+    checker: &Path,
     backend: DemoRobot,
 ) -> anyhow::Result<table::BackendResult> {
     let dir = args.out.join(backend_name(backend));
@@ -126,9 +126,9 @@ fn run_backend(
     let mut rig = start_rig(0)?;
     let mut hal = Vec::new();
     let baseline =
-        trial::run(&mut rig, witness, &dir.join("baseline"), Plan { fault: Fault::None, at: Duration::ZERO })?;
+        trial::run(&mut rig, checker, &dir.join("baseline"), Plan { fault: Fault::None, at: Duration::ZERO })?;
     let episode = baseline.session_time;
-    eprintln!("   a clean episode: {:.2} s, witness: {}", episode.as_secs_f64(), summary(&baseline));
+    eprintln!("   a clean episode: {:.2} s, checker: {}", episode.as_secs_f64(), summary(&baseline));
     let mut rng = rand::rngs::StdRng::seed_from_u64(args.seed);
     let (mut outcomes, mut errors) = (vec![baseline], Vec::new());
     for i in 0..args.trials {
@@ -137,7 +137,7 @@ fn run_backend(
             break;
         }
         let plan = draw(&mut rng, episode, args);
-        match trial::run(&mut rig, witness, &dir.join(format!("trial-{i:03}")), plan) {
+        match trial::run(&mut rig, checker, &dir.join(format!("trial-{i:03}")), plan) {
             Ok(o) => {
                 eprintln!("   {:>3}/{} {}: {}", i + 1, args.trials, describe(&plan), summary(&o));
                 let reflex = trial::reflexes(&o.verdict) > 0;

@@ -1,5 +1,5 @@
 //! The processes a fault run keeps for all its trials: franka-sim (on that backend), the HAL as the demo starts it,
-//! and a watch on the HAL's state frames. Each trial starts its own marsd (and witness) against them.
+//! and a watch on the HAL's state frames. Each trial starts its own marsd (and checker) against them.
 
 use std::fs::File;
 use std::path::{Path, PathBuf};

@@ -1,4 +1,4 @@
-//! The fault runs' table: per backend and fault, the trials, what the witness found, and how the HAL reacted.
+//! The fault runs' table: per backend and fault, the trials, what the checker found, and how the HAL reacted.
 
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
@@ -34,7 +34,7 @@ const HEADER: &str = "| backend | fault | trials | faults sent | violations | re
 
 pub fn render(rows: &[BackendResult], args: &FaultArgs) -> String {
     let mut s = format!(
-        "\nmars-hil faults --trials {} --seed {} --stop-min-ms {} --stop-max-ms {} (the verdicts: mars-witness check)\n\n",
+        "\nmars-hil faults --trials {} --seed {} --stop-min-ms {} --stop-max-ms {} (the verdicts: mars-checker check)\n\n",
         args.trials, args.seed, args.stop_min_ms, args.stop_max_ms
     );
     s.push_str(HEADER);
@@ -69,7 +69,7 @@ pub fn render(rows: &[BackendResult], args: &FaultArgs) -> String {
     s
 }
 
-/// A trial that was not clean: where, what was planned, the witness's counts and its first violation.
+/// A trial that was not clean: where, what was planned, the checker's counts and its first violation.
 fn describe_dirty(o: &Outcome) -> String {
     let v = &o.verdict;
     let first = &v["first_violations"][0];

@@ -1,5 +1,5 @@
-//! One trial: a witness recording, marsd for one Pick Cup episode, a fault at the planned moment of its session,
-//! the HAL's reaction waited for, and the witness's verdict on the recording.
+//! One trial: a checker recording, marsd for one Pick Cup episode, a fault at the planned moment of its session,
+//! the HAL's reaction waited for, and the checker's verdict on the recording.
 
 use std::io::BufRead;
 use std::path::Path;
@@ -52,7 +52,7 @@ pub struct Outcome {
     pub marsd_exit: Option<i32>,
     /// Session start → marsd's exit.
     pub session_time: Duration,
-    /// The witness's verdict (`mars-witness check --json`).
+    /// The checker's verdict (`mars-checker check --json`).
     pub verdict: Value,
     pub clean: bool,
 }
@@ -65,18 +65,18 @@ const MARSD_END: Duration = Duration::from_secs(60);
 const AT_REST: Duration = Duration::from_secs(10);
 /// Frames recorded after the arm came to rest, so the recording shows it held.
 const TAIL: Duration = Duration::from_millis(100);
-/// The witness reads at this SCHED_FIFO priority: below the HAL (85) and marsd's loops (80, 70), above everything
+/// The checker reads at this SCHED_FIFO priority: below the HAL (85) and marsd's loops (80, 70), above everything
 /// else, so a busy machine does not make it miss frames.
 const WITNESS_PRIORITY: &str = "10";
 /// Recoveries asked for after a reflex, 3 s apart.
 const RECOVERY_TRIES: usize = 5;
 
-pub fn run(rig: &mut Rig, witness: &Path, dir: &Path, plan: Plan) -> anyhow::Result<Outcome> {
+pub fn run(rig: &mut Rig, checker: &Path, dir: &Path, plan: Plan) -> anyhow::Result<Outcome> {
     std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     let recording = dir.join("stream.csv");
     let _ = std::fs::remove_file(&recording);
     let sim_log_from = rig.sim_log().len();
-    let mut recorder = start_witness(witness, &rig.robot, &recording)?;
+    let mut recorder = start_checker(checker, &rig.robot, &recording)?;
     rig.watch.drain();
     let last_session = rig.watch.last.map_or(0, |s| s.session);
     let mut marsd = rig.marsd(dir, 1)?;
@@ -99,7 +99,7 @@ pub fn run(rig: &mut Rig, witness: &Path, dir: &Path, plan: Plan) -> anyhow::Res
     stop_child(&mut recorder);
     let robot_log = dir.join("robot.log");
     std::fs::write(&robot_log, rig.sim_log().get(sim_log_from..).unwrap_or_default())?;
-    let verdict = check(witness, &recording, &rig.profile, delivered.then_some(fault_at_ns), &robot_log)?;
+    let verdict = check(checker, &recording, &rig.profile, delivered.then_some(fault_at_ns), &robot_log)?;
     let clean = verdict["clean"].as_bool() == Some(true);
     Ok(Outcome { plan, dir: dir.to_path_buf(), delivered, marsd_exit, session_time, verdict, clean })
 }
@@ -129,41 +129,41 @@ fn inject(marsd: &mut Child, session_start: Instant, plan: Plan) -> (bool, u64) 
     (true, at)
 }
 
-/// `mars-witness record` for `robot` into `out`, once it said it is subscribed.
-fn start_witness(witness: &Path, robot: &str, out: &Path) -> anyhow::Result<Child> {
-    let mut child = Command::new(witness)
+/// `mars-checker record` for `robot` into `out`, once it said it is subscribed.
+fn start_checker(checker: &Path, robot: &str, out: &Path) -> anyhow::Result<Child> {
+    let mut child = Command::new(checker)
         .args(["record", "--robot", robot, "--rt-priority", WITNESS_PRIORITY, "--out"])
         .arg(out)
         .stdout(Stdio::piped())
         .stderr(std::fs::File::create(out.with_extension("log"))?)
         .spawn()
-        .with_context(|| format!("starting {}", witness.display()))?;
-    let stdout = child.stdout.take().context("the witness's stdout")?;
+        .with_context(|| format!("starting {}", checker.display()))?;
+    let stdout = child.stdout.take().context("the checker's stdout")?;
     let mut line = String::new();
     // It prints "ready" once subscribed, or exits (end of file) when it cannot.
     std::io::BufReader::new(stdout).read_line(&mut line)?;
     if line.trim() != "ready" {
         stop_child(&mut child);
-        anyhow::bail!("the witness did not start: {}", tail(&out.with_extension("log")));
+        anyhow::bail!("the checker did not start: {}", tail(&out.with_extension("log")));
     }
     Ok(child)
 }
 
-/// The witness's verdict on `recording`.
-fn check(witness: &Path, recording: &Path, profile: &Path, fault_at: Option<u64>, log: &Path) -> anyhow::Result<Value> {
-    let mut cmd = Command::new(witness);
+/// The checker's verdict on `recording`.
+fn check(checker: &Path, recording: &Path, profile: &Path, fault_at: Option<u64>, log: &Path) -> anyhow::Result<Value> {
+    let mut cmd = Command::new(checker);
     cmd.arg("check").arg(recording).arg("--profile").arg(profile).arg("--robot-log").arg(log).arg("--json");
     if let Some(t) = fault_at {
         cmd.args(["--fault-at-ns", &t.to_string()]);
     }
-    let out = cmd.output().with_context(|| format!("running {} check", witness.display()))?;
+    let out = cmd.output().with_context(|| format!("running {} check", checker.display()))?;
     anyhow::ensure!(
         matches!(out.status.code(), Some(0 | 1)),
-        "the witness could not judge {}: {}",
+        "the checker could not judge {}: {}",
         recording.display(),
         String::from_utf8_lossy(&out.stderr)
     );
-    serde_json::from_slice(&out.stdout).context("reading the witness's verdict")
+    serde_json::from_slice(&out.stdout).context("reading the checker's verdict")
 }
 
 /// The reflexes a verdict counts: the same reflex shows in the recorded frames and in the robot's own log, so the

@@ -1,5 +1,5 @@
 //! The fault runner's own view of the HAL's state frames: when a session starts, when the arm is held at rest. It
-//! only times the trials; the verdict is the witness's (`mars-witness check`), from its own recording.
+//! only times the trials; the verdict is the checker's (`mars-checker check`), from its own recording.
 
 use std::time::{Duration, Instant};
 

@@ -1,4 +1,4 @@
-//! `mars-witness record`: a process of its own that subscribes to a robot's state frames (iceoryx2, as any
+//! `mars-checker record`: a process of its own that subscribes to a robot's state frames (iceoryx2, as any
 //! controller does) and writes each to a file, off the HAL's loop: the HAL publishes as always and never waits on
 //! it. One thread reads (optionally at a low SCHED_FIFO priority, so a busy machine does not make it miss frames:
 //! iceoryx2 keeps 16 per subscriber), another formats and writes.
@@ -51,7 +51,7 @@ pub fn run(args: &RecordArgs) -> anyhow::Result<()> {
         signal_hook::flag::register(signal, stop.clone()).context("registering the stop signals")?;
     }
     let ns = RobotNamespace::new(&args.robot)?;
-    let (node, _) = create_node(&format!("witness-{}", std::process::id()))?;
+    let (node, _) = create_node(&format!("checker-{}", std::process::id()))?;
     let reader = StateReader::new(&node, &ns)?;
     if let Some(p) = args.rt_priority {
         set_fifo(p);
@@ -66,7 +66,7 @@ pub fn run(args: &RecordArgs) -> anyhow::Result<()> {
     let written = writer.join().map_err(|_| anyhow::anyhow!("the writer thread panicked"))??;
     let (frames, errors) = read;
     eprintln!(
-        "mars-witness: {frames} frames read, {written} written to {}, {errors} receive errors",
+        "mars-checker: {frames} frames read, {written} written to {}, {errors} receive errors",
         args.out.display()
     );
     Ok(())
@@ -148,7 +148,7 @@ fn set_fifo(priority: i32) {
     let rc = unsafe { libc::pthread_setschedparam(libc::pthread_self(), libc::SCHED_FIFO, &param) };
     if rc != 0 {
         eprintln!(
-            "mars-witness: could not read at SCHED_FIFO {priority} ({}); reading at normal priority",
+            "mars-checker: could not read at SCHED_FIFO {priority} ({}); reading at normal priority",
             std::io::Error::from_raw_os_error(rc)
         );
     }

@@ -1,13 +1,13 @@
-//! `mars-witness`: record the HAL's applied stream (`record`), judge a recording (`check`). Exit status of
+//! `mars-checker`: record the HAL's applied stream (`record`), judge a recording (`check`). Exit status of
 //! `check`: 0 clean, 1 a violation, a reflex, or the arm not left at rest; 2 input that cannot be judged.
 
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
-use mars_witness::{check, record};
+use mars_checker::{check, record};
 
 #[derive(Parser)]
-#[command(name = "mars-witness", version, about = "An independent witness of the HAL's applied setpoint stream")]
+#[command(name = "mars-checker", version, about = "An independent checker of the HAL's applied setpoint stream")]
 struct Args {
     #[command(subcommand)]
     command: Command,
@@ -26,7 +26,7 @@ fn main() -> ExitCode {
         Command::Record(a) => match record::run(&a) {
             Ok(()) => ExitCode::SUCCESS,
             Err(e) => {
-                eprintln!("mars-witness record: {e:#}");
+                eprintln!("mars-checker record: {e:#}");
                 ExitCode::FAILURE
             }
         },
@@ -40,7 +40,7 @@ fn main() -> ExitCode {
                 if r.clean { ExitCode::SUCCESS } else { ExitCode::from(1) }
             }
             Err(e) => {
-                eprintln!("mars-witness check: {e:#}");
+                eprintln!("mars-checker check: {e:#}");
                 ExitCode::from(2)
             }
         },

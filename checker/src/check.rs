@@ -1,4 +1,4 @@
-//! `mars-witness check`: the verdict on one recording, printed for a person or as JSON for a program.
+//! `mars-checker check`: the verdict on one recording, printed for a person or as JSON for a program.
 
 use std::path::PathBuf;
 
@@ -11,7 +11,7 @@ use crate::stream;
 
 #[derive(clap::Args, Debug)]
 pub struct CheckArgs {
-    /// The recording `mars-witness record` wrote.
+    /// The recording `mars-checker record` wrote.
     pub recording: PathBuf,
     /// The robot's profile, whose limits judge the stream (e.g. configs/fr3.toml).
     #[arg(long)]

@@ -1,13 +1,13 @@
-//! The witness's FR3 velocity formula (written from Franka's documentation) and the HAL's
+//! The checker's FR3 velocity formula (written from Franka's documentation) and the HAL's
 //! (`mars_hal::velocity_limits`, which keeps libfranka's 1e-3 rad/s tolerance inside it) are two independent copies:
 //! on a fine grid over every joint's range they must say the same bound, to that tolerance.
 
+use mars_checker::fr3_velocity;
+use mars_checker::limits::Limits;
 use mars_hal::velocity_limits::{JointVelocityBound, VelocityLimits};
-use mars_witness::fr3_velocity;
-use mars_witness::limits::Limits;
 
 #[test]
-fn the_witness_and_the_hal_agree_on_the_fr3_velocity_bounds_everywhere() {
+fn the_checker_and_the_hal_agree_on_the_fr3_velocity_bounds_everywhere() {
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
     let lim = Limits::load(&root.join("configs/fr3.toml")).unwrap();
     // libfranka's kJointVelocityLimitsTolerance, which the HAL keeps off the robot's bound.

@@ -4,7 +4,7 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use mars_witness::stream::{Frame, HEADER, bits};
+use mars_checker::stream::{Frame, HEADER, bits};
 
 fn profile() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/fr3.toml")
@@ -51,7 +51,7 @@ fn smooth_move(j: usize, amplitude: f64, seconds: f64) -> Vec<[f64; 7]> {
     out
 }
 
-/// Runs `mars-witness check` on `frames`; (exit status, stdout + stderr).
+/// Runs `mars-checker check` on `frames`; (exit status, stdout + stderr).
 fn check(name: &str, frames: &[Frame], extra: &[&str]) -> (i32, String) {
     let dir = tempfile::tempdir().unwrap();
     let file = dir.path().join(format!("{name}.csv"));
@@ -64,7 +64,7 @@ fn check(name: &str, frames: &[Frame], extra: &[&str]) -> (i32, String) {
 }
 
 fn check_file(file: &Path, extra: &[&str]) -> (i32, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_mars-witness"))
+    let out = Command::new(env!("CARGO_BIN_EXE_mars-checker"))
         .arg("check")
         .arg(file)
         .arg("--profile")
@@ -126,7 +126,7 @@ fn too_much_acceleration_or_jerk_is_caught() {
 
 #[test]
 fn a_position_outside_the_range_is_caught() {
-    let q_max = mars_witness::limits::Limits::load(&profile()).unwrap().q_max[3];
+    let q_max = mars_checker::limits::Limits::load(&profile()).unwrap().q_max[3];
     let mut q = home();
     q[3] = q_max + 0.01;
     let (code, text) = check("position", &frames(&[q, q, q]), &[]);
@@ -194,7 +194,7 @@ fn input_that_cannot_be_judged_is_refused() {
     std::fs::write(&bad, "not a recording\n").unwrap();
     let (code, text) = check_file(&bad, &[]);
     assert_eq!(code, 2, "{text}");
-    assert!(text.contains("not a witness recording"), "{text}");
+    assert!(text.contains("not a checker recording"), "{text}");
     let (code, text) = check_file(&dir.path().join("missing.csv"), &[]);
     assert_eq!(code, 2, "{text}");
 }

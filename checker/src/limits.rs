@@ -1,4 +1,4 @@
-//! The robot's limits as the profile file states them (e.g. configs/fr3.toml), read by the witness itself.
+//! The robot's limits as the profile file states them (e.g. configs/fr3.toml), read by the checker itself.
 
 use std::path::Path;
 

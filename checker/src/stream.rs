@@ -1,4 +1,4 @@
-//! The recorded stream: one CSV line per state frame the HAL published, with the witness's own receive time. Floats
+//! The recorded stream: one CSV line per state frame the HAL published, with the checker's own receive time. Floats
 //! are written in Rust's shortest round-trip form, so the checker reads back exactly the HAL's f64 setpoints.
 
 use std::fmt::Write as _;
@@ -32,7 +32,7 @@ pub struct Frame {
 }
 
 /// Status bits and codes of the wire, as the HAL documents them (mars-ipc `status`, `HoldReason`, `robot_mode`,
-/// `fault`); the witness reads them, it does not compute them.
+/// `fault`); the checker reads them, it does not compute them.
 pub mod bits {
     pub const ACTIVE: u32 = 1 << 0;
     pub const HOLDING: u32 = 1 << 1;
@@ -125,7 +125,7 @@ impl Frame {
 pub fn parse(text: &str) -> anyhow::Result<Vec<Frame>> {
     let mut lines = text.lines().enumerate();
     let (_, header) = lines.next().context("the file is empty")?;
-    ensure!(header == HEADER, "not a witness recording: its first line is {header:?}");
+    ensure!(header == HEADER, "not a checker recording: its first line is {header:?}");
     lines
         .filter(|(_, l)| !l.is_empty())
         .map(|(i, l)| Frame::parse_line(l).with_context(|| format!("line {}", i + 1)))
@@ -160,7 +160,7 @@ mod tests {
     #[test]
     fn a_damaged_file_is_refused_with_the_line() {
         let e = parse("no header\n").unwrap_err();
-        assert!(format!("{e:#}").contains("not a witness recording"), "{e:#}");
+        assert!(format!("{e:#}").contains("not a checker recording"), "{e:#}");
         let e = parse(&format!("{HEADER}\n1,2,3,4,5,6,7,8,9,10,11,2,0.5\n")).unwrap_err();
         assert!(format!("{e:#}").contains("line 2") && format!("{e:#}").contains("2 joints but 1"), "{e:#}");
         let e = parse(&format!("{HEADER}\n1,2,3,4,5,6,7,8,9,10,11,1,abc\n")).unwrap_err();
