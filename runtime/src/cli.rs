@@ -158,7 +158,7 @@ pub enum DemoRobot {
 }
 
 /// marsd's allowed gap between usable frames when the robot is franka-sim (ms).
-const FRANKA_SIM_STATE_GAP_MS: f64 = 100.0;
+pub(crate) const FRANKA_SIM_STATE_GAP_MS: f64 = 100.0;
 
 /// Kills a child on drop, so a failing demo never leaves a HAL running.
 struct Reaped(Child);
@@ -234,26 +234,12 @@ pub fn demo(mut args: DemoArgs) -> anyhow::Result<u8> {
         }
         _ => None,
     };
-    let mut hal = Command::new(&exe);
-    // The HAL is a robot's own control loop: real-time, above the servo loop it shares a core with.
-    hal.args(["hal", "--profile"]).arg(&cfg.profile).args([
-        "--robot",
-        &robot,
-        "--core",
-        &args.hal_core.to_string(),
-        "--rt-priority",
-        "85",
-    ]);
+    // The HAL's exit report as JSON next to marsd's summary (the backend benchmark reads it).
+    std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
+    let mut hal = hal_command(&exe, &cfg.profile, &robot, args.hal_core, args.backend, &out.join("hal.json"));
     if let (Some(tick), Some(ms)) = (args.hal_stall_at_tick, args.hal_stall_ms) {
         anyhow::ensure!(args.backend == DemoRobot::Mock, "--hal-stall-at-tick injects into the mock HAL only");
         hal.args(["--stall-at-tick", &tick.to_string(), "--stall-ms", &ms.to_string()]);
-    }
-    // The HAL's exit report as JSON next to marsd's summary (the backend benchmark reads it).
-    std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
-    hal.arg("--report-json").arg(out.join("hal.json"));
-    if args.backend == DemoRobot::FrankaSim {
-        // franka-sim runs on an ordinary kernel (a real FR3 wants PREEMPT_RT: see README, "On a real FR3").
-        hal.args(["--backend", "fci", "--robot-ip", "127.0.0.1", "--realtime", "ignore", "--late-commands", "applied"]);
     }
     if let Some(s) = &standin {
         hal.args(["--backend", "ros2", "--ros-domain-id", &s.domain.to_string(), "--ros-localhost-only"]);
@@ -347,9 +333,30 @@ pub fn demo(mut args: DemoArgs) -> anyhow::Result<u8> {
     Ok(status.code().map_or(exit::FAILURE, |c| c as u8))
 }
 
+/// The HAL process as the demo starts it (`<exe> hal`, the same code as `mars-hal`): the robot's own control loop,
+/// real-time above the servo loop it shares `core` with; its exit report as JSON to `report_json`; on franka-sim
+/// with the fci backend.
+pub fn hal_command(
+    exe: &Path,
+    profile: &Path,
+    robot: &str,
+    core: usize,
+    backend: DemoRobot,
+    report_json: &Path,
+) -> Command {
+    let mut hal = Command::new(exe);
+    hal.args(["hal", "--profile"]).arg(profile).args(["--robot", robot, "--core", &core.to_string()]);
+    hal.args(["--rt-priority", "85", "--report-json"]).arg(report_json);
+    if backend == DemoRobot::FrankaSim {
+        // franka-sim runs on an ordinary kernel (a real FR3 wants PREEMPT_RT: see README, "On a real FR3").
+        hal.args(["--backend", "fci", "--robot-ip", "127.0.0.1", "--realtime", "ignore", "--late-commands", "applied"]);
+    }
+    hal
+}
+
 /// franka-sim for the demo, with the robot's reflexes on (20 lost cycles, motion limits) and a 3 cm object
 /// between the hand's fingers (the task's mug, as far as the gripper can tell), installed first if it is not.
-fn start_franka_sim(venv: &Path, out: &Path) -> anyhow::Result<mars_hal::fci::franka_sim::FrankaSim> {
+pub(crate) fn start_franka_sim(venv: &Path, out: &Path) -> anyhow::Result<mars_hal::fci::franka_sim::FrankaSim> {
     let installer = Path::new(".ci/franka-sim-venv");
     if !venv.join("bin/run-franka-sim-server").exists() && installer.exists() {
         eprintln!("installing franka-sim into {} ({})", venv.display(), installer.display());

@@ -99,7 +99,7 @@ impl Noise {
                 })
             })
             .collect();
-        let stops = ProcessStops::start(move || hal_pid(&robot), stall, every);
+        let stops = ProcessStops::start(move || demo_child_pid("hal", &robot), stall, every);
         Self { stop, hogs, stops }
     }
 
@@ -113,15 +113,16 @@ impl Noise {
     }
 }
 
-/// The pid of the HAL process the demo started for `robot` (its command line: `… hal … --robot <robot> …`).
-fn hal_pid(robot: &str) -> Option<libc::pid_t> {
+/// The pid of the process the demo started as `role` (`hal`, `marsd`) for `robot`: its command line is
+/// `<exe> <role> … --robot <robot> …`.
+pub(crate) fn demo_child_pid(role: &str, robot: &str) -> Option<libc::pid_t> {
     std::fs::read_dir("/proc").ok()?.flatten().find_map(|e| {
         let pid: libc::pid_t = e.file_name().to_str()?.parse().ok()?;
         let cmd = std::fs::read(e.path().join("cmdline")).ok()?;
         let args: Vec<&[u8]> = cmd.split(|&b| b == 0).collect();
-        let is_hal = args.get(1) == Some(&b"hal".as_slice());
+        let is_role = args.get(1) == Some(&role.as_bytes());
         let ours = args.windows(2).any(|w| w[0] == b"--robot" && w[1] == robot.as_bytes());
-        (is_hal && ours).then_some(pid)
+        (is_role && ours).then_some(pid)
     })
 }
 

@@ -55,6 +55,21 @@ enum Command {
         #[command(flatten)]
         args: mars_runtime::bench::backends::BackendBenchArgs,
     },
+    /// marsd killed (SIGKILL) or stopped (SIGSTOP 1–300 ms) at a random moment of Pick Cup, trial after trial, on
+    /// the mock HAL and on franka-sim; each trial's applied stream judged by `mars-checker` (a program of its own:
+    /// the FR3's position-dependent velocity bounds, acceleration, jerk, position, the robot's reflexes). Prints
+    /// the table (and writes <out>/results.md); exit status 1 on any violation, reflex or arm not left at rest.
+    Faults {
+        #[command(flatten)]
+        args: mars_runtime::faults::FaultArgs,
+    },
+    /// The demo loop for a long time (default 1 h per backend; Pick Cup until stopped) on the mock HAL and on
+    /// franka-sim, with marsd's and the HAL's RSS sampled: prints RSS after warm-up (start / end / max), the loops'
+    /// allocations after warm-up and any trip; exit status 1 on a trip or an allocation.
+    Soak {
+        #[command(flatten)]
+        args: mars_runtime::soak::SoakArgs,
+    },
     /// The controller daemon (the same as the `marsd` binary; the demo starts it this way).
     Marsd {
         #[command(flatten)]
@@ -169,6 +184,14 @@ fn main() -> std::process::ExitCode {
         },
         Command::Bench { args } => mars_runtime::bench::run(args),
         Command::BenchBackends { args } => mars_runtime::bench::backends::run(args),
+        Command::Faults { args } => match mars_runtime::faults::run(&args) {
+            Ok(clean) => return std::process::ExitCode::from(if clean { 0 } else { 1 }),
+            Err(e) => Err(e),
+        },
+        Command::Soak { args } => match mars_runtime::soak::run(&args) {
+            Ok(clean) => return std::process::ExitCode::from(if clean { 0 } else { 1 }),
+            Err(e) => Err(e),
+        },
         Command::Marsd { args } => return mars_runtime::cli::marsd(args),
         Command::Hal { args } => {
             let code = mars_hal::cli::report_and_exit_code(mars_hal::cli::run_hal(args));
