@@ -245,7 +245,6 @@ mod tests {
         let frames = [(1, 0), (2, MS), (3, 30 * MS), (10, 60 * MS), (11, 61 * MS)];
         let gaps = frame_gaps(frames, MIN_GAP_MS);
         assert_eq!(gaps, vec![FrameGap { seq: 3, start_ns: MS, end_ns: 30 * MS }]);
-        assert_eq!(hal_missed_periods(&gaps, 1.0), 28);
     }
 
     #[test]
