@@ -391,7 +391,7 @@ impl HalLoop {
         self.work_us.saturating_record(woke.at.elapsed().as_micros() as u64);
         self.ticks_timed.end(Stamp::now(), !(injected.late.is_zero() && injected.stall.is_zero()));
         if self.tick == WARMUP_TICKS {
-            self.at_warmup = alloc_count::thread_counts().map(|c| (c, self.sent));
+            self.at_warmup = alloc_count::warmed_up().map(|c| (c, self.sent));
         }
         // The counts at the end of every tick: what a driver does after the last one (franka-rs finishing a
         // motion allocates) is not the loop's.
@@ -431,6 +431,7 @@ impl HalLoop {
     /// Ends the run: stops the logger and the heartbeat (the controller sees this HAL leave) and reports.
     pub fn finish(mut self, ended: Ended, overruns: u64, robot: Option<crate::fci::RobotLoopReport>) -> Report {
         self.ticks_timed.finish();
+        alloc_count::loop_ended();
         let allocations_after_warmup = self.at_warmup.zip(self.at_last_tick).map(|((c0, sent0), (c1, sent1))| {
             (Counts { system: c1.system - c0.system, pooled: c1.pooled - c0.pooled }, sent1 - sent0)
         });

@@ -239,7 +239,7 @@ pub fn run_servo(
             next_interval += interval_ns;
         }
         if tick.counters.ticks == ALLOC_WARMUP_TICKS {
-            allocs_at_warmup = crate::alloc_count::thread_counts().map(|c| (c, sends.sent));
+            allocs_at_warmup = crate::alloc_count::warmed_up().map(|c| (c, sends.sent));
         }
         if tick.phase() == Phase::Finished {
             break;
@@ -258,11 +258,9 @@ pub fn run_servo(
             ch.status.set_trip(crate::watchdog::Trip::HalDied);
         }
     }
-    let allocations_after_warmup =
-        allocs_at_warmup.zip(crate::alloc_count::thread_counts()).map(|((start, _), end)| crate::alloc_count::Counts {
-            system: end.system - start.system,
-            pooled: end.pooled - start.pooled,
-        });
+    let allocations_after_warmup = allocs_at_warmup.zip(crate::alloc_count::loop_ended()).map(|((start, _), end)| {
+        crate::alloc_count::Counts { system: end.system - start.system, pooled: end.pooled - start.pooled }
+    });
     ServoReport {
         allocations_after_warmup,
         samples_sent_after_warmup: allocs_at_warmup.map_or(0, |(_, sent)| sends.sent - sent),
