@@ -328,6 +328,11 @@ impl HalLoop {
         self.tick
     }
 
+    /// Logs `event` off the loop thread (a driver's own events between ticks: see [`crate::events`]).
+    pub fn log(&mut self, event: crate::events::LoopEvent) {
+        self.ev.send(event);
+    }
+
     /// The robot stopped itself: hold (see [`HalControl::on_robot_fault`]).
     pub fn on_robot_fault(&mut self) {
         self.control.on_robot_fault(&mut self.ev);
