@@ -210,6 +210,7 @@ fn pick_cup_attempt(attempt: u32) -> Attempt {
     let sim_log = std::fs::read_to_string(logs.join("out/franka-sim.log")).unwrap_or_default();
     assert_robot_line_clean(&out, &demo.stderr_text(), &sim_log)?;
     assert!(find_line(&out, &["loop allocations after warm-up: 0 system-allocator calls"]).is_some(), "{out}");
+    assert_eq!(u64_at(&s, "/servo_allocations/system"), 0, "the servo tick allocated on the fci backend: {s}");
     Ok(())
 }
 
