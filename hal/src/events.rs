@@ -8,6 +8,7 @@
 //! multi-producer queue's slot hand-over). If the ring is full the event is dropped and counted, never waited for.
 
 use crate::backend::BackendError;
+use crate::control::StartError;
 use crate::safety::Refusal;
 use mars_ipc::liveness::Peer;
 use mars_ipc::{FrameReceiveError, FrameSendError, SchemaMismatch};
@@ -62,6 +63,16 @@ pub enum LoopEvent {
     HoldingOnError,
     /// The backend failed for good: braking to rest, then the process exits.
     Fatal(BackendError),
+    /// ros2: no feedback from the robot within the timeout (the arm's, or the gripper's when `arm` is false).
+    FeedbackLost {
+        arm: bool,
+        age_ms: f64,
+        timeout_ms: f64,
+    },
+    /// ros2: the feedback is back and the HAL took the arm over from its measured pose.
+    FeedbackBack,
+    /// ros2: the feedback is back but the arm cannot be taken over yet (only the first refusal of a run).
+    RetakeRefused(StartError),
 }
 
 impl std::fmt::Display for LoopEvent {
@@ -96,6 +107,18 @@ impl std::fmt::Display for LoopEvent {
                  the errors stop"
             ),
             LoopEvent::Fatal(e) => write!(f, "{e}: braking to rest, then mars-hal exits"),
+            LoopEvent::FeedbackLost { arm, age_ms, timeout_ms } => write!(
+                f,
+                "no {} feedback from the robot for {age_ms:.1} ms (timeout {timeout_ms} ms): holding; published the \
+                 stop target (the last measured position) and nothing after it until the feedback is back",
+                if *arm { "arm" } else { "gripper" }
+            ),
+            LoopEvent::FeedbackBack => {
+                write!(f, "the robot's feedback is back: the HAL took the arm over from its measured pose")
+            }
+            LoopEvent::RetakeRefused(e) => {
+                write!(f, "the robot's feedback is back but the arm cannot be taken over yet ({e}); holding it")
+            }
         }
     }
 }

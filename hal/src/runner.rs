@@ -27,7 +27,12 @@ use crate::control::{ErrorCounts, HalControl};
 use crate::events::{EventLogger, EventSender};
 use crate::profile::Profile;
 
-/// Ticks before the allocation count starts (iceoryx2 and the histograms settle in the first ones).
+/// Ticks before the allocation count starts (iceoryx2 and the histograms settle in the first ones) — counted again
+/// from the first command when a controller connects later: iceoryx2 sets up its connection to the controller's
+/// ports (allocating) in this loop's first receive and send after they appear, and a HAL may run long before its
+/// controller starts (a service that marsd connects to). The first command comes after both: the controller
+/// answers a frame it received. Later connections (a second controller, another subscriber to the states) cost
+/// the loop the same set-up, and are counted.
 const WARMUP_TICKS: u64 = 500;
 
 pub struct RunOptions {
@@ -183,7 +188,11 @@ impl std::fmt::Display for Report {
                 "  loop allocations after warm-up: {} system-allocator calls, {} pooled blocks for {sent} frames sent",
                 c.system, c.pooled
             )?,
-            None => writeln!(f, "  loop allocations: not counted (no counting allocator in this binary)")?,
+            None => writeln!(
+                f,
+                "  loop allocations: not counted (no counting allocator in this binary, or the run ended within its \
+                 warm-up)"
+            )?,
         }
         write!(
             f,
@@ -221,6 +230,10 @@ pub struct HalLoop {
     sent: u64,
     dropped_frames: u64,
     losses_seen: u64,
+    /// The tick at which the warm-up ends (see [`WARMUP_TICKS`]).
+    warmup_ends: u64,
+    /// A command has been received (a controller has connected).
+    commanded: bool,
     at_warmup: Option<(Counts, u64)>,
     at_last_tick: Option<(Counts, u64)>,
     /// The measurement the start was judged on: tick 0 reports it instead of reading anew.
@@ -298,6 +311,8 @@ impl HalLoop {
             sent: 0,
             dropped_frames: 0,
             losses_seen: 0,
+            warmup_ends: WARMUP_TICKS,
+            commanded: false,
             at_warmup: None,
             at_last_tick: None,
             first: Some(first),
@@ -311,6 +326,11 @@ impl HalLoop {
     /// Ticks so far.
     pub fn ticks(&self) -> u64 {
         self.tick
+    }
+
+    /// Logs `event` off the loop thread (a driver's own events between ticks: see [`crate::events`]).
+    pub fn log(&mut self, event: crate::events::LoopEvent) {
+        self.ev.send(event);
     }
 
     /// The robot stopped itself: hold (see [`HalControl::on_robot_fault`]).
@@ -333,7 +353,14 @@ impl HalLoop {
         loop {
             match self.commands.receive() {
                 Ok(None) => break,
-                Ok(Some(cmd)) => control.on_command(&cmd, ev),
+                Ok(Some(cmd)) => {
+                    control.on_command(&cmd, ev);
+                    if !self.commanded {
+                        self.commanded = true;
+                        self.warmup_ends = self.warmup_ends.max(self.tick + WARMUP_TICKS);
+                        self.at_warmup = None;
+                    }
+                }
                 Err(e) => {
                     control.on_receive_error(e, ev);
                     if matches!(e, FrameReceiveError::Port(_)) {
@@ -390,8 +417,8 @@ impl HalLoop {
         self.ticks.store(self.tick, Ordering::Release);
         self.work_us.saturating_record(woke.at.elapsed().as_micros() as u64);
         self.ticks_timed.end(Stamp::now(), !(injected.late.is_zero() && injected.stall.is_zero()));
-        if self.tick == WARMUP_TICKS {
-            self.at_warmup = alloc_count::thread_counts().map(|c| (c, self.sent));
+        if self.tick == self.warmup_ends {
+            self.at_warmup = alloc_count::warmed_up().map(|c| (c, self.sent));
         }
         // The counts at the end of every tick: what a driver does after the last one (franka-rs finishing a
         // motion allocates) is not the loop's.
@@ -431,6 +458,7 @@ impl HalLoop {
     /// Ends the run: stops the logger and the heartbeat (the controller sees this HAL leave) and reports.
     pub fn finish(mut self, ended: Ended, overruns: u64, robot: Option<crate::fci::RobotLoopReport>) -> Report {
         self.ticks_timed.finish();
+        alloc_count::loop_ended();
         let allocations_after_warmup = self.at_warmup.zip(self.at_last_tick).map(|((c0, sent0), (c1, sent1))| {
             (Counts { system: c1.system - c0.system, pooled: c1.pooled - c0.pooled }, sent1 - sent0)
         });

@@ -171,7 +171,8 @@ macro_rules! frame_ports {
 
             /// The next frame, `Ok(None)` when none is waiting, or [`FrameReceiveError::Schema`] for a frame
             /// from a mismatched build (that frame is consumed; the next call goes on with the following one).
-            /// Never allocates, also not on an error.
+            /// Allocates nothing of ours, also not on an error; iceoryx2 itself allocates once when a new publisher
+            /// has appeared since the last call (it sets up the connection: the loops count from after that).
             pub fn receive(&self) -> Result<Option<$payload>, FrameReceiveError> {
                 let Some(sample) = self.subscriber.receive().map_err(FrameReceiveError::Port)? else {
                     return Ok(None);

@@ -9,11 +9,15 @@
 //! syscall, no page fault (the slab is touched at [`init_rt_pool`] and locked by mlockall). Every other
 //! allocation, on any thread, is a counted call to the system allocator. So the claim is exact: after warm-up
 //! the servo thread makes 0 system-allocator calls and exactly one pooled allocation per sample sent.
+//!
+//! To find a loop's allocation, run with `MARS_ALLOC_TRACE=N` ([`TRACE_ENV`]): each loop thread prints the
+//! backtrace of its first N system-allocator calls after warm-up (e.g. `MARS_ALLOC_TRACE=5 mars-hil demo …`).
 
 use std::alloc::{GlobalAlloc, Layout, System};
+use std::backtrace::Backtrace;
 use std::cell::{Cell, UnsafeCell};
 use std::sync::OnceLock;
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering};
 
 /// Size and alignment of a pool block: iceoryx2's per-sample state is well below this.
 const BLOCK: usize = 128;
@@ -27,6 +31,10 @@ thread_local! {
     static SYSTEM_ALLOCATIONS: Cell<u64> = const { Cell::new(0) };
     static POOLED_ALLOCATIONS: Cell<u64> = const { Cell::new(0) };
     static IN_SCOPE: Cell<bool> = const { Cell::new(false) };
+    /// Backtraces still to print of this thread's system-allocator calls (see [`TRACE_ENV`]).
+    static TRACE_LEFT: Cell<u32> = const { Cell::new(0) };
+    /// Set while a backtrace is taken: its own allocations are the tracer's, neither traced nor counted.
+    static TRACING: Cell<bool> = const { Cell::new(false) };
 }
 
 static INSTALLED: AtomicBool = AtomicBool::new(false);
@@ -140,15 +148,58 @@ fn pooled(layout: Layout) -> Option<*mut u8> {
 }
 
 fn count_system() {
+    if TRACING.try_with(Cell::get).unwrap_or(false) {
+        return;
+    }
     // `try_with`: during thread teardown the slot may be gone; such allocations are not in any loop.
     let _ = SYSTEM_ALLOCATIONS.try_with(|c| c.set(c.get() + 1));
+    if TRACE_LEFT.try_with(Cell::get).unwrap_or(0) > 0 {
+        trace_this_call();
+    }
     if !INSTALLED.load(Ordering::Relaxed) {
         INSTALLED.store(true, Ordering::Relaxed);
     }
 }
 
+/// A debug aid: with `MARS_ALLOC_TRACE=N` in the environment, a real-time thread's first N system-allocator calls
+/// after its warm-up ([`warmed_up`]) each print their backtrace to stderr (`RUST_BACKTRACE` is not needed). Unset,
+/// it costs the loop nothing: only a call that already broke the rule reads a thread-local.
+pub const TRACE_ENV: &str = "MARS_ALLOC_TRACE";
+
+/// N of [`TRACE_ENV`], read once at [`init_rt_pool`] (reading the environment allocates).
+static TRACE_LIMIT: AtomicU32 = AtomicU32::new(0);
+
+#[cold]
+fn trace_this_call() {
+    let _ = TRACING.try_with(|t| t.set(true));
+    // The tracer's own blocks come from the system allocator, never from the pool a scope lent.
+    let in_scope = IN_SCOPE.try_with(|s| s.replace(false)).unwrap_or(false);
+    let _ = TRACE_LEFT.try_with(|c| c.set(c.get() - 1));
+    let name = std::thread::current().name().map(str::to_owned).unwrap_or_default();
+    eprintln!("{TRACE_ENV}: system-allocator call on thread {name:?} after warm-up:\n{}", Backtrace::force_capture());
+    let _ = IN_SCOPE.try_with(|s| s.set(in_scope));
+    let _ = TRACING.try_with(|t| t.set(false));
+}
+
+/// The calling real-time thread's counts at the end of its warm-up (as [`thread_counts`]); arms [`TRACE_ENV`]'s
+/// backtraces for what it allocates from here on, until [`loop_ended`].
+pub fn warmed_up() -> Option<Counts> {
+    TRACE_LEFT.set(TRACE_LIMIT.load(Ordering::Relaxed));
+    thread_counts()
+}
+
+/// The calling real-time thread's counts at the end of its loop (as [`thread_counts`]); what it allocates after
+/// (its report) is not traced.
+pub fn loop_ended() -> Option<Counts> {
+    TRACE_LEFT.set(0);
+    thread_counts()
+}
+
 /// Allocates and touches the pool (once per process). Call at a real-time thread's setup, not in its loop.
 pub fn init_rt_pool() {
+    if let Some(n) = std::env::var(TRACE_ENV).ok().and_then(|v| v.parse().ok()) {
+        TRACE_LIMIT.store(n, Ordering::Relaxed);
+    }
     POOL.get_or_init(|| Pool {
         slab: (0..BLOCKS).map(|_| Block(UnsafeCell::new([0; BLOCK]))).collect(),
         used: [const { AtomicU64::new(0) }; WORDS],
@@ -192,4 +243,32 @@ pub fn thread_counts() -> Option<Counts> {
     INSTALLED
         .load(Ordering::Relaxed)
         .then(|| Counts { system: SYSTEM_ALLOCATIONS.with(Cell::get), pooled: POOLED_ALLOCATIONS.with(Cell::get) })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[global_allocator]
+    static ALLOC: CountingAlloc = CountingAlloc;
+
+    /// The trace aid prints the first N calls after warm-up, and counts each exactly once: the tracer's own
+    /// allocations (the backtrace, its text) are neither counted nor traced.
+    #[test]
+    fn a_traced_allocation_is_counted_once_and_the_tracer_s_own_are_not() {
+        let counted = std::thread::spawn(|| {
+            init_rt_pool();
+            TRACE_LIMIT.store(1, Ordering::Relaxed);
+            let c0 = warmed_up().expect("CountingAlloc is this binary's global allocator");
+            let traced = std::hint::black_box(Box::new([0u8; 4096]));
+            let c1 = thread_counts().unwrap();
+            let untraced = std::hint::black_box(Box::new([0u8; 4096]));
+            let c2 = loop_ended().unwrap();
+            drop((traced, untraced));
+            (c1.system - c0.system, c2.system - c1.system, TRACE_LEFT.with(Cell::get))
+        })
+        .join()
+        .unwrap();
+        assert_eq!(counted, (1, 1, 0));
+    }
 }

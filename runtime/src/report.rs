@@ -360,7 +360,11 @@ impl std::fmt::Display for Summary {
                 "  servo thread after warm-up ({} ticks): {} system-allocator calls; {} blocks from the RT pool for {} samples sent (iceoryx2's per-sample bookkeeping, only inside send)",
                 self.servo_ticks_counted, n.system, n.pooled, self.servo_samples_sent
             )?,
-            None => writeln!(f, "  servo thread heap allocations: not measured (counting allocator not installed)")?,
+            None => writeln!(
+                f,
+                "  servo thread heap allocations: not measured (counting allocator not installed, or the loop ended \
+                 within its warm-up after the handshake)"
+            )?,
         }
         if let Some(c) = &self.camera {
             let n = &c.counts;

@@ -101,8 +101,9 @@ pub struct ServoReport {
     pub first_violation: Option<crate::limits::Violation>,
     /// A task acting on the table: what the servo's IK did with the policy's (x, y) references.
     pub effector: Option<crate::effector::EffectorCounts>,
-    /// Heap allocations on the servo thread from tick [`ALLOC_WARMUP_TICKS`] to the end (`None`: the process
-    /// does not run the counting allocator). See [`crate::alloc_count`].
+    /// Heap allocations on the servo thread from [`ALLOC_WARMUP_TICKS`] ticks after the handshake to the end
+    /// (`None`: the process does not run the counting allocator, or the loop ended before). See
+    /// [`crate::alloc_count`].
     pub allocations_after_warmup: Option<crate::alloc_count::Counts>,
     /// Samples sent over the same span: each may take exactly one pooled block (iceoryx2's bookkeeping).
     pub samples_sent_after_warmup: u64,
@@ -119,8 +120,13 @@ pub struct ServoLoopConfig {
     pub max_consecutive_send_errors: u64,
 }
 
-/// Ticks after which the servo thread's allocations are counted: iceoryx2 and the first chunk handoff have
-/// settled by then; every episode transition (reset, ready, running, stop) comes later.
+/// Ticks after the handshake with the HAL (its first usable frame) from which the servo thread's allocations are
+/// counted: iceoryx2 and the first chunk handoff have settled by then; every episode transition (reset, ready,
+/// running, stop) comes later. Counted from the handshake, not from the loop's start: iceoryx2 sets up its
+/// connection to the HAL's ports (allocating) in this loop's first receive and send after they appear, and a HAL
+/// may appear long after marsd started — the fci HAL opens its ports only once it has connected to the robot
+/// (franka-sim: ~1.5 s), the ros2 HAL once the robot's first feedback came. A peer that connects later still
+/// (another subscriber to the commands) costs iceoryx2 the same set-up in the loop, and is counted.
 pub const ALLOC_WARMUP_TICKS: u64 = 500;
 
 /// Where in the HAL's period the servo ticks: this long after the HAL stamped its frame. The frame is then
@@ -159,7 +165,9 @@ pub fn run_servo(
     let mut next_interval = monotonic_ns() + interval_ns;
     let (mut schema_refusals, mut receive_port_errors) = (0u64, 0u64);
     let mut sends = SendWatch::new(cfg.max_consecutive_send_errors);
-    let mut allocs_at_warmup: Option<(crate::alloc_count::Counts, u64)> = None;
+    // (allocation counts, samples sent, ticks) when the warm-up ended.
+    let mut allocs_at_warmup: Option<(crate::alloc_count::Counts, u64, u64)> = None;
+    let mut ticks_with_hal = 0u64;
     crate::alloc_count::init_rt_pool();
     loop {
         let wake = ticker.wait();
@@ -238,8 +246,9 @@ pub fn run_servo(
             rec.end_interval_with(done, LoopCounters { servo: tick.counters, hal: tick.hal_counts() });
             next_interval += interval_ns;
         }
-        if tick.counters.ticks == ALLOC_WARMUP_TICKS {
-            allocs_at_warmup = crate::alloc_count::thread_counts().map(|c| (c, sends.sent));
+        ticks_with_hal += u64::from(tick.phase() != Phase::WaitingForHal);
+        if ticks_with_hal == ALLOC_WARMUP_TICKS {
+            allocs_at_warmup = crate::alloc_count::warmed_up().map(|c| (c, sends.sent, tick.counters.ticks));
         }
         if tick.phase() == Phase::Finished {
             break;
@@ -258,15 +267,13 @@ pub fn run_servo(
             ch.status.set_trip(crate::watchdog::Trip::HalDied);
         }
     }
-    let allocations_after_warmup =
-        allocs_at_warmup.zip(crate::alloc_count::thread_counts()).map(|((start, _), end)| crate::alloc_count::Counts {
-            system: end.system - start.system,
-            pooled: end.pooled - start.pooled,
-        });
+    let allocations_after_warmup = allocs_at_warmup.zip(crate::alloc_count::loop_ended()).map(|((start, ..), end)| {
+        crate::alloc_count::Counts { system: end.system - start.system, pooled: end.pooled - start.pooled }
+    });
     ServoReport {
         allocations_after_warmup,
-        samples_sent_after_warmup: allocs_at_warmup.map_or(0, |(_, sent)| sends.sent - sent),
-        ticks_counted: tick.counters.ticks.saturating_sub(ALLOC_WARMUP_TICKS),
+        samples_sent_after_warmup: allocs_at_warmup.map_or(0, |(_, sent, _)| sends.sent - sent),
+        ticks_counted: allocs_at_warmup.map_or(0, |(.., ticks)| tick.counters.ticks - ticks),
         cause: tick.stop_cause(),
         counters: tick.counters,
         frames: tick.frames().counts,

@@ -75,15 +75,60 @@ fn the_counter_sees_allocations_made_on_purpose() {
 /// thread of this process, so its allocations are counted too).
 #[test]
 fn servo_tick_and_hal_loop_make_no_heap_allocation_over_two_episodes() {
+    alloc_test(Start::Together);
+}
+
+/// The HAL appears after the servo loop's first ALLOC_WARMUP_TICKS ticks, as the fci HAL does (it connects to the
+/// robot before it opens its ports: ~1.5 s on franka-sim) and the ros2 HAL (it waits for the robot's feedback):
+/// iceoryx2's connection to it is set up in the servo's receive and send then, and belongs to the warm-up.
+#[test]
+fn a_hal_that_appears_after_the_servo_s_first_ticks_costs_the_servo_no_allocation_after_warm_up() {
+    alloc_test(Start::HalLate);
+}
+
+/// marsd connects after the HAL loop's first WARMUP_TICKS ticks, as to a HAL that runs as a service: the same for
+/// the HAL's loop.
+#[test]
+fn a_controller_that_connects_after_the_hal_s_first_ticks_costs_the_hal_no_allocation_after_warm_up() {
+    alloc_test(Start::ControllerLate);
+}
+
+/// Which side of the rig starts first.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Start {
+    /// As the demo starts them: the HAL, then marsd at once.
+    Together,
+    /// The HAL [`LATE`] after marsd.
+    HalLate,
+    /// marsd's loops [`LATE`] after the HAL.
+    ControllerLate,
+}
+
+impl Start {
+    /// For the robot's namespace and the output directory.
+    fn name(self) -> &'static str {
+        match self {
+            Start::Together => "together",
+            Start::HalLate => "hal-late",
+            Start::ControllerLate => "controller-late",
+        }
+    }
+}
+
+/// Well past either loop's warm-up (500 ticks at 1 kHz).
+const LATE: Duration = Duration::from_secs(2);
+
+fn alloc_test(start: Start) {
     let _rt = common::rt_rig_lock();
-    common::at_most_one_rerun("allocation-free servo tick and HAL loop", alloc_attempt);
+    let test = format!("allocation-free servo tick and HAL loop ({})", start.name());
+    common::at_most_one_rerun(&test, |attempt| alloc_attempt(start, attempt));
 }
 
 /// One run; its excuse if marsd tripped on a timing check while the stall witness saw the machine stall around
 /// the trip.
-fn alloc_attempt(attempt: u32) -> common::Attempt {
+fn alloc_attempt(start: Start, attempt: u32) -> common::Attempt {
     let root = common::root();
-    let robot = format!("t{}-alloc{attempt}", std::process::id());
+    let robot = format!("t{}-alloc-{}{attempt}", std::process::id(), start.name());
     let profile = Profile::load(&root.join("configs/fr3.toml")).unwrap();
     profile.validate().unwrap();
     let stop_hal = Arc::new(AtomicBool::new(false));
@@ -93,6 +138,9 @@ fn alloc_attempt(attempt: u32) -> common::Attempt {
         std::thread::Builder::new()
             .name("hal".into())
             .spawn(move || {
+                if start == Start::HalLate {
+                    std::thread::sleep(LATE);
+                }
                 // As the demo runs it: a robot's own loop, real-time and above the servo loop on the servo's core
                 // (at normal priority a busy machine starves it into a stale-state trip), its memory locked.
                 let opts = RunOptions {
@@ -112,11 +160,16 @@ fn alloc_attempt(attempt: u32) -> common::Attempt {
     for p in [&mut cfg.profile, &mut cfg.task, &mut cfg.checkpoint] {
         *p = root.join(&p);
     }
-    let out = std::env::temp_dir().join(format!("mars-alloc-test-{}", std::process::id()));
+    let hal_spawned = std::time::Instant::now();
+    let out = std::env::temp_dir().join(format!("mars-alloc-test-{}-{}", std::process::id(), start.name()));
     cfg.out = out.clone();
     cfg.robot = robot;
     cfg.episodes = 2;
     let prepared = daemon::prepare(cfg).unwrap();
+    if start == Start::ControllerLate {
+        // (marsd's servo opens its ports in `run`.)
+        std::thread::sleep(LATE.saturating_sub(hal_spawned.elapsed()));
+    }
     let outcome = daemon::run(prepared).unwrap();
     let s = &outcome.summary; // (daemon::run printed it)
     if outcome.exit == daemon::exit::TRIPPED

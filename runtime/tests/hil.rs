@@ -99,6 +99,8 @@ fn r1_lite_ros2_attempt(attempt: u32) -> Attempt {
         assert_eq!(u64_at(&s, &format!("/limit_violations/{check}")), 0, "{check}: {s}");
     }
     assert_eq!(u64_at(&s, "/servo_allocations/system"), 0, "the servo tick allocated");
+    let hal: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("hal.json")).unwrap()).unwrap();
+    assert_eq!(u64_at(&hal, "/loop_allocations"), 0, "the HAL's loop allocated on the ros2 backend: {hal}");
     // The stand-in's own account (its last JSON line): the HAL's arm targets arrived, every one usable.
     let log = std::fs::read_to_string(out.join("standin.log")).unwrap();
     let last: serde_json::Value = serde_json::from_str(log.lines().last().unwrap()).unwrap();

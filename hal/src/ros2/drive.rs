@@ -15,11 +15,12 @@ use std::time::Duration;
 
 use mars_rt::Ticker;
 use mars_rt::overlong::Stamp;
-use tracing::{info, warn};
+use tracing::info;
 
 use super::backend::Ros2Backend;
 use super::io::Link;
 use crate::control::StartError;
+use crate::events::LoopEvent;
 use crate::profile::Profile;
 use crate::runner::{HalLoop, Next, Report, RunOptions};
 
@@ -48,25 +49,20 @@ pub fn run(profile: &Profile, opts: &RunOptions) -> anyhow::Result<Report> {
         let woke = Stamp::now();
         hal.late_us.saturating_record(wake.late_ns / 1000);
         let next = hal.tick(&mut backend, woke);
-        // Rare events, logged here (a loss, a retake), not per tick.
+        // Rare events (a loss, a retake), logged off this thread as the loop's own are: it is the loop's thread.
         if let Some(loss) = backend.take_loss() {
-            warn!(
-                "no {} feedback from the robot for {:.1} ms (timeout {timeout_ms} ms): holding; published the stop \
-                 target (the last measured position) and nothing after it until the feedback is back",
-                if loss.arm { "arm" } else { "gripper" },
-                loss.age_ms
-            );
+            hal.log(LoopEvent::FeedbackLost { arm: loss.arm, age_ms: loss.age_ms, timeout_ms });
         }
         if let Some(m) = backend.retake_from() {
             match hal.control.resume_from(&m) {
                 Ok(()) => {
                     backend.retaken();
                     retake_refused = false;
-                    info!("the robot's feedback is back: the HAL took the arm over from its measured pose");
+                    hal.log(LoopEvent::FeedbackBack);
                 }
                 Err(e) if !retake_refused => {
                     retake_refused = true;
-                    warn!("the robot's feedback is back but the arm cannot be taken over yet ({e}); holding it");
+                    hal.log(LoopEvent::RetakeRefused(e));
                 }
                 Err(_) => {}
             }
