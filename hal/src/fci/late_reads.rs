@@ -149,8 +149,10 @@ impl Race {
     }
 
     /// The histories this one becomes with our command `c` sent, those the state `shown` allows, into `out` (see
-    /// [`Races`]); none once it is ours (`ours`) again.
-    fn advance(&self, c: &[f64; JOINTS], ours: &History, shown: &History, out: &mut Races) {
+    /// [`Races`]); none once it is ours (`ours`) again. `lost`: franka-sim counted `c`'s cycle lost (the success rate
+    /// fell), so it read `c` late or threw it away; where it did not, `c` came in its cycle (the guess of its cycle
+    /// can be `c` itself: at a constant acceleration the guess is our own law).
+    fn advance(&self, c: &[f64; JOINTS], ours: &History, shown: &History, lost: bool, out: &mut Races) {
         if self.after_len == 0 {
             let guesses = self.applied.extrapolated(self.guessed);
             let mut in_cycle = guesses;
@@ -158,13 +160,15 @@ impl Race {
             let mut late = self.applied;
             late.record(c, self.guessed + 1);
             let next_guess = self.applied.extrapolated(self.guessed + 1);
-            if shows(&in_cycle, 0, shown) {
+            let in_its_cycle = shows(&in_cycle, 0, shown);
+            if in_its_cycle && !lost {
                 out.add(self.with_after(in_cycle));
             }
-            if shows(&next_guess, 0, shown) || shows(&late, 0, shown) {
+            let not_in_its_cycle = lost || !in_its_cycle;
+            if not_in_its_cycle && (shows(&next_guess, 0, shown) || shows(&late, 0, shown)) {
                 out.add(self.with_after(late));
             }
-            if shows(&next_guess, 0, shown) || shows_with(c, &next_guess, shown) {
+            if not_in_its_cycle && (shows(&next_guess, 0, shown) || shows_with(c, &next_guess, shown)) {
                 out.add(Race { guessed: self.guessed + 1, ..*self });
             }
             return;
@@ -215,17 +219,26 @@ impl Races {
         self.kept.iter().flatten()
     }
 
-    /// With our command `c` sent (ours after it: `ours`, ours before it `before`) and the state `shown`: each
-    /// race history advanced, those the state rules out dropped, and a new one where the state is the guess of `c`'s
-    /// cycle from `before` (franka-sim may have read `c` in the race window).
-    pub fn advance(&mut self, c: &[f64; JOINTS], before: Option<&History>, ours: &History, shown: &History) {
+    /// With our command `c` sent (ours after it: `ours`, ours before it `before`), the state `shown`, and whether
+    /// `c`'s cycle was counted lost: each race history advanced, those the state rules out dropped, and a new one
+    /// where the state is the guess of `c`'s cycle from `before` and `c` did not come in its cycle (franka-sim may
+    /// have read it in the race window).
+    pub fn advance(
+        &mut self,
+        c: &[f64; JOINTS],
+        before: Option<&History>,
+        ours: &History,
+        shown: &History,
+        lost: bool,
+    ) {
         let mut next = Races::default();
         for r in self.iter() {
-            r.advance(c, ours, shown, &mut next);
+            r.advance(c, ours, shown, lost, &mut next);
         }
         if let Some(b) = before {
             let guess = b.extrapolated(1);
-            if shows(&guess, 0, shown) || shows_with(c, &guess, shown) {
+            let not_in_its_cycle = lost || !shows(ours, 0, shown);
+            if not_in_its_cycle && (shows(&guess, 0, shown) || shows_with(c, &guess, shown)) {
                 next.add(Race::new(*b));
             }
         }

@@ -22,9 +22,11 @@
 //!   acceleration, where that guess is our command to float32's last bit, only in the success rate falling.
 //!   And where our last command before unseen states came late, the robot throws away its guesses up to it and
 //!   guesses only the cycles after it: `q_d` shows how many, and our next command is differenced over the rest.
-//!   franka-sim also reads every datagram waiting and keeps only the newest: a late command with our next one
-//!   queued behind it is thrown away, its guess stands ([`LateRun`]); which happened shows a state later, so the
-//!   command in between is kept within the limits from both histories where it can be
+//!   franka-sim reads every datagram in turn, and however late our commands come it rewinds its guesses and
+//!   records them: the history it judges our next command against is ours, while the states in between show its
+//!   guesses ([`late_reads`](super::late_reads)). The one exception, a late command read in the race window between
+//!   its closing a cycle and guessing it, is thrown away (its guess stands); which happened shows a state later, so
+//!   the command in between is kept within the limits from both histories where it can be
 //!   (`SafetyFilter::also_judged_from`).
 
 use super::late_reads::{Races, Unread};
@@ -107,6 +109,19 @@ struct Gap {
     late: (History, u64),
 }
 
+impl Gap {
+    /// Our first command after the gap, `s`, recorded as a state after more unseen states shows it (`missed` of
+    /// them): on time (after the guesses) where that shows and late does not; late otherwise (over the whole interval
+    /// from our last command before the gap: also where neither shows, the robot not having read `s` yet then).
+    fn recorded_as_shown(&self, s: &[f64; JOINTS], missed: u64, shown: &History) -> History {
+        let ((mut on_time, on_time_cycles), (mut late, late_cycles)) = (self.on_time, self.late);
+        on_time.record(s, on_time_cycles);
+        late.record(s, late_cycles);
+        let shows = |h: &History| extrapolations_shown(h, missed, shown).is_some();
+        if shows(&on_time) && !shows(&late) { on_time } else { late }
+    }
+}
+
 /// Applied mode: the motion's first commands are taken as applied on time, late runs not told apart. franka-sim
 /// seeds its history at a motion's start from the state it last sent, which need not be what its next state's
 /// derivatives continue (a HAL restarted where another left the arm: read as a late command, then a guard toward a
@@ -183,6 +198,11 @@ impl RobotSetpoints {
         let mut ours = h;
         ours.record(&s, 1);
         let before_gap = self.before_gap.take();
+        if let Some(gap) = before_gap.filter(|_| missed_states > 0) {
+            // Unseen states again before the state that would have told how our first command after the last ones
+            // was recorded: the state after these tells.
+            ours = gap.recorded_as_shown(&s, missed_states, &reported);
+        }
         if missed_states == 0 {
             if let Some(gap) = before_gap {
                 // Our first command after unseen states: recorded after the robot's guesses of the gap, or replacing
@@ -195,7 +215,7 @@ impl RobotSetpoints {
                 // Replacing them if it came late: the state then shows the robot's next guess instead of it. Where
                 // that guess is our command (a constant acceleration, such as the filter's brake at its limit: the
                 // same law), in q_d, dq_d and ddq_d alike, only the cycle counted lost tells.
-                let late = !within(&s, q_d)
+                let late = !shows_history(&on_time, &reported)
                     || missed_its_cycle
                     || (!within_velocity(&on_time.v, dq_d) && within_velocity(&guess.v, dq_d));
                 // Replacing them on time too if our last command before them came late and rewound them; the
@@ -210,7 +230,7 @@ impl RobotSetpoints {
                 }
             }
             if self.late_commands_applied {
-                return self.applied_without_gap(h, s, &reported);
+                return self.applied_without_gap(h, s, &reported, missed_its_cycle);
             }
             if within(&s, q_d) {
                 self.history = Some(ours);
@@ -231,7 +251,7 @@ impl RobotSetpoints {
                 // guesses are where a smooth continuation goes either way (the robot differences our next command
                 // over the cycles between them and the history it shows, whichever that is).
                 let late = (ours, missed_states + 1);
-                let on_time = extrapolations_shown(&ours, missed_states, q_d)
+                let on_time = extrapolations_shown(&ours, missed_states, &reported)
                     .map_or(late, |shown| (ours.extrapolated(shown), missed_states + 1 - shown));
                 self.before_gap = Some(Gap { on_time, late });
             }
@@ -255,9 +275,10 @@ impl RobotSetpoints {
     }
 
     /// Applied mode, no unseen state: our command `s` is recorded into ours (`h`), however late franka-sim reads it;
-    /// the state `shown` may show guesses meanwhile (`Unread`). Only where ours cannot show it and a history in which
-    /// franka-sim threw a late command away can (`Races`) does the model, and the filter, continue from that one.
-    fn applied_without_gap(&mut self, h: History, s: [f64; JOINTS], shown: &History) -> Option<History> {
+    /// the state `shown` may show guesses meanwhile (`Unread`); `lost`: the success rate fell (`s` missed its cycle).
+    /// Only where ours cannot show it and a history in which franka-sim threw a late command away can (`Races`) does
+    /// the model, and the filter, continue from that one.
+    fn applied_without_gap(&mut self, h: History, s: [f64; JOINTS], shown: &History, lost: bool) -> Option<History> {
         let mut ours = h;
         ours.record(&s, 1);
         self.history = Some(ours);
@@ -268,7 +289,7 @@ impl RobotSetpoints {
         }
         self.unread.push(ours);
         let before = self.unread.before_newest().copied();
-        self.races.advance(&s, before.as_ref(), &ours, shown);
+        self.races.advance(&s, before.as_ref(), &ours, shown, lost);
         if self.unread.explain(shown) {
             return None;
         }
@@ -309,8 +330,14 @@ impl RobotSetpoints {
 /// guessed only the cycles after it arrived (measured: three unseen states, two guesses, a reflex at 13.65 rad/s²).
 /// None where no count matches: the robot had not read that command yet when it sent the state (it shows guesses
 /// from an earlier one), so it will record our next command over the whole interval from it, on time or late.
-fn extrapolations_shown(ours: &History, missed: u64, q_d: &[f64; JOINTS]) -> Option<u64> {
-    (0..=missed).rev().find(|&k| within(&ours.extrapolated(k).q, q_d))
+fn extrapolations_shown(ours: &History, missed: u64, shown: &History) -> Option<u64> {
+    (0..=missed).rev().find(|&k| shows_history(&ours.extrapolated(k), shown))
+}
+
+/// Whether the state shows this history: its position and velocity, up to float32's rounding. Velocity too: a
+/// guess can be within `q_d`'s rounding of another history and far from it in velocity.
+fn shows_history(h: &History, shown: &History) -> bool {
+    within(&h.q, &shown.q) && within_velocity(&h.v, &shown.v)
 }
 
 /// The largest difference between two joint vectors.
@@ -511,7 +538,8 @@ mod tests {
         let mut s = applied_until(10, true);
         s.sent(traj(10));
         let gap = history_at(10).extrapolated(1);
-        s.observe(&gap.q, &ZERO, &ZERO, ALL_IN_TIME, 1).expect("the resync over the unseen state");
+        let [q, v, a] = report(&gap);
+        s.observe(&q, &v, &a, ALL_IN_TIME, 1).expect("the resync over the unseen state");
         let c1 = traj(12);
         s.sent(c1);
         let mut robot = gap;
@@ -546,21 +574,23 @@ mod tests {
 
     /// The reflex of 2026-11-27 (franka-sim: an acceleration discontinuity on joint 1 with no state unseen, its
     /// success rate falling twice): our command 10 came late, and the state showed franka-sim's guess of its cycle.
-    /// Our command 11 reached it in the same read as 10; franka-sim keeps the newest datagram only, so it threw 10
-    /// away, kept its guess, and recorded 11 after it — our history had 10 there, so the filter's next command,
-    /// within the jerk limit against ours, read as 8195 rad/s³ to the robot. The state's velocity shows which.
+    /// franka-sim had read 10 after closing its cycle and before guessing it (its receive and publish threads race
+    /// there: `sim_checker`), so it judged 10 but did not record it, kept its guess, and recorded 11, read in its
+    /// cycle (the success rate did not fall again), after it — our history had 10 there, so the filter's next
+    /// command, within the jerk limit against ours, read as 8195 rad/s³ to the robot. The state's velocity shows
+    /// which.
     #[test]
     fn applied_a_late_command_thrown_away_for_our_next_leaves_the_robot_s_guess_in_its_history() {
         let mut s = with_10_late();
         let mut robot = history_at(9).extrapolated(1);
         robot.record(&traj(11), 1);
         let [q, v, a] = report(&robot);
-        assert_eq!(s.observe(&q, &v, &a, 0.98, 0), Some(robot), "the robot's history, exactly");
+        assert_eq!(s.observe(&q, &v, &a, 0.99, 0), Some(robot), "the robot's history, exactly");
         assert_eq!(s.last_from, Some(ResyncFrom::LateThrownAway));
         // Had 10 replaced the guess, the same state would show it: no resync.
         let mut s = with_10_late();
         let [q, v, a] = report(&history_at(11));
-        assert_eq!((s.observe(&q, &v, &a, 0.98, 0), s.history), (None, Some(history_at(11))));
+        assert_eq!((s.observe(&q, &v, &a, 0.99, 0), s.history), (None, Some(history_at(11))));
     }
 
     /// The same, with our command 11 late too: the state shows franka-sim's second guess. It shows that too when it
