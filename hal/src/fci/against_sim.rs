@@ -12,6 +12,8 @@ use super::state::JOINTS;
 use crate::profile::Profile;
 use crate::safety::SafetyFilter;
 
+mod random;
+
 /// When franka-sim reads our command answering state `k`.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Read {
@@ -139,7 +141,12 @@ pub fn home_with(j: usize, (q, v, a): (f64, f64, f64)) -> History {
 }
 
 /// A stream from `start`: joint `j` follows `jerk(k)` (rad/s³) from its history with franka's law, within `a_max`.
-pub fn stream_from(start: History, j: usize, jerk: &dyn Fn(u64, f64, f64) -> f64, states: u64) -> Vec<[f64; MAX_JOINTS]> {
+pub fn stream_from(
+    start: History,
+    j: usize,
+    jerk: &dyn Fn(u64, f64, f64) -> f64,
+    states: u64,
+) -> Vec<[f64; MAX_JOINTS]> {
     let mut h = start;
     let mut out = vec![[0.0; MAX_JOINTS]; states as usize + 1];
     for (k, c) in out.iter_mut().enumerate() {
@@ -152,87 +159,25 @@ pub fn stream_from(start: History, j: usize, jerk: &dyn Fn(u64, f64, f64) -> f64
     out
 }
 
-/// Deterministic draws for the schedules and streams (a seed each).
-pub struct Lcg(pub u64);
-
-impl Lcg {
-    pub fn unit(&mut self) -> f64 {
-        self.0 = self.0.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-        (self.0 >> 11) as f64 / (1u64 << 53) as f64
-    }
-}
-
-/// A stream like marsd's: every joint tracks a velocity drawn anew every 150 ms (within ±0.4 rad/s), with jerk
-/// up to `jerk` (rad/s³) and acceleration up to 9 rad/s² (marsd plans at 0.9 of the FR3's limits), from rest at
-/// home.
-pub fn random_stream(seed: u64, states: u64, jerk: f64) -> Vec<[f64; MAX_JOINTS]> {
-    let mut rng = Lcg(seed);
-    let start = home_with(0, (fr3().home[0], 0.0, 0.0));
-    let (mut h, mut goal) = (start, [0.0; JOINTS]);
-    let mut out = vec![[0.0; MAX_JOINTS]; states as usize + 1];
-    for (k, c) in out.iter_mut().enumerate() {
-        c[..JOINTS].copy_from_slice(&h.q);
-        if k % 150 == 0 {
-            goal = std::array::from_fn(|_| 0.8 * rng.unit() - 0.4);
-        }
-        for j in 0..JOINTS {
-            // Toward the goal velocity, braking in time (the acceleration ramps to zero as it arrives).
-            let dv = goal[j] - h.v[j];
-            let a_goal = dv.signum() * (2.0 * jerk * 0.5 * dv.abs()).sqrt().min(9.0);
-            let a = h.a[j] + (a_goal - h.a[j]).clamp(-jerk * 1e-3, jerk * 1e-3);
-            h.v[j] += a * 1e-3;
-            h.q[j] += h.v[j] * 1e-3;
-            h.a[j] = a;
-        }
-    }
-    out
-}
-
-/// A schedule drawn per command: late with probability `late` (by 1 to 4 cycles), in the race window with
-/// probability `race`, in its cycle otherwise.
-pub fn random_reads(seed: u64, states: u64, late: f64, race: f64) -> Vec<Read> {
-    let mut rng = Lcg(seed);
-    (0..=states)
-        .map(|_| {
-            let u = rng.unit();
-            if u < race {
-                Read::Race
-            } else if u < race + late {
-                Read::Late(1 + (rng.unit() * 4.0) as u64)
-            } else {
-                Read::Fresh
-            }
-        })
-        .collect()
-}
-
-/// Which states the HAL sees: now and then (probability `unseen` per state) it misses 1 to 3 in a row.
-pub fn random_seen(seed: u64, states: u64, unseen: f64) -> Vec<bool> {
-    let mut rng = Lcg(seed);
-    let mut seen = vec![true; states as usize + 1];
-    let mut k = 10;
-    while k + 4 < seen.len() {
-        if rng.unit() < unseen {
-            let n = 1 + (rng.unit() * 3.0) as usize;
-            seen[k..k + n].fill(false);
-            k += n;
-        }
-        k += 1;
-    }
-    seen
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
 
-    /// Joint 4 braking at 9 rad/s² as in the log of the reflex below (with marsd's jerk of `jerk` rad/s³ on top), and
-    /// our commands read as `read` says; the commands franka-sim judged out of its limits.
-    fn braking(jerk: f64, read: &dyn Fn(u64) -> Read) -> Outcome {
-        let start = home_with(3, (-2.3754623 + 0.0002, -0.06466 - 0.045, 9.0));
-        let stream = stream_from(start, 3, &|_, _, _| jerk, 40);
+    /// Joint `j` (from 0: 1 at its home, 4 at −2.3752 rad) from `v0` rad/s and `a0` rad/s² at state 0, marsd's
+    /// stream adding `jerk(k)` rad/s³ to our command answering state `k`, our commands read as `read` says: how
+    /// franka-sim judged them.
+    fn joint(j: usize, (v0, a0): (f64, f64), jerk: &dyn Fn(u64) -> f64, read: &dyn Fn(u64) -> Read) -> Outcome {
+        let q0 = if j == 3 { -2.3752 } else { fr3().home[j] };
+        let start = home_with(j, (q0, v0, a0));
+        let stream = stream_from(start, j, &|k, _, _| jerk(k), 40);
         let target = |k: u64| stream[(k as usize + 1).min(40)];
         run(&Scenario { start, target: &target, read, seen: &|_| true, states: 30 })
+    }
+
+    /// Joint 4 braking at about 9 rad/s² as logged before the reflex below (with marsd's jerk of 55 rad/s³, so ours
+    /// and franka-sim's guesses differ, as logged).
+    fn braking_at_9(read: &dyn Fn(u64) -> Read) -> Outcome {
+        joint(3, (-0.1, 8.0), &|_| 55.0, read)
     }
 
     /// The reflex of 2026-11-27 under build load (`mars-hil faults`, run 1, trial 64: franka-sim named −9437 rad/s³
@@ -247,7 +192,7 @@ mod tests {
             12 => Read::Late(1),
             _ => Read::Fresh,
         };
-        let o = braking(55.0, &read);
+        let o = braking_at_9(&read);
         assert_eq!(o.violations().len(), 0, "{:?}", o.violations());
         assert_eq!(o.resyncs, 0);
     }
@@ -256,7 +201,7 @@ mod tests {
     /// (recorded after the guess); the state after 12 shows it, and the model continues from franka-sim's history.
     #[test]
     fn a_command_thrown_away_then_one_in_its_cycle() {
-        let o = braking(55.0, &|k| if k == 11 { Read::Race } else { Read::Fresh });
+        let o = braking_at_9(&|k| if k == 11 { Read::Race } else { Read::Fresh });
         assert_eq!(o.violations().len(), 0, "{:?}", o.violations());
         assert_eq!(o.resyncs, 1);
     }
@@ -267,7 +212,7 @@ mod tests {
     #[test]
     fn a_command_thrown_away_then_one_late() {
         for late in 1..=3 {
-            let o = braking(55.0, &|k| match k {
+            let o = braking_at_9(&|k| match k {
                 11 => Read::Race,
                 12 => Read::Late(late),
                 _ => Read::Fresh,
@@ -276,68 +221,29 @@ mod tests {
         }
     }
 
-    /// Random streams like marsd's (jerk up to 4500 rad/s³), commands late by 1–4 cycles one time in three, the HAL
-    /// missing 1–3 states now and then: franka-sim judges every command within its limits.
+    /// franka-sim throws our command 11 away during a jerk phase (11's jerk `j` from ours) and reads 12 in its cycle:
+    /// from its guess, 12 reads as 12's jerk from ours plus 3·`j`, and its acceleration plus 2·`j`·dt. Where some
+    /// step is within the limits from both (here up to about 3000 rad/s³ at 5 rad/s²), 12 is; beyond, none is, and
+    /// ours decides (the likelier: the same states show 11 merely late): the one command franka-sim judges out of its
+    /// limits (its acceleration out of them too, the next one as well). The state after 12 shows franka-sim's
+    /// history, and the model follows it.
     #[test]
-    fn late_commands_and_unseen_states_keep_every_command_within_the_limits() {
-        let states = 3000;
-        for seed in 0..6 {
-            let stream = random_stream(seed, states + 1, 4500.0);
-            let reads = random_reads(seed + 100, states, 0.3, 0.0);
-            let seen = random_seen(seed + 200, states, 0.01);
-            let target = |k: u64| stream[k as usize + 1];
-            let start = home_with(0, (fr3().home[0], 0.0, 0.0));
-            let o = run(&Scenario {
-                start,
-                target: &target,
-                read: &|k| reads[k as usize],
-                seen: &|k| seen[k as usize],
-                states,
-            });
-            assert_eq!(o.violations().len(), 0, "seed {seed}: {:?}", &o.violations()[..o.violations().len().min(5)]);
+    fn a_command_thrown_away_in_a_jerk_phase_then_one_in_its_cycle() {
+        let read = |k: u64| if k == 11 { Read::Race } else { Read::Fresh };
+        // A jerk phase of commands 9..=11 ending at ±5 rad/s², then a constant acceleration.
+        let phase = |j: f64| {
+            let a0 = 5.0 * j.signum() - 3.0 * j * 1e-3;
+            joint(0, (0.0, a0), &move |k| if (9..=11).contains(&k) { j } else { 0.0 }, &read)
+        };
+        for jerk in [-3000.0, -1500.0, 1500.0, 3000.0] {
+            let o = phase(jerk);
+            assert_eq!(o.violations().len(), 0, "jerk {jerk}: {:?}", o.violations());
         }
-    }
-
-    /// How often a command franka-sim throws away (its race window) still leads to one judged out of its limits:
-    /// printed per race (run with `--nocapture`); it must stay below one in ten.
-    #[test]
-    fn commands_thrown_away_are_followed_where_the_states_tell() {
-        let states = 3000;
-        let (mut races, mut violations) = (0, 0);
-        for seed in 0..6 {
-            let stream = random_stream(seed, states + 1, 4500.0);
-            let reads = random_reads(seed + 100, states, 0.3, 0.01);
-            let target = |k: u64| stream[k as usize + 1];
-            let start = home_with(0, (fr3().home[0], 0.0, 0.0));
-            let o = run(&Scenario {
-                start,
-                target: &target,
-                read: &|k| reads[k as usize],
-                seen: &|_| true,
-                states,
-            });
-            races += reads.iter().filter(|&&r| r == Read::Race).count();
-            violations += o.violations().len();
-            for v in o.violations() {
-                eprintln!("seed {seed}: {v:?}");
-            }
-        }
-        eprintln!("{races} commands thrown away, {violations} commands judged out of limits");
-        assert!(violations * 10 < races, "{violations} of {races}");
-    }
-}
-#[cfg(test)]
-mod debug {
-    use super::*;
-    #[test]
-    fn dbg_seed2() {
-        let states = 12;
-        let stream = random_stream(2, states + 1, 4500.0);
-        let reads = random_reads(102, states, 0.3, 0.0);
-        let target = |k: u64| stream[k as usize + 1];
-        let start = home_with(0, (fr3().home[0], 0.0, 0.0));
-        let o = run(&Scenario { start, target: &target, read: &|k| reads[k as usize], seen: &|_| true, states });
-        for j in &o.judged { eprintln!("{j:?}"); }
-        for k in 0..4 { eprintln!("stream {k}: {:?}", &stream[k][..4]); }
+        let o = phase(4500.0);
+        let v = o.violations();
+        assert_eq!(v[0].id, 12, "{v:?}");
+        assert!(v[0].jerk > 5000.0, "{v:?}");
+        assert!(v.iter().all(|j| j.id <= 13), "{v:?}");
+        assert_eq!(o.resyncs, 1, "the model followed franka-sim's history once the state after 12 showed it");
     }
 }

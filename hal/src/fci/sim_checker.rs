@@ -24,6 +24,37 @@ use super::state::JOINTS;
 pub const MAX_ACCELERATION: f64 = 10.0;
 pub const MAX_JERK: f64 = 5000.0;
 
+/// The FR3's velocity limits by position (`limits/tables.py`: `POSITION_BASED_VELOCITY_LIMITS` as (max, offset,
+/// deceleration), `JOINT_POSITION_LIMITS`, less `LIMIT_EPS`).
+const VELOCITY_BY_POSITION: [(f64, f64, f64); JOINTS] = [
+    (2.62, 0.30, 6.0),
+    (2.62, 0.20, 2.585),
+    (2.62, 0.20, 3.5),
+    (2.62, 0.30, 4.0),
+    (5.26, 0.35, 17.0),
+    (4.18, 0.35, 5.5),
+    (5.26, 0.35, 17.0),
+];
+const POSITION_LIMITS: [(f64, f64); JOINTS] = [
+    (-2.7501, 2.7501),
+    (-1.7918, 1.7918),
+    (-2.9065, 2.9065),
+    (-3.0481, -0.1458),
+    (-2.8101, 2.8101),
+    (0.54092, 4.5205),
+    (-3.0196, 3.0196),
+];
+const LIMIT_EPS: f64 = 1e-3;
+
+/// Joint `j`'s velocity range at `q` (`upper_joint_velocity_limits`, `lower_joint_velocity_limits`).
+fn velocity_range(j: usize, q: f64) -> (f64, f64) {
+    let ((max, offset, deceleration), (lower, upper)) = (VELOCITY_BY_POSITION[j], POSITION_LIMITS[j]);
+    let up = (max.min((-offset + (2.0 * deceleration * (upper - q)).max(0.0).sqrt()).max(0.0)) - LIMIT_EPS).max(0.0);
+    let down =
+        ((-max).max((offset - (2.0 * deceleration * (q - lower)).max(0.0).sqrt()).min(0.0)) + LIMIT_EPS).min(0.0);
+    (down, up)
+}
+
 /// The open run of guessed cycles: the history before its first guess (or after the last late command of it
 /// recorded), that history's id, and the ids of the guessed cycles still unanswered.
 #[derive(Debug, Clone, Copy)]
@@ -34,25 +65,37 @@ struct Run {
     last: u64,
 }
 
-/// What franka-sim judged one command to be, the worst joint: its acceleration and jerk.
+/// What franka-sim judged one command to be, the worst joint: its velocity (and the range allowed there),
+/// acceleration and jerk.
 #[derive(Debug, Clone, Copy)]
 pub struct Judged {
     pub id: u64,
     pub joint: usize,
+    pub velocity: f64,
+    pub velocity_range: (f64, f64),
     pub acceleration: f64,
     pub jerk: f64,
 }
 
 impl Judged {
     pub fn within_limits(&self) -> bool {
-        self.acceleration.abs() <= MAX_ACCELERATION && self.jerk.abs() <= MAX_JERK
+        let (down, up) = self.velocity_range;
+        self.acceleration.abs() <= MAX_ACCELERATION
+            && self.jerk.abs() <= MAX_JERK
+            && (down..=up).contains(&self.velocity)
+    }
+
+    /// How far out of its limits, as a fraction of them (above 1: out).
+    fn score(&self) -> f64 {
+        let (down, up) = self.velocity_range;
+        let velocity = if self.velocity >= 0.0 { self.velocity / up } else { self.velocity / down };
+        (self.acceleration / MAX_ACCELERATION).abs().max((self.jerk / MAX_JERK).abs()).max(velocity)
     }
 }
 
 /// One state as the HAL reads it: `q_d`, `dq_d`, `ddq_d` in float32, and the success rate.
 #[derive(Debug, Clone, Copy)]
 pub struct Shown {
-    pub id: u64,
     pub q: [f64; JOINTS],
     pub v: [f64; JOINTS],
     pub a: [f64; JOINTS],
@@ -88,11 +131,6 @@ impl SimChecker {
         }
     }
 
-    /// The history franka-sim judges the next command against (as it stands now).
-    pub fn history(&self) -> History {
-        self.history
-    }
-
     /// `comm.tick` and `note_published`: closes the cycle of the last state and opens the next one's. Returns
     /// whether the closed one was lost (its guess comes with [`Self::guess`]).
     pub fn close_cycle(&mut self) -> bool {
@@ -126,7 +164,6 @@ impl SimChecker {
         let f32s = |x: [f64; JOINTS]| x.map(|x| x as f32 as f64);
         let answered = self.window.iter().filter(|&&a| a).count();
         Shown {
-            id: self.published_id,
             q: f32s(self.shown.q),
             v: f32s(self.shown.v),
             a: f32s(self.shown.a),
@@ -144,7 +181,6 @@ impl SimChecker {
             (self.history, self.applied_id) = (r.snapshot, r.snapshot_id);
         }
         let cycles = id.saturating_sub(self.applied_id).min(self.published_id.saturating_sub(self.applied_id)).max(1);
-        if std::env::var("SIMDBG").is_ok() { eprintln!("recv id {id} fresh {fresh} rewound {rewound} cycles {cycles} applied {} hist q3 {} v3 {} c3 {} run {:?}", self.applied_id, self.history.q[3], self.history.v[3], c[3], self.run.map(|r| (r.snapshot_id, r.first, r.last, r.snapshot.q[3]))); }
         self.judge(id, c, cycles);
         if fresh || rewound {
             self.history.record(c, cycles);
@@ -160,19 +196,51 @@ impl SimChecker {
         self.shown = History { q: *c, ..self.history };
     }
 
+    /// `_check_position` (the velocity range at the command's position: the arm tracks it closely here).
     fn judge(&mut self, id: u64, c: &[f64; JOINTS], cycles: u64) {
         let step = cycles as f64 * 1e-3;
         let mut worst: Option<Judged> = None;
         for (joint, &c) in c.iter().enumerate() {
-            let v = (c - self.history.q[joint]) / step;
-            let acceleration = (v - self.history.v[joint]) / step;
+            let velocity = (c - self.history.q[joint]) / step;
+            let acceleration = (velocity - self.history.v[joint]) / step;
             let jerk = (acceleration - self.history.a[joint]) / step;
-            let score = |j: &Judged| (j.acceleration / MAX_ACCELERATION).abs().max((j.jerk / MAX_JERK).abs());
-            let this = Judged { id, joint, acceleration, jerk };
-            if worst.is_none_or(|w| score(&this) > score(&w)) {
+            let velocity_range = velocity_range(joint, c);
+            let this = Judged { id, joint, velocity, velocity_range, acceleration, jerk };
+            if worst.is_none_or(|w| this.score() > w.score()) {
                 worst = Some(this);
             }
         }
         self.judged.extend(worst);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The checker can fail: from rest, a step of 10 µrad is a jerk of 10 000 rad/s³; one of 5 µrad, a jerk of
+    /// 5000 (within the limit, not strictly above it) and an acceleration of 5 rad/s².
+    #[test]
+    fn a_step_from_rest_is_judged_by_its_jerk() {
+        let rest = History { q: [0.0; JOINTS], v: [0.0; JOINTS], a: [0.0; JOINTS] };
+        let mut sim = SimChecker::new(rest, 0);
+        let mut c = [0.0; JOINTS];
+        c[1] = 10e-6;
+        sim.receive(0, &c);
+        let mut sim_within = SimChecker::new(rest, 0);
+        c[1] = 5e-6;
+        sim_within.receive(0, &c);
+        let (out, within) = (sim.judged[0], sim_within.judged[0]);
+        assert!(!out.within_limits() && out.joint == 1 && (out.jerk - 1e4).abs() < 1e-6, "{out:?}");
+        assert!(within.within_limits() && (within.acceleration - 5.0).abs() < 1e-9, "{within:?}");
+    }
+
+    /// Near its stop a joint may move toward it only slowly (joint 4's upper stop at −0.1458 rad).
+    #[test]
+    fn the_velocity_range_narrows_toward_a_joint_s_stop() {
+        assert_eq!(velocity_range(0, 0.0), (-2.62 + LIMIT_EPS, 2.62 - LIMIT_EPS));
+        let (down, up) = velocity_range(3, -0.1458);
+        assert_eq!(up, 0.0);
+        assert!(down < -2.0);
     }
 }
