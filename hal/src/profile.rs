@@ -120,6 +120,10 @@ pub enum BackendKind {
     Ros2,
 }
 
+/// The longest `command_timeout_ms`, `gripper_command_interval_ms` and `[ros2] feedback_timeout_ms` (a minute):
+/// far above any sensible setting, and it keeps their conversions to ticks and nanoseconds far from overflow.
+pub const MAX_TIMEOUT_MS: f64 = 60_000.0;
+
 #[derive(Debug, thiserror::Error)]
 pub enum ProfileError {
     // The cause is in the message and deliberately not a `source`, so `{:#}` does not print it twice.
@@ -190,9 +194,13 @@ impl Profile {
             return bad(format!("rate_hz = {} but must be in 1..=10000", self.rate_hz));
         }
         let period_ms = 1e3 / self.rate_hz;
-        if !(self.command_timeout_ms.is_finite() && self.command_timeout_ms >= 2.0 * period_ms) {
+        if !(self.command_timeout_ms.is_finite()
+            && self.command_timeout_ms >= 2.0 * period_ms
+            && self.command_timeout_ms <= MAX_TIMEOUT_MS)
+        {
             return bad(format!(
-                "command_timeout_ms = {} but must be at least two control periods ({:.3} ms)",
+                "command_timeout_ms = {} but must be at least two control periods ({:.3} ms) and at most \
+                 {MAX_TIMEOUT_MS} ms",
                 self.command_timeout_ms,
                 2.0 * period_ms
             ));
@@ -271,9 +279,15 @@ impl Profile {
                 return bad(format!("{field} = {v} but must be a positive number"));
             }
         }
+        if self.gripper_command_interval_ms > MAX_TIMEOUT_MS {
+            return bad(format!(
+                "gripper_command_interval_ms = {} but must be at most {MAX_TIMEOUT_MS} ms",
+                self.gripper_command_interval_ms
+            ));
+        }
         let s = &self.sim;
-        if !(s.tracking_time_constant_s.is_finite() && s.tracking_time_constant_s >= 0.0) {
-            return bad(format!("sim.tracking_time_constant_s = {} must be ≥ 0", s.tracking_time_constant_s));
+        if !(s.tracking_time_constant_s.is_finite() && (0.0..=3600.0).contains(&s.tracking_time_constant_s)) {
+            return bad(format!("sim.tracking_time_constant_s = {} must be in [0, 3600]", s.tracking_time_constant_s));
         }
         if !(s.position_noise_std.is_finite() && s.position_noise_std >= 0.0) {
             return bad(format!("sim.position_noise_std = {} must be ≥ 0", s.position_noise_std));

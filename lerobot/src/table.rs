@@ -9,6 +9,7 @@ use arrow_array::types::{Float32Type, Float64Type, Int64Type};
 use arrow_array::{Array, ArrayRef, RecordBatch};
 use arrow_schema::DataType;
 use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
+use parquet::file::reader::ChunkReader;
 
 use crate::LeRobotError;
 
@@ -22,7 +23,16 @@ impl Table {
     /// file are never read when only vectors are asked for).
     pub fn read(path: &Path, columns: Option<&[&str]>) -> Result<Self, LeRobotError> {
         let file = File::open(path).map_err(|error| LeRobotError::Read { path: path.to_owned(), error })?;
-        let builder = ParquetRecordBatchReaderBuilder::try_new(file).map_err(|e| LeRobotError::parquet(path, e))?;
+        Self::decode(path, file, columns)
+    }
+
+    /// [`Table::read`] of a parquet file's bytes (`path` names it in errors).
+    pub fn from_bytes(path: &Path, bytes: Vec<u8>, columns: Option<&[&str]>) -> Result<Self, LeRobotError> {
+        Self::decode(path, bytes::Bytes::from(bytes), columns)
+    }
+
+    fn decode<R: ChunkReader + 'static>(path: &Path, r: R, columns: Option<&[&str]>) -> Result<Self, LeRobotError> {
+        let builder = ParquetRecordBatchReaderBuilder::try_new(r).map_err(|e| LeRobotError::parquet(path, e))?;
         let builder = match columns {
             None => builder,
             Some(names) => {
@@ -96,7 +106,8 @@ impl Table {
     /// A vector feature: each row a list of exactly `len` float32 values (LeRobot writes fixed-size lists; plain
     /// lists are read too), rows concatenated.
     pub fn vectors(&self, column: &str, len: usize) -> Result<Vec<f32>, LeRobotError> {
-        let mut out = Vec::with_capacity(self.rows() * len);
+        // Grown with the values found, not sized by `len` (the metadata's word, checked row by row below).
+        let mut out = Vec::new();
         for a in self.pieces(column)? {
             let (values, offsets): (ArrayRef, Vec<usize>) = match a.data_type() {
                 DataType::FixedSizeList(_, n) => {

@@ -1,0 +1,232 @@
+//! The iceoryx2 frames' checks, on both sides of the wire: a command frame as the HAL takes it (its control, with
+//! the session logic and the safety filter's judgement), a state frame as marsd's servo tick takes it (its frame
+//! check, then the smoother), an image frame's header as a camera reader and the policy's camera check take it.
+//! An input is a sequence of frames, each field read from the bytes (numbers as raw bits: NaN, infinities,
+//! huge counts); between them, ticks where the HAL and the servo talk to each other as in a run.
+
+use std::sync::Mutex;
+
+use mars_hal::backend::Measurement;
+use mars_hal::control::HalControl;
+use mars_hal::events::{EventLogger, EventSender};
+use mars_hal::profile::Profile;
+use mars_ipc::{ImageEncoding, ImageHeader, JointCommand, MAX_JOINTS, RobotState, SCHEMA_VERSION};
+use mars_runtime::camera::{CameraCheck, CameraSpec};
+use mars_runtime::config::DaemonConfig;
+use mars_runtime::servo::{ServoTick, TickInput};
+use rand::rngs::StdRng;
+
+use super::{Seeds, read, repo};
+use crate::runner::Target;
+
+/// Little-endian fields out of the input, zeros once it is used up.
+struct Fields<'a>(&'a [u8]);
+
+impl Fields<'_> {
+    fn take<const N: usize>(&mut self) -> [u8; N] {
+        let mut out = [0u8; N];
+        let n = N.min(self.0.len());
+        out[..n].copy_from_slice(&self.0[..n]);
+        self.0 = &self.0[n..];
+        out
+    }
+    fn u8(&mut self) -> u8 {
+        self.take::<1>()[0]
+    }
+    fn u32(&mut self) -> u32 {
+        u32::from_le_bytes(self.take())
+    }
+    fn u64(&mut self) -> u64 {
+        u64::from_le_bytes(self.take())
+    }
+    fn f64(&mut self) -> f64 {
+        f64::from_bits(self.u64())
+    }
+    fn joints(&mut self) -> [f64; MAX_JOINTS] {
+        std::array::from_fn(|_| self.f64())
+    }
+}
+
+/// The frames in the order [`Fields`] reads them (what the seeds are written as).
+#[derive(Default)]
+struct Writer(Vec<u8>);
+
+impl Writer {
+    fn u8(&mut self, v: u8) -> &mut Self {
+        self.0.push(v);
+        self
+    }
+    fn u32(&mut self, v: u32) -> &mut Self {
+        self.0.extend_from_slice(&v.to_le_bytes());
+        self
+    }
+    fn u64(&mut self, v: u64) -> &mut Self {
+        self.0.extend_from_slice(&v.to_le_bytes());
+        self
+    }
+    fn joints(&mut self, q: &[f64]) -> &mut Self {
+        (0..MAX_JOINTS).fold(self, |w, i| w.u64(q.get(i).copied().unwrap_or(0.0).to_bits()))
+    }
+}
+
+fn command(f: &mut Fields) -> JointCommand {
+    JointCommand {
+        seq: f.u64(),
+        timestamp_ns: f.u64(),
+        state_seq: f.u64(),
+        session: f.u64(),
+        position: f.joints(),
+        velocity: f.joints(),
+        acceleration: f.joints(),
+        gripper: f.f64(),
+        gripper_speed: f.f64(),
+        mode: f.u32(),
+        num_joints: f.u32(),
+    }
+}
+
+fn state(f: &mut Fields) -> RobotState {
+    RobotState {
+        seq: f.u64(),
+        timestamp_ns: f.u64(),
+        session: f.u64(),
+        last_command_seq: f.u64(),
+        position: f.joints(),
+        velocity: f.joints(),
+        gripper: f.f64(),
+        status: f.u32(),
+        fault: f.u32(),
+        hold_reason: f.u32(),
+        num_joints: f.u32(),
+        ..RobotState::default()
+    }
+}
+
+fn image(f: &mut Fields) -> (ImageHeader, usize) {
+    let h = ImageHeader {
+        schema_version: f.u32(),
+        width: f.u32(),
+        height: f.u32(),
+        encoding: f.u32(),
+        seq: f.u64(),
+        timestamp_ns: f.u64(),
+    };
+    (h, f.u64() as usize)
+}
+
+pub struct Frames {
+    seeds: Seeds,
+    profile: Profile,
+    cfg: DaemonConfig,
+    /// The HAL's event queue and its logger thread (events are dropped: only panics matter here).
+    events: Mutex<(EventSender, EventLogger)>,
+}
+
+impl Frames {
+    pub fn new() -> Self {
+        let profile = Profile::load(&repo("configs/fr3.toml")).expect("the FR3 profile");
+        let cfg = DaemonConfig::parse(std::str::from_utf8(&read("configs/marsd.toml")).expect("UTF-8"), "marsd.toml")
+            .expect("the shipped marsd.toml");
+        let events = EventLogger::start(1024, std::time::Duration::from_millis(5), |_| {}).expect("an event logger");
+        let seeds = Seeds { files: seeds(&profile), text: false };
+        Self { seeds, profile, cfg, events: Mutex::new(events) }
+    }
+}
+
+/// A run as it should be (talking ticks, a command in session 1 at home, a state frame and an image in order),
+/// and one frame of each kind on its own.
+fn seeds(p: &Profile) -> Vec<Vec<u8>> {
+    let cmd = |w: &mut Writer, seq: u64| {
+        w.u8(0).u64(seq).u64(1_000_000 * seq).u64(seq).u64(1).joints(&p.home).joints(&[]).joints(&[]);
+        w.u64(0.03f64.to_bits()).u64(0.0f64.to_bits()).u32(1).u32(p.joints as u32);
+    };
+    let st = |w: &mut Writer, seq: u64| {
+        w.u8(1).u64(seq).u64(2_000_000_000 + 1_000_000 * seq).u64(1).u64(seq).joints(&p.home).joints(&[]);
+        w.u64(0.03f64.to_bits()).u32(0).u32(0).u32(0).u32(p.joints as u32);
+    };
+    let img = |w: &mut Writer, seq: u64| {
+        w.u8(2).u32(SCHEMA_VERSION).u32(96).u32(96).u32(ImageEncoding::Rgb8 as u32).u64(seq);
+        w.u64(2_000_000_000 + 1_000_000 * seq).u64(96 * 96 * 3);
+    };
+    let mut run = Writer::default();
+    for seq in 1..6 {
+        run.u8(3);
+        cmd(&mut run, seq);
+        st(&mut run, seq);
+        img(&mut run, seq);
+    }
+    let one = |f: &dyn Fn(&mut Writer, u64)| {
+        let mut w = Writer::default();
+        f(&mut w, 1);
+        w.0
+    };
+    vec![run.0, one(&cmd), one(&st), one(&img)]
+}
+
+impl Target for Frames {
+    fn name(&self) -> &'static str {
+        "wire-frames"
+    }
+
+    fn generate(&self, rng: &mut StdRng) -> Vec<u8> {
+        self.seeds.pick(rng).1
+    }
+
+    fn run(&self, input: &[u8]) {
+        let mut events = self.events.lock().unwrap_or_else(|e| e.into_inner());
+        let ev = &mut events.0;
+        let p = &self.profile;
+        let mut at_home = Measurement { gripper: 0.03, ..Measurement::default() };
+        at_home.position[..p.joints].copy_from_slice(&p.home);
+        let mut hal = HalControl::start(p, &at_home).expect("the HAL takes over an arm at home");
+        let mut servo = ServoTick::new(&self.cfg, p, 1).expect("the servo of the shipped config");
+        let spec = CameraSpec { width: 96, height: 96, encoding: ImageEncoding::Rgb8, max_age_ns: 50_000_000 };
+        let mut camera = CameraCheck::new(spec);
+        let (mut f, mut now, mut to_hal) = (Fields(input), 1_000_000_000u64, None::<JointCommand>);
+        for _ in 0..64 {
+            if f.0.is_empty() {
+                break;
+            }
+            now += 1_000_000;
+            let kind = f.u8() % 4;
+            hal.begin_tick(now);
+            hal.on_read(Ok(at_home), ev);
+            match kind {
+                0 => hal.on_command(&command(&mut f), ev),
+                1 => {
+                    let s = state(&mut f);
+                    to_hal = servo.tick(&tick(now, &s)).command;
+                }
+                2 => {
+                    let (h, len) = image(&mut f);
+                    if mars_ipc::wire::check_image(&h, len).is_ok() {
+                        let _ = camera.judge(&h, now);
+                    }
+                }
+                _ => {
+                    if let Some(c) = to_hal.take() {
+                        hal.on_command(&c, ev);
+                    }
+                }
+            }
+            let _ = hal.step(20, ev);
+            hal.on_apply(Ok(()), ev);
+            let frame = hal.state_frame(now);
+            if kind == 3 {
+                to_hal = servo.tick(&tick(now, &frame)).command;
+            }
+        }
+    }
+}
+
+fn tick(now_ns: u64, frame: &RobotState) -> TickInput<'_> {
+    TickInput {
+        now_ns,
+        missed: 0,
+        frame: Some(frame),
+        chunk: None,
+        request: None,
+        stop_requested: false,
+        hal_gone: false,
+    }
+}
