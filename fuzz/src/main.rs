@@ -56,6 +56,16 @@ enum Command {
     List,
     /// Decode a saved input again, without catching its panic.
     Repro { target: String, input: PathBuf },
+    /// Write the input of one case (the same as in a run with that seed) to a file.
+    Case {
+        target: String,
+        #[arg(long)]
+        seed: u64,
+        #[arg(long)]
+        case: u64,
+        #[arg(long)]
+        to: PathBuf,
+    },
 }
 
 fn find(name: &str) -> Option<Arc<dyn Target>> {
@@ -118,6 +128,20 @@ fn main() -> ExitCode {
             targets::all().iter().for_each(|t| println!("{}", t.name()));
             ExitCode::SUCCESS
         }
+        Command::Case { target, seed, case, to } => {
+            let Some(t) = find(&target) else {
+                eprintln!("mars-fuzz: no target {target:?}");
+                return ExitCode::from(2);
+            };
+            let input = t.generate(&mut mars_fuzz::runner::case_rng(seed, t.name(), case));
+            match std::fs::write(&to, input) {
+                Ok(()) => ExitCode::SUCCESS,
+                Err(e) => {
+                    eprintln!("mars-fuzz: {}: {e}", to.display());
+                    ExitCode::from(2)
+                }
+            }
+        }
         Command::Repro { target, input } => {
             let Some(t) = find(&target) else {
                 eprintln!("mars-fuzz: no target {target:?}");
@@ -125,8 +149,11 @@ fn main() -> ExitCode {
             };
             match std::fs::read(&input) {
                 Ok(bytes) => {
-                    t.run(&bytes);
-                    println!("{target}: {} decoded without a panic", input.display());
+                    let started = std::time::Instant::now();
+                    let accepted = t.run(&bytes);
+                    let took = started.elapsed().as_secs_f64() * 1e3;
+                    let verdict = if accepted { "accepted" } else { "refused" };
+                    println!("{target}: {} decoded without a panic in {took:.1} ms: {verdict}", input.display());
                     ExitCode::SUCCESS
                 }
                 Err(e) => {

@@ -21,9 +21,12 @@ pub trait Target: Send + Sync {
     fn name(&self) -> &'static str;
     /// A new input: a mutation of one of the target's seeds, from the case's generator.
     fn generate(&self, rng: &mut StdRng) -> Vec<u8>;
-    /// Decodes `input` as the product does, and uses what it accepted as the product would. An error is the
-    /// expected answer to a bad input; a panic (or an abort, or a hang) is a failure.
-    fn run(&self, input: &[u8]);
+    /// Decodes `input` as the product does, and uses what it accepted as the product would; true when the decoder
+    /// accepted it. An error is the expected answer to a bad input; a panic (or an abort, or a hang) is a failure.
+    fn run(&self, input: &[u8]) -> bool;
+    /// The seeds as inputs, unmutated: each must be accepted (so that the mutants start from inputs that reach
+    /// every check, not from ones refused at the first byte).
+    fn seeds(&self) -> Vec<Vec<u8>>;
 }
 
 #[derive(Debug, Clone)]
@@ -53,6 +56,12 @@ pub struct Report {
     pub cases: u64,
     pub failures: Vec<Failure>,
     pub elapsed: Duration,
+    /// The slowest case: its number and time.
+    pub slowest: (u64, Duration),
+    /// Cases whose input the decoder accepted (and that were then used).
+    pub accepted: u64,
+    /// Panics of the parquet reader that mars-lerobot contained (made the file's error; see its `contain`).
+    pub contained: u64,
 }
 
 impl std::fmt::Display for Report {
@@ -60,13 +69,20 @@ impl std::fmt::Display for Report {
         let s = self.elapsed.as_secs_f64();
         write!(
             f,
-            "{:<18} {:>11} cases  {:>3} distinct failures  {:>9.1} s  ({:.0} cases/s)",
+            "{:<18} {:>11} cases  {:>3} distinct failures  {:>9.1} s  ({:.0} cases/s; {:.1} % accepted; slowest: case \
+             {}, {:.1} ms)",
             self.target,
             self.cases,
             self.failures.len(),
             s,
-            self.cases as f64 / s.max(1e-9)
+            self.cases as f64 / s.max(1e-9),
+            100.0 * self.accepted as f64 / self.cases.max(1) as f64,
+            self.slowest.0,
+            self.slowest.1.as_secs_f64() * 1e3
         )?;
+        if self.contained > 0 {
+            write!(f, "  [{} parquet-reader panics contained as errors]", self.contained)?;
+        }
         for x in &self.failures {
             write!(
                 f,
@@ -138,19 +154,28 @@ fn run_here(target: &dyn Target, opts: &Options) -> Report {
     let watch = Watchdog::start(name, &opts.out, opts.case_timeout);
     let mut failures: BTreeMap<String, Failure> = BTreeMap::new();
     let (started, mut last_print) = (Instant::now(), Instant::now());
+    let (contained_before, mut slowest, mut accepted) =
+        (mars_lerobot::contain::contained_panics(), (0, Duration::ZERO), 0);
     for case in 0..opts.cases {
         let input = target.generate(&mut case_rng(opts.seed, name, case));
         guard::arm(&input);
         watch.begin(case);
+        LAST_PANIC.with(|p| p.borrow_mut().take());
         IN_CASE.with(|c| *c.borrow_mut() = true);
+        let t0 = Instant::now();
         let outcome = catch_unwind(AssertUnwindSafe(|| target.run(&input)));
+        let took = t0.elapsed();
         IN_CASE.with(|c| *c.borrow_mut() = false);
         watch.end();
         guard::disarm();
+        if took > slowest.1 {
+            slowest = (case, took);
+        }
+        accepted += u64::from(matches!(outcome, Ok(true)));
         let what = match (outcome, guard::take_refused()) {
             (Err(_), _) => LAST_PANIC.with(|p| p.borrow_mut().take()).map(|(at, msg)| format!("panic at {at}: {msg}")),
-            (Ok(()), Some(n)) => Some(format!("asked for {n} bytes at once (above the {} cap)", guard::ALLOCATION_CAP)),
-            (Ok(()), None) => None,
+            (Ok(_), Some(n)) => Some(format!("asked for {n} bytes at once (above the {} cap)", guard::ALLOCATION_CAP)),
+            (Ok(_), None) => None,
         };
         if let Some(what) = what {
             record(&mut failures, what, case, &input, name, &opts.out);
@@ -169,7 +194,15 @@ fn run_here(target: &dyn Target, opts: &Options) -> Report {
         }
     }
     watch.stop();
-    Report { target: name, cases: opts.cases, failures: failures.into_values().collect(), elapsed: started.elapsed() }
+    Report {
+        target: name,
+        cases: opts.cases,
+        failures: failures.into_values().collect(),
+        elapsed: started.elapsed(),
+        slowest,
+        accepted,
+        contained: mars_lerobot::contain::contained_panics() - contained_before,
+    }
 }
 
 fn record(failures: &mut BTreeMap<String, Failure>, what: String, case: u64, input: &[u8], name: &str, out: &Path) {

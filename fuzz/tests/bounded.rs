@@ -30,3 +30,16 @@ fn no_decoder_panics_aborts_or_hangs_on_a_mutated_input() {
     assert!(failed.is_empty(), "failures (inputs saved under {}):\n{}", out.display(), failed.join("\n"));
     let _ = std::fs::remove_dir_all(out);
 }
+
+/// The mutants start from inputs every check accepts: an unmutated seed refused would mean the target fuzzes a
+/// decoder's first refusal, not its depth.
+#[test]
+fn every_target_accepts_its_seeds_as_they_are() {
+    for target in mars_fuzz::targets::all() {
+        let seeds = target.seeds();
+        assert!(!seeds.is_empty(), "{}", target.name());
+        for (i, seed) in seeds.iter().enumerate() {
+            assert!(target.run(seed), "{}: seed {i} ({} bytes) is refused", target.name(), seed.len());
+        }
+    }
+}

@@ -23,7 +23,11 @@ impl Target for Planted {
         vec![rng.random_range(0..16u8)]
     }
 
-    fn run(&self, input: &[u8]) {
+    fn seeds(&self) -> Vec<Vec<u8>> {
+        vec![vec![0]]
+    }
+
+    fn run(&self, input: &[u8]) -> bool {
         match input[0] {
             7 => panic!("planted bug"),
             3 => {
@@ -32,6 +36,7 @@ impl Target for Planted {
             }
             _ => {}
         }
+        true
     }
 }
 

@@ -9,7 +9,7 @@ use mars_policy::checkpoint::parse_meta;
 use mars_policy::config::PolicyConfig;
 use rand::rngs::StdRng;
 
-use super::{Seeds, generate_bundle, read, split_bundle};
+use super::{Seeds, bundle_seeds, generate_bundle, read, split_bundle};
 use crate::runner::Target;
 
 const CHECKPOINTS: [&str; 7] = [
@@ -21,15 +21,8 @@ const CHECKPOINTS: [&str; 7] = [
     "assets/checkpoints/r1_lite_pick_vegetable/a2a",
     "assets/checkpoints/fr3_push_t/mars",
 ];
-const POLICY_TOML: [&str; 7] = [
-    "configs/policy.toml",
-    "configs/fr3_policy.toml",
-    "configs/push_t_policy.toml",
-    "configs/r1_lite_policy.toml",
-    "configs/nav2d_family/three_passages.toml",
-    "configs/nav2d_family/four_passages.toml",
-    "configs/nav2d_family/five_passages.toml",
-];
+const POLICY_TOML: [&str; 4] =
+    ["configs/policy.toml", "configs/fr3_policy.toml", "configs/push_t_policy.toml", "configs/r1_lite_policy.toml"];
 
 /// `policy.json`: parsed and validated as every loader does first.
 pub struct PolicyJson {
@@ -53,13 +46,17 @@ impl Target for PolicyJson {
         self.seeds.pick(rng).1
     }
 
-    fn run(&self, input: &[u8]) {
-        let Ok(text) = std::str::from_utf8(input) else { return };
-        if let Ok(meta) = parse_meta(Path::new("checkpoint"), text) {
-            let _ = (meta.model.steps_for(0.5), meta.model.steps_for(1.0));
-            let cfg = PolicyConfig { kind: meta.kind, model: meta.model, train: meta.train };
-            let _ = cfg.validate();
-        }
+    fn seeds(&self) -> Vec<Vec<u8>> {
+        self.seeds.files.clone()
+    }
+
+    fn run(&self, input: &[u8]) -> bool {
+        let Ok(text) = std::str::from_utf8(input) else { return false };
+        let Ok(meta) = parse_meta(Path::new("checkpoint"), text) else { return false };
+        let _ = (meta.model.steps_for(0.5), meta.model.steps_for(1.0));
+        let cfg = PolicyConfig { kind: meta.kind, model: meta.model, train: meta.train };
+        let _ = cfg.validate();
+        true
     }
 }
 
@@ -83,11 +80,13 @@ impl Target for PolicyToml {
         self.seeds.pick(rng).1
     }
 
-    fn run(&self, input: &[u8]) {
-        let Ok(text) = std::str::from_utf8(input) else { return };
-        if let Ok(cfg) = PolicyConfig::from_toml(text) {
-            let _ = cfg.model.steps_for(1.0);
-        }
+    fn seeds(&self) -> Vec<Vec<u8>> {
+        self.seeds.files.clone()
+    }
+
+    fn run(&self, input: &[u8]) -> bool {
+        let Ok(text) = std::str::from_utf8(input) else { return false };
+        PolicyConfig::from_toml(text).map(|cfg| cfg.model.steps_for(1.0)).is_ok()
     }
 }
 
@@ -115,18 +114,21 @@ impl Target for Checkpoint {
         generate_bundle(rng, &self.bundles, |f| f == 0)
     }
 
-    fn run(&self, input: &[u8]) {
-        let Some((b, f, bytes)) = split_bundle(input, self.bundles.len()) else { return };
+    fn seeds(&self) -> Vec<Vec<u8>> {
+        bundle_seeds(&self.bundles)
+    }
+
+    fn run(&self, input: &[u8]) -> bool {
+        let Some((b, f, bytes)) = split_bundle(input, self.bundles.len()) else { return false };
         let (meta, weights) = match f % 2 {
             0 => (bytes, self.bundles[b][1].as_slice()),
             _ => (self.bundles[b][0].as_slice(), bytes),
         };
-        let Ok(meta) = std::str::from_utf8(meta) else { return };
+        let Ok(meta) = std::str::from_utf8(meta) else { return false };
         let cfg = EngineConfig { warmup_calls: 1, ..EngineConfig::with_seed(0) };
-        if let Ok(mut engine) = Engine::load_from(Path::new("checkpoint"), meta, weights, cfg) {
-            let obs = engine.meta().normalizer.obs.mean.clone();
-            let history = engine.meta().normalizer.action.mean.repeat(engine.chunk_len());
-            let _ = engine.infer(&obs, &history, std::time::Duration::from_millis(50));
-        }
+        let Ok(mut engine) = Engine::load_from(Path::new("checkpoint"), meta, weights, cfg) else { return false };
+        let obs = engine.meta().normalizer.obs.mean.clone();
+        let history = engine.meta().normalizer.action.mean.repeat(engine.chunk_len());
+        engine.infer(&obs, &history, std::time::Duration::from_millis(50)).is_ok()
     }
 }

@@ -15,7 +15,7 @@ use mars_runtime::config::DaemonConfig;
 use mars_runtime::task::HilTask;
 use rand::rngs::StdRng;
 
-use super::{Seeds, generate_bundle, read, split_bundle};
+use super::{Seeds, bundle_seeds, generate_bundle, read, split_bundle};
 use crate::runner::Target;
 
 pub struct MarsdConfig {
@@ -38,12 +38,17 @@ impl Target for MarsdConfig {
         self.seeds.pick(rng).1
     }
 
-    fn run(&self, input: &[u8]) {
-        let Ok(text) = std::str::from_utf8(input) else { return };
-        let Ok(cfg) = DaemonConfig::parse(text, "marsd.toml") else { return };
+    fn seeds(&self) -> Vec<Vec<u8>> {
+        self.seeds.files.clone()
+    }
+
+    fn run(&self, input: &[u8]) -> bool {
+        let Ok(text) = std::str::from_utf8(input) else { return false };
+        let Ok(cfg) = DaemonConfig::parse(text, "marsd.toml") else { return false };
         let _ = (cfg.handshake_timeout(), cfg.histogram_interval(), cfg.engine_step_delay(), cfg.record_writer_delay());
         let _ = (cfg.policy_period_ns(), mars_runtime::watchdog::ServoWatchdog::new(&cfg.watchdog));
         let _ = mars_runtime::traces::TraceRing::new(cfg.traces_kept);
+        true
     }
 }
 
@@ -77,12 +82,16 @@ impl Target for MarsdTask {
         generate_bundle(rng, &self.bundles, |_| true)
     }
 
-    fn run(&self, input: &[u8]) {
-        let Some((b, _, bytes)) = split_bundle(input, self.bundles.len()) else { return };
-        let Ok(text) = std::str::from_utf8(bytes) else { return };
-        if let Ok(t) = HilTask::parse(text, "task.toml".into(), &self.profiles[b]) {
-            let _ = (t.obs_dim(), t.action_dim(), t.mode_names(), t.policy_rate_hz(), t.plot_joints());
-        }
+    fn seeds(&self) -> Vec<Vec<u8>> {
+        bundle_seeds(&self.bundles)
+    }
+
+    fn run(&self, input: &[u8]) -> bool {
+        let Some((b, _, bytes)) = split_bundle(input, self.bundles.len()) else { return false };
+        let Ok(text) = std::str::from_utf8(bytes) else { return false };
+        let Ok(t) = HilTask::parse(text, "task.toml".into(), &self.profiles[b]) else { return false };
+        let _ = (t.obs_dim(), t.action_dim(), t.mode_names(), t.policy_rate_hz(), t.plot_joints());
+        true
     }
 }
 
@@ -105,9 +114,13 @@ impl Target for HalProfile {
         self.seeds.pick(rng).1
     }
 
-    fn run(&self, input: &[u8]) {
-        let Ok(text) = std::str::from_utf8(input) else { return };
-        let Ok(p) = Profile::parse(text, "profile.toml") else { return };
+    fn seeds(&self) -> Vec<Vec<u8>> {
+        self.seeds.files.clone()
+    }
+
+    fn run(&self, input: &[u8]) -> bool {
+        let Ok(text) = std::str::from_utf8(input) else { return false };
+        let Ok(p) = Profile::parse(text, "profile.toml") else { return false };
         let _ = (Duration::from_secs_f64(p.period_s()), p.timeout_ns(), p.gripper_interval_ticks());
         let _ = (p.position_limits(), p.planning_velocity_bounds(), p.ros2.feedback_timeout_ms(p.command_timeout_ms));
         let mut filter = SafetyFilter::new(&p, &p.home);
@@ -123,11 +136,10 @@ impl Target for HalProfile {
             let _ = sim.read();
             let _ = sim.apply(&p.home);
         }
-        if let Ok(m) = sim.read()
-            && let Ok(mut control) = HalControl::start(&p, &m)
-        {
-            control.begin_tick(1_000_000);
-            let _ = control.state_frame(1_000_000);
-        }
+        let Ok(m) = sim.read() else { return false };
+        let Ok(mut control) = HalControl::start(&p, &m) else { return false };
+        control.begin_tick(1_000_000);
+        let _ = control.state_frame(1_000_000);
+        true
     }
 }

@@ -11,7 +11,7 @@ use mars_lerobot::writer::{DatasetSpec, DatasetWriter, VectorSpec};
 use mars_lerobot::{Keys, LeRobotDataset, ReadOptions, episodes};
 use rand::rngs::StdRng;
 
-use super::{Seeds, generate_bundle, split_bundle};
+use super::{Seeds, bundle_seeds, generate_bundle, split_bundle};
 use crate::runner::Target;
 
 const FIXTURE: &str = "tests/fixtures/lerobot/push_t";
@@ -65,10 +65,14 @@ impl Target for Info {
         self.seeds.pick(rng).1
     }
 
-    fn run(&self, input: &[u8]) {
+    fn seeds(&self) -> Vec<Vec<u8>> {
+        self.seeds.files.clone()
+    }
+
+    fn run(&self, input: &[u8]) -> bool {
         // The product reads info.json with `read_to_string`: not UTF-8 is an I/O error there.
-        let Ok(text) = std::str::from_utf8(input) else { return };
-        let Ok(info) = InfoJson::parse(text, PathBuf::from("meta/info.json")) else { return };
+        let Ok(text) = std::str::from_utf8(input) else { return false };
+        let Ok(info) = InfoJson::parse(text, PathBuf::from("meta/info.json")) else { return false };
         let ds = LeRobotDataset { root: PathBuf::from("dataset"), info, episodes: Vec::new() };
         for (key, f) in &ds.info.features {
             let _ = (f.len(), ds.vector_len(key), ds.image_size(key));
@@ -81,6 +85,7 @@ impl Target for Info {
                 }
             }
         }
+        true
     }
 }
 
@@ -110,16 +115,18 @@ impl Target for Episodes {
         generate_bundle(rng, &self.bundles, |_| false)
     }
 
-    fn run(&self, input: &[u8]) {
-        let Some((b, _, bytes)) = split_bundle(input, self.bundles.len()) else { return };
+    fn seeds(&self) -> Vec<Vec<u8>> {
+        bundle_seeds(&self.bundles)
+    }
+
+    fn run(&self, input: &[u8]) -> bool {
+        let Some((b, _, bytes)) = split_bundle(input, self.bundles.len()) else { return false };
         let info = &self.infos[b];
         let columns = episodes::columns(info);
         let columns: Vec<&str> = columns.iter().map(String::as_str).collect();
         let path = Path::new("meta/episodes/chunk-000/file-000.parquet");
-        let Ok(t) = Table::from_bytes(path, bytes.to_vec(), Some(&columns)) else { return };
-        if let Ok(e) = episodes::from_table(&t, info) {
-            let _ = episodes::check(e, info);
-        }
+        let Ok(t) = Table::from_bytes(path, bytes.to_vec(), Some(&columns)) else { return false };
+        episodes::from_table(&t, info).and_then(|e| episodes::check(e, info)).is_ok()
     }
 }
 
@@ -145,20 +152,23 @@ impl Target for Dataset {
         generate_bundle(rng, &self.bundles, |f| f == 0)
     }
 
-    fn run(&self, input: &[u8]) {
-        let Some((b, f, bytes)) = split_bundle(input, self.bundles.len()) else { return };
+    fn seeds(&self) -> Vec<Vec<u8>> {
+        bundle_seeds(&self.bundles)
+    }
+
+    fn run(&self, input: &[u8]) -> bool {
+        let Some((b, f, bytes)) = split_bundle(input, self.bundles.len()) else { return false };
         let root = self.dir.path();
         for (i, name) in FILES.iter().enumerate() {
             let path = root.join(name);
             std::fs::create_dir_all(path.parent().expect("a folder")).expect("the case's folder");
             std::fs::write(&path, if i == f % FILES.len() { bytes } else { &self.bundles[b][i] }).expect("a case file");
         }
-        let Ok(ds) = LeRobotDataset::open(root) else { return };
+        let Ok(ds) = LeRobotDataset::open(root) else { return false };
         let keys = Keys { state: "observation.state".into(), action: "action".into(), images: vec![] };
-        let (Ok(s), Ok(a)) = (ds.vector_len(&keys.state), ds.vector_len(&keys.action)) else { return };
-        if let Ok((eps, _)) = ds.read_with(&keys, (0, 0), &ReadOptions::no_cache()) {
-            let _ = to_demos(&eps, s, a, RestAction::FirstAction);
-            let _ = to_demos(&eps, s, a, RestAction::FirstState);
-        }
+        let (Ok(s), Ok(a)) = (ds.vector_len(&keys.state), ds.vector_len(&keys.action)) else { return false };
+        let Ok((eps, _)) = ds.read_with(&keys, (0, 0), &ReadOptions::no_cache()) else { return false };
+        let _ = to_demos(&eps, s, a, RestAction::FirstState);
+        to_demos(&eps, s, a, RestAction::FirstAction).is_ok()
     }
 }

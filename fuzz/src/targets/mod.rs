@@ -72,6 +72,15 @@ pub(crate) fn split_bundle(input: &[u8], bundles: usize) -> Option<(usize, usize
     }
 }
 
+/// Every file of every bundle, unmutated, as inputs.
+pub(crate) fn bundle_seeds(bundles: &[Vec<Vec<u8>>]) -> Vec<Vec<u8>> {
+    bundles
+        .iter()
+        .enumerate()
+        .flat_map(|(b, files)| files.iter().enumerate().map(move |(f, x)| bundle_input(b, f, x)))
+        .collect()
+}
+
 /// Picks a bundle and one of its files, mutates that file (as text when `text(file)`), and encodes the input.
 pub(crate) fn generate_bundle(rng: &mut StdRng, bundles: &[Vec<Vec<u8>>], text: impl Fn(usize) -> bool) -> Vec<u8> {
     let b = rng.random_range(0..bundles.len());

@@ -11,7 +11,7 @@ use ros2_client::dds::rustdds::RepresentationIdentifier;
 use ros2_client::dds::rustdds::serialization::{deserialize_from_cdr_with_rep_id, to_writer_with_rep_id};
 use serde_bytes::ByteBuf;
 
-use super::{generate_bundle, split_bundle};
+use super::{bundle_seeds, generate_bundle, split_bundle};
 use crate::runner::Target;
 
 /// The encodings a RustDDS reader decodes a sample from (the sample's encapsulation header names it).
@@ -87,18 +87,22 @@ impl Target for Cdr {
         generate_bundle(rng, &self.bundles, |_| false)
     }
 
-    fn run(&self, input: &[u8]) {
-        let Some((_, _, message)) = split_bundle(input, self.bundles.len()) else { return };
-        let [rep, kind, bytes @ ..] = message else { return };
+    fn seeds(&self) -> Vec<Vec<u8>> {
+        bundle_seeds(&self.bundles)
+    }
+
+    fn run(&self, input: &[u8]) -> bool {
+        let Some((_, _, message)) = split_bundle(input, self.bundles.len()) else { return false };
+        let [rep, kind, bytes @ ..] = message else { return false };
         let rep = REPRESENTATIONS[*rep as usize % REPRESENTATIONS.len()];
         if kind % 2 == 0 {
-            if let Ok((m, _)) = deserialize_from_cdr_with_rep_id::<JointState>(bytes, rep) {
-                let _ = (arm_sample(&m, 6), arm_sample(&m, 7), m.position.first());
-            }
-        } else if let Ok((m, _)) = deserialize_from_cdr_with_rep_id::<CompressedImage>(bytes, rep) {
-            let mut out = Vec::new();
-            let _ = decode(&m, JPEGS[0].0, JPEGS[0].1, &mut out);
+            let Ok((m, _)) = deserialize_from_cdr_with_rep_id::<JointState>(bytes, rep) else { return false };
+            let _ = arm_sample(&m, 7);
+            arm_sample(&m, 6).is_some() || m.position.len() == 1
+        } else {
+            let Ok((m, _)) = deserialize_from_cdr_with_rep_id::<CompressedImage>(bytes, rep) else { return false };
             let _ = capture_ns(m.header.stamp, 5_000_000_000, std::time::Duration::new(1_700_000_001, 0));
+            decode(&m, JPEGS[0].0, JPEGS[0].1, &mut Vec::new()).is_ok()
         }
     }
 }
@@ -123,11 +127,14 @@ impl Target for Jpeg {
         generate_bundle(rng, &self.bundles, |_| false)
     }
 
-    fn run(&self, input: &[u8]) {
-        let Some((b, _, bytes)) = split_bundle(input, self.bundles.len()) else { return };
+    fn seeds(&self) -> Vec<Vec<u8>> {
+        bundle_seeds(&self.bundles)
+    }
+
+    fn run(&self, input: &[u8]) -> bool {
+        let Some((b, _, bytes)) = split_bundle(input, self.bundles.len()) else { return false };
         let (w, h, _, _) = JPEGS[b];
         let msg = CompressedImage { header: stamp(), format: "jpeg".into(), data: ByteBuf::from(bytes.to_vec()) };
-        let mut out = Vec::new();
-        let _ = decode(&msg, w, h, &mut out);
+        decode(&msg, w, h, &mut Vec::new()).is_ok()
     }
 }

@@ -133,20 +133,20 @@ impl Frames {
     }
 }
 
-/// A run as it should be (talking ticks, a command in session 1 at home, a state frame and an image in order),
-/// and one frame of each kind on its own.
+/// A run as it should be (talking ticks, a command in session 1 at home, a state frame and an image in order,
+/// stamped on the loop's clock: 1 s, then 1 ms a frame), and one frame of each kind on its own.
 fn seeds(p: &Profile) -> Vec<Vec<u8>> {
     let cmd = |w: &mut Writer, seq: u64| {
         w.u8(0).u64(seq).u64(1_000_000 * seq).u64(seq).u64(1).joints(&p.home).joints(&[]).joints(&[]);
         w.u64(0.03f64.to_bits()).u64(0.0f64.to_bits()).u32(1).u32(p.joints as u32);
     };
     let st = |w: &mut Writer, seq: u64| {
-        w.u8(1).u64(seq).u64(2_000_000_000 + 1_000_000 * seq).u64(1).u64(seq).joints(&p.home).joints(&[]);
+        w.u8(1).u64(seq).u64(1_000_000_000 + 4_000_000 * seq).u64(1).u64(seq).joints(&p.home).joints(&[]);
         w.u64(0.03f64.to_bits()).u32(0).u32(0).u32(0).u32(p.joints as u32);
     };
     let img = |w: &mut Writer, seq: u64| {
         w.u8(2).u32(SCHEMA_VERSION).u32(96).u32(96).u32(ImageEncoding::Rgb8 as u32).u64(seq);
-        w.u64(2_000_000_000 + 1_000_000 * seq).u64(96 * 96 * 3);
+        w.u64(1_000_000_000 + 4_000_000 * (seq - 1)).u64(96 * 96 * 3);
     };
     let mut run = Writer::default();
     for seq in 1..6 {
@@ -172,7 +172,12 @@ impl Target for Frames {
         self.seeds.pick(rng).1
     }
 
-    fn run(&self, input: &[u8]) {
+    fn seeds(&self) -> Vec<Vec<u8>> {
+        self.seeds.files.clone()
+    }
+
+    /// Accepted: some frame of the input was used (a command followed, a state frame or an image acted on).
+    fn run(&self, input: &[u8]) -> bool {
         let mut events = self.events.lock().unwrap_or_else(|e| e.into_inner());
         let ev = &mut events.0;
         let p = &self.profile;
@@ -183,6 +188,7 @@ impl Target for Frames {
         let spec = CameraSpec { width: 96, height: 96, encoding: ImageEncoding::Rgb8, max_age_ns: 50_000_000 };
         let mut camera = CameraCheck::new(spec);
         let (mut f, mut now, mut to_hal) = (Fields(input), 1_000_000_000u64, None::<JointCommand>);
+        let mut followed = false;
         for _ in 0..64 {
             if f.0.is_empty() {
                 break;
@@ -212,10 +218,12 @@ impl Target for Frames {
             let _ = hal.step(20, ev);
             hal.on_apply(Ok(()), ev);
             let frame = hal.state_frame(now);
+            followed |= frame.session != 0;
             if kind == 3 {
                 to_hal = servo.tick(&tick(now, &frame)).command;
             }
         }
+        followed || servo.frames().counts.used > 0 || camera.counts.used > 0
     }
 }
 
