@@ -164,9 +164,9 @@ impl SafetyFilter {
         let unused = JointVelocityBound::new(VelocityLimits::Constant, 0, 1.0);
         let (mut bound, mut plan) = ([unused; MAX_JOINTS], [unused; MAX_JOINTS]);
         let (mut q_min, mut q_max) = ([0.0; MAX_JOINTS], [0.0; MAX_JOINTS]);
-        for (i, (b, planning)) in p.velocity_bounds().into_iter().zip(p.planning_velocity_bounds()).enumerate() {
+        for (i, (b, planning)) in p.velocity_bounds().into_iter().zip(p.filter_velocity_bounds()).enumerate() {
             bound[i] = b;
-            plan[i] = planning.tightened(p.ddq_max[i] * p.ddq_max[i] / p.jerk_max[i]);
+            plan[i] = planning;
             (q_min[i], q_max[i]) = plan[i].rest_range(p.q_min[i], p.q_max[i]);
         }
         Self {

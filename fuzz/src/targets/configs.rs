@@ -123,9 +123,15 @@ impl Target for HalProfile {
         let Ok(p) = Profile::parse(text, "profile.toml") else { return false };
         let _ = (Duration::from_secs_f64(p.period_s()), p.timeout_ns(), p.gripper_interval_ticks());
         let _ = (p.position_limits(), p.planning_velocity_bounds(), p.ros2.feedback_timeout_ms(p.command_timeout_ms));
+        // The filter's setpoints go to the robot: whatever the profile, they must be numbers.
         let mut filter = SafetyFilter::new(&p, &p.home);
-        for _ in 0..3 {
-            filter.step(None);
+        let mut target = [0.0; mars_ipc::MAX_JOINTS];
+        for i in 0..p.joints {
+            target[i] = p.q_max[i];
+        }
+        for t in [None, Some(&target), Some(&target), None] {
+            let q = filter.step(t);
+            assert!(q.iter().all(|x| x.is_finite()), "the safety filter's setpoint is not finite: {q:?}");
         }
         let mut faults = FaultInjector::new(p.sim.faults.clone());
         for tick in 0..4 {

@@ -218,6 +218,11 @@ impl Target for Frames {
             let _ = hal.step(20, ev);
             hal.on_apply(Ok(()), ev);
             let frame = hal.state_frame(now);
+            let applied = &frame.applied_position[..p.joints];
+            assert!(
+                applied.iter().all(|q| q.is_finite()),
+                "the HAL applied a setpoint that is not finite: {applied:?}"
+            );
             followed |= frame.session != 0;
             if kind == 3 {
                 to_hal = servo.tick(&tick(now, &frame)).command;
