@@ -158,27 +158,15 @@ fn run_here(target: &dyn Target, opts: &Options) -> Report {
         (mars_lerobot::contain::contained_panics(), (0, Duration::ZERO), 0);
     for case in 0..opts.cases {
         let input = target.generate(&mut case_rng(opts.seed, name, case));
-        guard::arm(&input);
         watch.begin(case);
-        LAST_PANIC.with(|p| p.borrow_mut().take());
-        IN_CASE.with(|c| *c.borrow_mut() = true);
-        let t0 = Instant::now();
-        let outcome = catch_unwind(AssertUnwindSafe(|| target.run(&input)));
-        let took = t0.elapsed();
-        IN_CASE.with(|c| *c.borrow_mut() = false);
+        let (outcome, took) = one_case(target, &input);
         watch.end();
-        guard::disarm();
         if took > slowest.1 {
             slowest = (case, took);
         }
-        accepted += u64::from(matches!(outcome, Ok(true)));
-        let what = match (outcome, guard::take_refused()) {
-            (Err(_), _) => LAST_PANIC.with(|p| p.borrow_mut().take()).map(|(at, msg)| format!("panic at {at}: {msg}")),
-            (Ok(_), Some(n)) => Some(format!("asked for {n} bytes at once (above the {} cap)", guard::ALLOCATION_CAP)),
-            (Ok(_), None) => None,
-        };
-        if let Some(what) = what {
-            record(&mut failures, what, case, &input, name, &opts.out);
+        match outcome {
+            Ok(yes) => accepted += u64::from(yes),
+            Err(what) => record(&mut failures, what, case, &input, name, &opts.out),
         }
         if let Some(every) = opts.progress
             && last_print.elapsed() >= every
@@ -203,6 +191,33 @@ fn run_here(target: &dyn Target, opts: &Options) -> Report {
         accepted,
         contained: mars_lerobot::contain::contained_panics() - contained_before,
     }
+}
+
+/// Runs one input: whether it was accepted, or the failure it caused (a panic, an allocation above the cap).
+fn one_case(target: &dyn Target, input: &[u8]) -> (Result<bool, String>, Duration) {
+    guard::arm(input);
+    LAST_PANIC.with(|p| p.borrow_mut().take());
+    IN_CASE.with(|c| *c.borrow_mut() = true);
+    let started = Instant::now();
+    let outcome = catch_unwind(AssertUnwindSafe(|| target.run(input)));
+    let took = started.elapsed();
+    IN_CASE.with(|c| *c.borrow_mut() = false);
+    guard::disarm();
+    let outcome = match (outcome, guard::take_refused()) {
+        (Err(_), _) => Err(LAST_PANIC
+            .with(|p| p.borrow_mut().take())
+            .map_or("a panic".into(), |(at, msg)| format!("panic at {at}: {msg}"))),
+        (Ok(_), Some(n)) => Err(format!("asked for {n} bytes at once (above the {} cap)", guard::ALLOCATION_CAP)),
+        (Ok(accepted), None) => Ok(accepted),
+    };
+    (outcome, took)
+}
+
+/// One input through `target` as a case of a run decodes it (a saved failure, made again): accepted or not, or
+/// the failure.
+pub fn check(target: &dyn Target, input: &[u8]) -> Result<bool, String> {
+    install_panic_hook();
+    one_case(target, input).0
 }
 
 fn record(failures: &mut BTreeMap<String, Failure>, what: String, case: u64, input: &[u8], name: &str, out: &Path) {
