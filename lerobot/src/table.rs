@@ -68,6 +68,11 @@ impl Table {
         Ok(Self { path: path.to_owned(), batches })
     }
 
+    /// The file's record batches, as arrow read them.
+    pub fn batches(&self) -> &[RecordBatch] {
+        &self.batches
+    }
+
     pub fn rows(&self) -> usize {
         self.batches.iter().map(RecordBatch::num_rows).sum()
     }

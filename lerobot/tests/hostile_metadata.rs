@@ -11,8 +11,8 @@ mod common;
 use arrow_array::{ArrayRef, Int64Array, RecordBatch};
 use common::copy;
 use mars_lerobot::LeRobotDataset;
+use mars_lerobot::table::Table;
 use parquet::arrow::ArrowWriter;
-use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
 
 fn edit_info(root: &Path, edit: impl FnOnce(&mut serde_json::Value)) {
     let p = root.join("meta/info.json");
@@ -103,13 +103,7 @@ fn episode_indices_whose_difference_overflows_are_refused() {
 /// Episode 0's `dataset_from_index` and `dataset_to_index` set to `from` and `to`.
 fn set_first_episode_rows(root: &Path, from: i64, to: i64) {
     let path = root.join("meta/episodes/chunk-000/file-000.parquet");
-    let batch = ParquetRecordBatchReaderBuilder::try_new(std::fs::File::open(&path).unwrap())
-        .unwrap()
-        .build()
-        .unwrap()
-        .next()
-        .unwrap()
-        .unwrap();
+    let batch = Table::read(&path, None).unwrap().batches()[0].clone();
     let mut columns: Vec<ArrayRef> = batch.columns().to_vec();
     for (name, v) in [("dataset_from_index", from), ("dataset_to_index", to)] {
         let i = batch.schema().index_of(name).unwrap();

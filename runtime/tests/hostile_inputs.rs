@@ -7,11 +7,11 @@ use std::process::Command;
 use std::sync::Arc;
 
 use arrow_array::{ArrayRef, Float64Array, Int64Array, RecordBatch};
+use mars_lerobot::table::Table;
 use mars_lerobot::writer::{DatasetSpec, DatasetWriter, VectorSpec};
 use mars_runtime::recorded_actions::RecordedActions;
 use mars_runtime::replay::{ReplayArgs, run};
 use parquet::arrow::ArrowWriter;
-use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
 
 fn root() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
@@ -129,13 +129,7 @@ fn add_camera(root: &Path, key: &str, side: usize) {
     info["video_path"] = "videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4".into();
     std::fs::write(&info_path, serde_json::to_string_pretty(&info).unwrap()).unwrap();
     let path = root.join("meta/episodes/chunk-000/file-000.parquet");
-    let batch = ParquetRecordBatchReaderBuilder::try_new(std::fs::File::open(&path).unwrap())
-        .unwrap()
-        .build()
-        .unwrap()
-        .next()
-        .unwrap()
-        .unwrap();
+    let batch = Table::read(&path, None).unwrap().batches()[0].clone();
     let n = batch.num_rows();
     let mut fields: Vec<_> = batch.schema().fields().iter().map(|f| f.as_ref().clone()).collect();
     let mut columns: Vec<ArrayRef> = batch.columns().to_vec();

@@ -3,13 +3,14 @@
 //! (the candle model) first. Seeds: every checkpoint in `assets/checkpoints` and every policy TOML in `configs`.
 
 use std::path::Path;
+use std::sync::Arc;
+use std::time::Duration;
 
 use mars_engine::{Engine, EngineConfig};
 use mars_policy::checkpoint::parse_meta;
 use mars_policy::config::PolicyConfig;
-use rand::rngs::StdRng;
 
-use super::{Seeds, bundle_seeds, generate_bundle, read, split_bundle};
+use super::{Bundles, read, text};
 use crate::runner::Target;
 
 const CHECKPOINTS: [&str; 7] = [
@@ -25,110 +26,39 @@ const POLICY_TOML: [&str; 4] =
     ["configs/policy.toml", "configs/fr3_policy.toml", "configs/push_t_policy.toml", "configs/r1_lite_policy.toml"];
 
 /// `policy.json`: parsed and validated as every loader does first.
-pub struct PolicyJson {
-    seeds: Seeds,
-}
-
-impl PolicyJson {
-    pub fn new() -> Self {
-        Self {
-            seeds: Seeds { files: CHECKPOINTS.iter().map(|c| read(&format!("{c}/policy.json"))).collect(), text: true },
-        }
-    }
-}
-
-impl Target for PolicyJson {
-    fn name(&self) -> &'static str {
-        "policy-json"
-    }
-
-    fn generate(&self, rng: &mut StdRng) -> Vec<u8> {
-        self.seeds.pick(rng).1
-    }
-
-    fn seeds(&self) -> Vec<Vec<u8>> {
-        self.seeds.files.clone()
-    }
-
-    fn run(&self, input: &[u8]) -> bool {
-        let Ok(text) = std::str::from_utf8(input) else { return false };
-        let Ok(meta) = parse_meta(Path::new("checkpoint"), text) else { return false };
+pub fn policy_json() -> Arc<dyn Target> {
+    let files = CHECKPOINTS.iter().map(|c| read(&format!("{c}/policy.json"))).collect();
+    Bundles::of_files("policy-json", files, true, |_, bytes| {
+        let Some(Ok(meta)) = text(bytes).map(|t| parse_meta(Path::new("checkpoint"), t)) else { return false };
         let _ = (meta.model.steps_for(0.5), meta.model.steps_for(1.0));
-        let cfg = PolicyConfig { kind: meta.kind, model: meta.model, train: meta.train };
-        let _ = cfg.validate();
-        true
-    }
+        PolicyConfig { kind: meta.kind, model: meta.model, train: meta.train }.validate().is_ok()
+    })
 }
 
 /// The policy's TOML configuration (`mars train --config`).
-pub struct PolicyToml {
-    seeds: Seeds,
-}
-
-impl PolicyToml {
-    pub fn new() -> Self {
-        Self { seeds: Seeds { files: POLICY_TOML.iter().map(|p| read(p)).collect(), text: true } }
-    }
-}
-
-impl Target for PolicyToml {
-    fn name(&self) -> &'static str {
-        "policy-toml"
-    }
-
-    fn generate(&self, rng: &mut StdRng) -> Vec<u8> {
-        self.seeds.pick(rng).1
-    }
-
-    fn seeds(&self) -> Vec<Vec<u8>> {
-        self.seeds.files.clone()
-    }
-
-    fn run(&self, input: &[u8]) -> bool {
-        let Ok(text) = std::str::from_utf8(input) else { return false };
-        PolicyConfig::from_toml(text).map(|cfg| cfg.model.steps_for(1.0)).is_ok()
-    }
+pub fn policy_toml() -> Arc<dyn Target> {
+    let files = POLICY_TOML.iter().map(|p| read(p)).collect();
+    Bundles::of_files("policy-toml", files, true, |_, bytes| {
+        let Some(Ok(cfg)) = text(bytes).map(PolicyConfig::from_toml) else { return false };
+        cfg.model.steps_for(1.0) > 0
+    })
 }
 
 /// A whole checkpoint loaded by the engine (and so by mars-policy's loader first), then one call.
-pub struct Checkpoint {
-    bundles: Vec<Vec<Vec<u8>>>,
-}
-
-impl Checkpoint {
-    pub fn new() -> Self {
-        let bundles = CHECKPOINTS
-            .iter()
-            .map(|c| vec![read(&format!("{c}/policy.json")), read(&format!("{c}/model.safetensors"))])
-            .collect();
-        Self { bundles }
-    }
-}
-
-impl Target for Checkpoint {
-    fn name(&self) -> &'static str {
-        "checkpoint"
-    }
-
-    fn generate(&self, rng: &mut StdRng) -> Vec<u8> {
-        generate_bundle(rng, &self.bundles, |f| f == 0)
-    }
-
-    fn seeds(&self) -> Vec<Vec<u8>> {
-        bundle_seeds(&self.bundles)
-    }
-
-    fn run(&self, input: &[u8]) -> bool {
-        let Some((b, f, bytes)) = split_bundle(input, self.bundles.len()) else { return false };
-        let (meta, weights) = match f % 2 {
-            0 => (bytes, self.bundles[b][1].as_slice()),
-            _ => (self.bundles[b][0].as_slice(), bytes),
-        };
-        let Ok(meta) = std::str::from_utf8(meta) else { return false };
+pub fn checkpoint() -> Arc<dyn Target> {
+    let bundles: Vec<Vec<Vec<u8>>> = CHECKPOINTS
+        .iter()
+        .map(|c| vec![read(&format!("{c}/policy.json")), read(&format!("{c}/model.safetensors"))])
+        .collect();
+    let seeds = bundles.clone();
+    let decode = move |b: usize, f: usize, bytes: &[u8]| {
+        let (meta, weights) = if f == 0 { (bytes, seeds[b][1].as_slice()) } else { (seeds[b][0].as_slice(), bytes) };
+        let Some(meta) = text(meta) else { return false };
         let cfg = EngineConfig { warmup_calls: 1, ..EngineConfig::with_seed(0) };
         let Ok(mut engine) = Engine::load_from(Path::new("checkpoint"), meta, weights, cfg) else { return false };
         let obs = engine.meta().normalizer.obs.mean.clone();
         let history = engine.meta().normalizer.action.mean.repeat(engine.chunk_len());
-        engine.infer(&obs, &history, std::time::Duration::from_millis(50)).is_ok()
-    }
+        engine.infer(&obs, &history, Duration::from_millis(50)).is_ok()
+    };
+    Arc::new(Bundles { name: "checkpoint", bundles, text: |f| f == 0, decode: Box::new(decode) })
 }

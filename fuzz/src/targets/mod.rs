@@ -1,4 +1,6 @@
 //! The targets: each a decoder of the product fed as the product feeds it, then made to use what it accepted.
+//! Every target is a set of seed bundles (one file each, or several files a decoder reads together: a checkpoint's
+//! two, a dataset's three) and a decode function; a case mutates one file of one bundle.
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -18,18 +20,18 @@ mod wire;
 /// Every target, in the order `all` runs them.
 pub fn all() -> Vec<Arc<dyn Target>> {
     vec![
-        Arc::new(lerobot::Info::new()),
-        Arc::new(lerobot::Episodes::new()),
-        Arc::new(lerobot::Dataset::new()),
-        Arc::new(checkpoint::PolicyJson::new()),
-        Arc::new(checkpoint::PolicyToml::new()),
-        Arc::new(checkpoint::Checkpoint::new()),
-        Arc::new(configs::MarsdConfig::new()),
-        Arc::new(configs::MarsdTask::new()),
-        Arc::new(configs::HalProfile::new()),
-        Arc::new(wire::Frames::new()),
-        Arc::new(ros2::Cdr::new()),
-        Arc::new(ros2::Jpeg::new()),
+        lerobot::info(),
+        lerobot::episodes(),
+        lerobot::dataset(),
+        checkpoint::policy_json(),
+        checkpoint::policy_toml(),
+        checkpoint::checkpoint(),
+        configs::marsd_config(),
+        configs::marsd_task(),
+        configs::hal_profile(),
+        wire::frames(),
+        ros2::cdr(),
+        ros2::jpeg(),
     ]
 }
 
@@ -43,48 +45,69 @@ pub(crate) fn read(path: &str) -> Vec<u8> {
     std::fs::read(&p).unwrap_or_else(|e| panic!("seed {}: {e}", p.display()))
 }
 
-/// Seeds of one kind, mutated one at a time (spliced with the others).
-pub(crate) struct Seeds {
-    pub files: Vec<Vec<u8>>,
-    pub text: bool,
+/// The decode function of a [`Bundles`] target: the bundle's index, the mutated file's index and its bytes; true
+/// when the decoder accepted the input.
+pub(crate) type Decode = Box<dyn Fn(usize, usize, &[u8]) -> bool + Send + Sync>;
+
+/// A target: seed bundles, which of a bundle's files are text (mutated token-wise too), and how they are decoded.
+/// An input is `[bundle, file]` then the mutated file's bytes.
+pub(crate) struct Bundles {
+    pub name: &'static str,
+    pub bundles: Vec<Vec<Vec<u8>>>,
+    pub text: fn(usize) -> bool,
+    pub decode: Decode,
 }
 
-impl Seeds {
-    pub fn pick(&self, rng: &mut StdRng) -> (usize, Vec<u8>) {
-        let i = rng.random_range(0..self.files.len());
-        let others: Vec<&[u8]> = self.files.iter().map(Vec::as_slice).collect();
-        (i, mutate(rng, &self.files[i], &others, self.text))
+impl Bundles {
+    /// A target of single files (one bundle each).
+    pub fn of_files(
+        name: &'static str,
+        files: Vec<Vec<u8>>,
+        text: bool,
+        decode: impl Fn(usize, &[u8]) -> bool + Send + Sync + 'static,
+    ) -> Arc<dyn Target> {
+        let text: fn(usize) -> bool = if text { |_| true } else { |_| false };
+        let decode: Decode = Box::new(move |b, _, bytes| decode(b, bytes));
+        Arc::new(Self { name, bundles: files.into_iter().map(|f| vec![f]).collect(), text, decode })
     }
 }
 
-/// A multi-file input: which bundle of seeds, which of its files was mutated, and that file's bytes.
-pub(crate) fn bundle_input(bundle: usize, file: usize, bytes: &[u8]) -> Vec<u8> {
-    let mut v = vec![bundle as u8, file as u8];
-    v.extend_from_slice(bytes);
-    v
+/// UTF-8 text, as the product's `read_to_string` takes it (other bytes are an I/O error there).
+pub(crate) fn text(bytes: &[u8]) -> Option<&str> {
+    std::str::from_utf8(bytes).ok()
 }
 
-/// `(bundle, file, bytes)` of a [`bundle_input`], or `None` for an input too short (a saved one cut by hand).
-pub(crate) fn split_bundle(input: &[u8], bundles: usize) -> Option<(usize, usize, &[u8])> {
-    match input {
-        [b, f, rest @ ..] => Some((*b as usize % bundles, *f as usize, rest)),
-        _ => None,
+impl Target for Bundles {
+    fn name(&self) -> &'static str {
+        self.name
     }
-}
 
-/// Every file of every bundle, unmutated, as inputs.
-pub(crate) fn bundle_seeds(bundles: &[Vec<Vec<u8>>]) -> Vec<Vec<u8>> {
-    bundles
-        .iter()
-        .enumerate()
-        .flat_map(|(b, files)| files.iter().enumerate().map(move |(f, x)| bundle_input(b, f, x)))
-        .collect()
-}
+    fn generate(&self, rng: &mut StdRng) -> Vec<u8> {
+        let b = rng.random_range(0..self.bundles.len());
+        let f = rng.random_range(0..self.bundles[b].len());
+        let others: Vec<&[u8]> = self.bundles.iter().filter_map(|x| x.get(f)).map(Vec::as_slice).collect();
+        let mut input = vec![b as u8, f as u8];
+        input.extend_from_slice(&mutate(rng, &self.bundles[b][f], &others, (self.text)(f)));
+        input
+    }
 
-/// Picks a bundle and one of its files, mutates that file (as text when `text(file)`), and encodes the input.
-pub(crate) fn generate_bundle(rng: &mut StdRng, bundles: &[Vec<Vec<u8>>], text: impl Fn(usize) -> bool) -> Vec<u8> {
-    let b = rng.random_range(0..bundles.len());
-    let f = rng.random_range(0..bundles[b].len());
-    let others: Vec<&[u8]> = bundles.iter().filter_map(|x| x.get(f)).map(Vec::as_slice).collect();
-    bundle_input(b, f, &mutate(rng, &bundles[b][f], &others, text(f)))
+    fn seeds(&self) -> Vec<Vec<u8>> {
+        let mut out = Vec::new();
+        for (b, files) in self.bundles.iter().enumerate() {
+            for (f, bytes) in files.iter().enumerate() {
+                out.push([&[b as u8, f as u8][..], bytes].concat());
+            }
+        }
+        out
+    }
+
+    fn run(&self, input: &[u8]) -> bool {
+        match input {
+            [b, f, bytes @ ..] => {
+                let b = *b as usize % self.bundles.len();
+                (self.decode)(b, *f as usize % self.bundles[b].len(), bytes)
+            }
+            _ => false,
+        }
+    }
 }

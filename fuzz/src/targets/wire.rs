@@ -4,8 +4,11 @@
 //! An input is a sequence of frames, each field read from the bytes (numbers as raw bits: NaN, infinities,
 //! huge counts); between them, ticks where the HAL and the servo talk to each other as in a run.
 
-use std::sync::Mutex;
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
 
+use super::{Bundles, read, repo};
+use crate::runner::Target;
 use mars_hal::backend::Measurement;
 use mars_hal::control::HalControl;
 use mars_hal::events::{EventLogger, EventSender};
@@ -14,10 +17,6 @@ use mars_ipc::{ImageEncoding, ImageHeader, JointCommand, MAX_JOINTS, RobotState,
 use mars_runtime::camera::{CameraCheck, CameraSpec};
 use mars_runtime::config::DaemonConfig;
 use mars_runtime::servo::{ServoTick, TickInput};
-use rand::rngs::StdRng;
-
-use super::{Seeds, read, repo};
-use crate::runner::Target;
 
 /// Little-endian fields out of the input, zeros once it is used up.
 struct Fields<'a>(&'a [u8]);
@@ -114,23 +113,22 @@ fn image(f: &mut Fields) -> (ImageHeader, usize) {
     (h, f.u64() as usize)
 }
 
-pub struct Frames {
-    seeds: Seeds,
+/// What the frames meet: the FR3's profile and the shipped marsd config, and the HAL's event queue with its logger
+/// thread (events are dropped: only panics matter here).
+struct Rig {
     profile: Profile,
     cfg: DaemonConfig,
-    /// The HAL's event queue and its logger thread (events are dropped: only panics matter here).
     events: Mutex<(EventSender, EventLogger)>,
 }
 
-impl Frames {
-    pub fn new() -> Self {
-        let profile = Profile::load(&repo("configs/fr3.toml")).expect("the FR3 profile");
-        let cfg = DaemonConfig::parse(std::str::from_utf8(&read("configs/marsd.toml")).expect("UTF-8"), "marsd.toml")
-            .expect("the shipped marsd.toml");
-        let events = EventLogger::start(1024, std::time::Duration::from_millis(5), |_| {}).expect("an event logger");
-        let seeds = Seeds { files: seeds(&profile), text: false };
-        Self { seeds, profile, cfg, events: Mutex::new(events) }
-    }
+pub fn frames() -> Arc<dyn Target> {
+    let profile = Profile::load(&repo("configs/fr3.toml")).expect("the FR3 profile");
+    let cfg = DaemonConfig::parse(std::str::from_utf8(&read("configs/marsd.toml")).expect("UTF-8"), "marsd.toml")
+        .expect("the shipped marsd.toml");
+    let events = EventLogger::start(1024, Duration::from_millis(5), |_| {}).expect("an event logger");
+    let files = seeds(&profile);
+    let rig = Rig { profile, cfg, events: Mutex::new(events) };
+    Bundles::of_files("wire-frames", files, false, move |_, bytes| rig.exchange(bytes))
 }
 
 /// A run as it should be (talking ticks, a command in session 1 at home, a state frame and an image in order,
@@ -163,72 +161,78 @@ fn seeds(p: &Profile) -> Vec<Vec<u8>> {
     vec![run.0, one(&cmd), one(&st), one(&img)]
 }
 
-impl Target for Frames {
-    fn name(&self) -> &'static str {
-        "wire-frames"
-    }
+/// One exchange between a HAL and a servo tick, fed frames from the input.
+struct Session<'a> {
+    hal: HalControl,
+    servo: ServoTick,
+    camera: CameraCheck,
+    at_home: Measurement,
+    ev: &'a mut EventSender,
+    now: u64,
+    to_hal: Option<JointCommand>,
+    followed: bool,
+}
 
-    fn generate(&self, rng: &mut StdRng) -> Vec<u8> {
-        self.seeds.pick(rng).1
-    }
-
-    fn seeds(&self) -> Vec<Vec<u8>> {
-        self.seeds.files.clone()
-    }
-
+impl Rig {
     /// Accepted: some frame of the input was used (a command followed, a state frame or an image acted on).
-    fn run(&self, input: &[u8]) -> bool {
+    fn exchange(&self, input: &[u8]) -> bool {
         let mut events = self.events.lock().unwrap_or_else(|e| e.into_inner());
-        let ev = &mut events.0;
         let p = &self.profile;
         let mut at_home = Measurement { gripper: 0.03, ..Measurement::default() };
         at_home.position[..p.joints].copy_from_slice(&p.home);
-        let mut hal = HalControl::start(p, &at_home).expect("the HAL takes over an arm at home");
-        let mut servo = ServoTick::new(&self.cfg, p, 1).expect("the servo of the shipped config");
         let spec = CameraSpec { width: 96, height: 96, encoding: ImageEncoding::Rgb8, max_age_ns: 50_000_000 };
-        let mut camera = CameraCheck::new(spec);
-        let (mut f, mut now, mut to_hal) = (Fields(input), 1_000_000_000u64, None::<JointCommand>);
-        let mut followed = false;
+        let mut s = Session {
+            hal: HalControl::start(p, &at_home).expect("the HAL takes over an arm at home"),
+            servo: ServoTick::new(&self.cfg, p, 1).expect("the servo of the shipped config"),
+            camera: CameraCheck::new(spec),
+            at_home,
+            ev: &mut events.0,
+            now: 1_000_000_000,
+            to_hal: None,
+            followed: false,
+        };
+        let mut f = Fields(input);
         for _ in 0..64 {
             if f.0.is_empty() {
                 break;
             }
-            now += 1_000_000;
-            let kind = f.u8() % 4;
-            hal.begin_tick(now);
-            hal.on_read(Ok(at_home), ev);
-            match kind {
-                0 => hal.on_command(&command(&mut f), ev),
-                1 => {
-                    let s = state(&mut f);
-                    to_hal = servo.tick(&tick(now, &s)).command;
-                }
-                2 => {
-                    let (h, len) = image(&mut f);
-                    if mars_ipc::wire::check_image(&h, len).is_ok() {
-                        let _ = camera.judge(&h, now);
-                    }
-                }
-                _ => {
-                    if let Some(c) = to_hal.take() {
-                        hal.on_command(&c, ev);
-                    }
+            s.tick(&mut f, p.joints);
+        }
+        s.followed || s.servo.frames().counts.used > 0 || s.camera.counts.used > 0
+    }
+}
+
+impl Session<'_> {
+    /// One HAL tick; its frame, or the HAL's own state frame, to the servo; an image header to the camera checks.
+    fn tick(&mut self, f: &mut Fields, joints: usize) {
+        self.now += 1_000_000;
+        let (now, kind) = (self.now, f.u8() % 4);
+        self.hal.begin_tick(now);
+        self.hal.on_read(Ok(self.at_home), self.ev);
+        match kind {
+            0 => self.hal.on_command(&command(f), self.ev),
+            1 => self.to_hal = self.servo.tick(&tick(now, &state(f))).command,
+            2 => {
+                let (h, len) = image(f);
+                if mars_ipc::wire::check_image(&h, len).is_ok() {
+                    let _ = self.camera.judge(&h, now);
                 }
             }
-            let _ = hal.step(20, ev);
-            hal.on_apply(Ok(()), ev);
-            let frame = hal.state_frame(now);
-            let applied = &frame.applied_position[..p.joints];
-            assert!(
-                applied.iter().all(|q| q.is_finite()),
-                "the HAL applied a setpoint that is not finite: {applied:?}"
-            );
-            followed |= frame.session != 0;
-            if kind == 3 {
-                to_hal = servo.tick(&tick(now, &frame)).command;
+            _ => {
+                if let Some(c) = self.to_hal.take() {
+                    self.hal.on_command(&c, self.ev);
+                }
             }
         }
-        followed || servo.frames().counts.used > 0 || camera.counts.used > 0
+        let _ = self.hal.step(20, self.ev);
+        self.hal.on_apply(Ok(()), self.ev);
+        let frame = self.hal.state_frame(now);
+        let applied = &frame.applied_position[..joints];
+        assert!(applied.iter().all(|q| q.is_finite()), "the HAL applied a setpoint that is not finite: {applied:?}");
+        self.followed |= frame.session != 0;
+        if kind == 3 {
+            self.to_hal = self.servo.tick(&tick(now, &frame)).command;
+        }
     }
 }
 
