@@ -53,10 +53,16 @@ fn a_k_max_beyond_the_limit_is_refused_at_load() {
 #[test]
 fn camera_image_sizes_beyond_the_limit_are_refused_at_load() {
     let dir = tempfile::tempdir().unwrap();
-    for (field, v) in [("image_height", 1u64 << 32), ("image_width", (1 << 32) + 64), ("cameras", 1 << 40)] {
+    // 2³² × 2³² × 3 overflowed `image_len` (a panic); one side alone passed to the obs_dim check.
+    let cases: [(&str, &[(&str, u64)]); 3] = [
+        ("image_height", &[("image_height", 1 << 32), ("image_width", 1 << 32)]),
+        ("image_width", &[("image_width", (1 << 32) + 64)]),
+        ("cameras", &[("cameras", 1 << 40)]),
+    ];
+    for (field, edits) in cases {
         let ckpt = checkpoint_copy("fr3_push_t/mars", dir.path());
-        with_meta(&ckpt, |m| m["model"]["encoder"][field] = v.into());
+        with_meta(&ckpt, |m| edits.iter().for_each(|(k, v)| m["model"]["encoder"][*k] = (*v).into()));
         let e = load_err(&ckpt);
-        assert!(e.contains(&format!("model.encoder.{field}")) && e.contains("limit"), "{field} {v}: {e}");
+        assert!(e.contains(&format!("model.encoder.{field}")) && e.contains("limit"), "{edits:?}: {e}");
     }
 }

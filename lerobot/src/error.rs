@@ -21,6 +21,8 @@ pub enum LeRobotError {
     MissingKey { key: String, available: String },
     #[error("feature `{key}`: {problem}")]
     Feature { key: String, problem: String },
+    #[error("path template `{template}`: {problem}")]
+    Template { template: String, problem: String },
     #[error("{path}: not a readable parquet file (truncated or corrupt?): {error}")]
     Parquet { path: PathBuf, error: String },
     #[error("{path}: column `{column}`: {problem}")]

@@ -146,21 +146,15 @@ impl Info {
             .replace("{video_key}", video_key.unwrap_or(""))
             .replace("{chunk_index:03d}", &format!("{chunk:03}"))
             .replace("{file_index:03d}", &format!("{file:03}"));
+        let bad = |problem: String| LeRobotError::Template { template: template.to_owned(), problem };
         if filled.contains('{') {
-            return Err(LeRobotError::Feature {
-                key: template.to_owned(),
-                problem: "a path template with placeholders other than video_key, chunk_index:03d, file_index:03d"
-                    .into(),
-            });
+            return Err(bad("placeholders other than video_key, chunk_index:03d, file_index:03d".into()));
         }
         // Only names inside the dataset's folder: no `..`, no absolute path (which `join` would take instead of
         // the root), whatever the template or a video key says.
         let rel = Path::new(&filled);
         if filled.is_empty() || !rel.components().all(|c| matches!(c, Component::Normal(_) | Component::CurDir)) {
-            return Err(LeRobotError::Feature {
-                key: template.to_owned(),
-                problem: format!("makes the path {filled:?}, which leaves the dataset's folder (or names none)"),
-            });
+            return Err(bad(format!("makes the path {filled:?}, which leaves the dataset's folder (or names none)")));
         }
         Ok(rel.to_owned())
     }

@@ -203,7 +203,7 @@ impl DaemonConfig {
                 return Ok(());
             }
             let what = if zero_ok { "a number ≥ 0" } else { "a positive number" };
-            bad(key, format!("must be {what} of at most {max} {unit}, got {v}"))
+            bad(key, format!("must be {what} of at most {max} {unit}, got {v:?}"))
         };
         if self.robot.is_empty() {
             return bad("robot", "must not be empty".into());
@@ -260,7 +260,7 @@ impl DaemonConfig {
         let (lo, hi) = HISTOGRAM_INTERVAL_S;
         let interval = self.histograms.interval_s;
         if !(interval.is_finite() && (lo..=hi).contains(&interval)) {
-            return bad("histograms.interval_s", format!("must be in [{lo}, {hi}] s, got {interval}"));
+            return bad("histograms.interval_s", format!("must be in [{lo}, {hi}] s, got {interval:?}"));
         }
         in_range("faults.engine_step_delay_ms", self.faults.engine_step_delay_ms, true, MAX_LOOP_MS, "ms")?;
         in_range("faults.record_writer_delay_ms", self.faults.record_writer_delay_ms, true, MAX_LOOP_MS, "ms")?;

@@ -17,17 +17,12 @@ fn root() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
 }
 
-/// The shipped config with `line` replacing the line that starts with `key =` (or appended, when `key` is empty).
-fn config(dir: &Path, name: &str, key: &str, line: &str) -> PathBuf {
+/// The shipped config with `line` in place of the line that starts with `key =`, and `extra` appended.
+fn config(dir: &Path, name: &str, key: &str, line: &str, extra: &str) -> PathBuf {
     let text = std::fs::read_to_string(root().join("configs/marsd.toml")).unwrap();
-    let text = if key.is_empty() {
-        format!("{text}\n{line}\n")
-    } else {
-        let old = text.lines().find(|l| l.starts_with(&format!("{key} ="))).unwrap_or_else(|| panic!("{key}"));
-        text.replace(old, line)
-    };
+    let old = text.lines().find(|l| l.starts_with(&format!("{key} ="))).unwrap_or_else(|| panic!("{key}"));
     let path = dir.join(name);
-    std::fs::write(&path, text).unwrap();
+    std::fs::write(&path, format!("{}\n{extra}\n", text.replace(old, line))).unwrap();
     path
 }
 
@@ -36,10 +31,16 @@ fn config(dir: &Path, name: &str, key: &str, line: &str) -> PathBuf {
 #[test]
 fn marsd_refuses_times_that_would_panic_its_running_loops_with_status_2() {
     let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    // The writer's delay is converted when a recording starts: the config records.
+    let record = format!("seed = 0\nrecord = {:?}", d.join("recording").display().to_string());
     let cases = [
-        ("handshake_timeout_s", config(dir.path(), "a.toml", "handshake_timeout_s", "handshake_timeout_s = 1e300")),
-        ("histograms.interval_s", config(dir.path(), "b.toml", "interval_s", "interval_s = 1e300")),
-        ("faults.record_writer_delay_ms", config(dir.path(), "c.toml", "", "[faults]\nrecord_writer_delay_ms = -1.0")),
+        ("handshake_timeout_s", config(d, "a.toml", "handshake_timeout_s", "handshake_timeout_s = 1e300", "")),
+        ("histograms.interval_s", config(d, "b.toml", "interval_s", "interval_s = 1e300", "")),
+        (
+            "faults.record_writer_delay_ms",
+            config(d, "c.toml", "seed", &record, "[faults]\nrecord_writer_delay_ms = -1.0"),
+        ),
     ];
     for (key, cfg) in &cases {
         let out = Command::new(env!("CARGO_BIN_EXE_marsd"))

@@ -132,7 +132,7 @@ impl Pick {
             ("expert.retreat_s", c.expert.retreat_s, 3600.0),
         ] {
             if !(v.is_finite() && v > 0.0 && v <= max) {
-                return err(field, format!("is {v}, must be a finite number > 0{}", at_most(max)));
+                return err(field, format!("is {v:?}, must be a finite number > 0{}", at_most(max)));
             }
         }
         for (field, v, max) in [
@@ -141,7 +141,7 @@ impl Pick {
             ("expert.waypoint_jitter", c.expert.waypoint_jitter, f64::MAX),
         ] {
             if !(v.is_finite() && v >= 0.0 && v <= max) {
-                return err(field, format!("is {v}, must be a finite number ≥ 0{}", at_most(max)));
+                return err(field, format!("is {v:?}, must be a finite number ≥ 0{}", at_most(max)));
             }
         }
         let ticks = p.rate_hz / c.policy_rate_hz;

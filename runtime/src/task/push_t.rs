@@ -189,7 +189,7 @@ fn validate(c: &PushTHilConfig, p: &Profile) -> Result<(), (String, String)> {
         ("camera.max_age_ms", c.camera.max_age_ms, 60_000.0),
     ] {
         if !(v.is_finite() && v > 0.0 && v <= max) {
-            return err(field, format!("is {v}, must be a finite number > 0 and at most {max}"));
+            return err(field, format!("is {v:?}, must be a finite number > 0 and at most {max}"));
         }
     }
     check_world(&c.world).map_or(Ok(()), |(field, problem)| err(field, problem))?;
