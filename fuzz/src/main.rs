@@ -39,6 +39,9 @@ struct RunArgs {
     /// Progress on stderr every this many seconds (0: none).
     #[arg(long, default_value_t = 60.0)]
     progress_s: f64,
+    /// Stop each target after this many seconds, whatever --cases says (0: no limit).
+    #[arg(long, default_value_t = 0.0)]
+    time_limit_s: f64,
 }
 
 #[derive(Subcommand)]
@@ -77,12 +80,14 @@ fn options(a: &RunArgs) -> Result<Options, String> {
         Duration::try_from_secs_f64(s).map_err(|_| format!("--{what} must be a number of seconds ≥ 0, got {s}"))
     };
     let progress = secs(a.progress_s, "progress-s")?;
+    let limit = secs(a.time_limit_s, "time-limit-s")?;
     Ok(Options {
         cases: a.cases,
         seed: a.seed,
         out: a.out.clone(),
         case_timeout: secs(a.case_timeout_s, "case-timeout-s")?,
         progress: (!progress.is_zero()).then_some(progress),
+        time_limit: (!limit.is_zero()).then_some(limit),
     })
 }
 

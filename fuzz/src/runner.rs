@@ -39,6 +39,8 @@ pub struct Options {
     pub case_timeout: Duration,
     /// Print progress every this long (None: silent until the end).
     pub progress: Option<Duration>,
+    /// Stop a target after this long, whatever `cases` says (the report gives the cases run).
+    pub time_limit: Option<Duration>,
 }
 
 /// One distinct failure: where, what, how often, and the first input that caused it.
@@ -156,7 +158,12 @@ fn run_here(target: &dyn Target, opts: &Options) -> Report {
     let (started, mut last_print) = (Instant::now(), Instant::now());
     let (contained_before, mut slowest, mut accepted) =
         (mars_lerobot::contain::contained_panics(), (0, Duration::ZERO), 0);
+    let mut cases = 0;
     for case in 0..opts.cases {
+        if opts.time_limit.is_some_and(|limit| started.elapsed() >= limit) {
+            break;
+        }
+        cases += 1;
         let input = target.generate(&mut case_rng(opts.seed, name, case));
         watch.begin(case);
         let (outcome, took) = one_case(target, &input);
@@ -184,7 +191,7 @@ fn run_here(target: &dyn Target, opts: &Options) -> Report {
     watch.stop();
     Report {
         target: name,
-        cases: opts.cases,
+        cases,
         failures: failures.into_values().collect(),
         elapsed: started.elapsed(),
         slowest,

@@ -16,8 +16,14 @@ const CASES: u64 = 1500;
 #[test]
 fn no_decoder_panics_aborts_or_hangs_on_a_mutated_input() {
     let out = std::env::temp_dir().join(format!("mars-fuzz-ci-{}", std::process::id()));
-    let opts =
-        Options { cases: CASES, seed: 1, out: out.clone(), case_timeout: Duration::from_secs(30), progress: None };
+    let opts = Options {
+        cases: CASES,
+        seed: 1,
+        out: out.clone(),
+        case_timeout: Duration::from_secs(30),
+        progress: None,
+        time_limit: None,
+    };
     let mut failed = Vec::new();
     for target in mars_fuzz::targets::all() {
         let report = run(target, &opts);

@@ -49,6 +49,7 @@ fn a_planted_panic_and_a_huge_allocation_are_found_saved_and_reproducible() {
         out: out.path().to_owned(),
         case_timeout: Duration::from_secs(10),
         progress: None,
+        time_limit: None,
     };
     let report = run(Arc::new(Planted), &opts);
     println!("{report}");
