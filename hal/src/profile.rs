@@ -294,7 +294,7 @@ impl Profile {
         }
         for (i, b) in self.filter_velocity_bounds().iter().enumerate() {
             let (lo, hi) = b.rest_range(self.q_min[i], self.q_max[i]);
-            if !(lo < hi) {
+            if lo.partial_cmp(&hi) != Some(std::cmp::Ordering::Less) {
                 return bad(format!(
                     "joint {i}: the safety filter keeps ddq_max²/jerk_max = {} further inside the velocity bounds, which \
                      leaves it no position to rest in: lower ddq_max or raise jerk_max",
