@@ -76,14 +76,13 @@ impl Prepared {
 
 /// Loads and cross-checks the profile, task and checkpoint. Any error here means nothing moved.
 pub fn prepare(cfg: DaemonConfig) -> anyhow::Result<Prepared> {
+    // Again: the command line may have changed what the file said.
+    cfg.validate(&cfg.source.display().to_string())?;
     let profile = Profile::load(&cfg.profile)?;
     profile.validate()?;
     let task = HilTask::load(&cfg.task, &profile).with_context(|| format!("task {}", cfg.task.display()))?;
-    let engine_cfg = EngineConfig {
-        seed: cfg.seed,
-        injected_step_delay: Duration::from_secs_f64(cfg.faults.engine_step_delay_ms * 1e-3),
-        ..EngineConfig::default()
-    };
+    let engine_cfg =
+        EngineConfig { seed: cfg.seed, injected_step_delay: cfg.engine_step_delay(), ..EngineConfig::default() };
     let engine = Engine::load(&cfg.checkpoint, engine_cfg)
         .with_context(|| format!("checkpoint {}", cfg.checkpoint.display()))?;
     let ck = cfg.checkpoint.display();
@@ -166,7 +165,7 @@ pub fn run(p: Prepared) -> anyhow::Result<Outcome> {
     };
     let loop_cfg = ServoLoopConfig {
         period: Duration::from_secs_f64(profile.period_s()),
-        interval: Duration::from_secs_f64(cfg.histograms.interval_s),
+        interval: cfg.histogram_interval(),
         max_consecutive_send_errors: cfg.watchdog.max_consecutive_send_errors,
     };
 
@@ -275,7 +274,7 @@ pub fn run(p: Prepared) -> anyhow::Result<Outcome> {
         return Err(e.context("opening the task's camera and scene"));
     }
 
-    let no_hal = supervise(&status, &term, &servo, Duration::from_secs_f64(cfg.handshake_timeout_s));
+    let no_hal = supervise(&status, &term, &servo, cfg.handshake_timeout());
     let servo_joined = servo.join();
     // Stopped once the servo loop has ended (its last command, the hold, is sent): the HAL sees us leave.
     let heartbeat = heartbeat.finish();
@@ -331,7 +330,7 @@ fn record_setup(cfg: &DaemonConfig, profile: &Profile, task: &HilTask, path: &Pa
         state_names,
         action_names,
         camera,
-        writer_delay: Duration::from_secs_f64(cfg.faults.record_writer_delay_ms * 1e-3),
+        writer_delay: cfg.record_writer_delay(),
         seed: cfg.seed,
         // Absolute, so `marsd replay` finds it from anywhere on this machine (`--checkpoint` elsewhere).
         checkpoint: std::fs::canonicalize(&cfg.checkpoint).unwrap_or_else(|_| cfg.checkpoint.clone()),
