@@ -126,6 +126,11 @@ pub struct WatchdogConfig {
     /// Command sends that failed in a row before tripping (default 10).
     #[serde(default = "default_max_consecutive_send_errors")]
     pub max_consecutive_send_errors: u64,
+    /// SCHED_FIFO priority (1–99) of the threads that watch and report: the HAL's liveness watch, our heartbeat
+    /// and the main thread that logs a trip. Under the loops', above every ordinary process: a busy machine then
+    /// delays neither the verdict that the HAL died nor a trip's report (default 60).
+    #[serde(default = "default_watch_priority")]
+    pub priority: i32,
 }
 
 #[derive(Debug, Clone, Deserialize)]
@@ -161,6 +166,9 @@ fn default_traces_kept() -> usize {
 }
 fn default_max_consecutive_send_errors() -> u64 {
     10
+}
+fn default_watch_priority() -> i32 {
+    60
 }
 fn yes() -> bool {
     true
@@ -228,7 +236,12 @@ impl DaemonConfig {
                 format!("must be in [0, 0.5) rad, got {}", self.servo.position_margin),
             );
         }
-        for (key, p) in [("servo.priority", self.servo.priority), ("policy.priority", self.policy.priority)] {
+        let priorities = [
+            ("servo.priority", self.servo.priority),
+            ("policy.priority", self.policy.priority),
+            ("watchdog.priority", self.watchdog.priority),
+        ];
+        for (key, p) in priorities {
             if !(1..=99).contains(&p) {
                 return bad(key, format!("SCHED_FIFO priorities are 1..=99, got {p}"));
             }
