@@ -3,8 +3,32 @@
 
 use crate::dims::Dims;
 
-fn zeros(n: usize) -> Box<[f32]> {
-    vec![0.0; n].into_boxed_slice()
+/// The most `f32` values the engine allocates for one model's buffers (1 GiB): a checkpoint whose sizes ask for
+/// more (the config's limits allow products far beyond any trained model: K_max = 1000 steps of a 64-block DiT) is
+/// refused at load, not aborted on.
+pub const MAX_BUFFER_VALUES: usize = 1 << 28;
+
+/// Allocates zeroed buffers whose sizes are checked products, until their total would pass
+/// [`MAX_BUFFER_VALUES`]: then the error names the buffer and its factors.
+#[derive(Default)]
+pub(crate) struct Allocator {
+    total: usize,
+}
+
+impl Allocator {
+    pub(crate) fn zeros(&mut self, what: &str, factors: &[usize]) -> Result<Box<[f32]>, String> {
+        let n = factors.iter().try_fold(1usize, |n, &f| n.checked_mul(f));
+        match n.and_then(|n| self.total.checked_add(n)).filter(|&t| t <= MAX_BUFFER_VALUES) {
+            Some(total) => {
+                self.total = total;
+                Ok(vec![0.0; n.unwrap_or(0)].into_boxed_slice())
+            }
+            None => Err(format!(
+                "its {what} buffer of {} values makes more than the engine's {MAX_BUFFER_VALUES} in all",
+                factors.iter().map(usize::to_string).collect::<Vec<_>>().join(" × ")
+            )),
+        }
+    }
 }
 
 pub struct Buffers {
@@ -53,35 +77,37 @@ pub struct Buffers {
 }
 
 impl Buffers {
-    pub fn new(d: &Dims) -> Self {
-        let (c, w, cd) = (d.chunk, d.width, d.chunk_values());
+    /// The buffers of `d` (a validated config's sizes), or why they are too large (see [`Allocator`]).
+    pub fn new(d: &Dims) -> Result<Self, String> {
+        let mut a = Allocator::default();
+        let (c, w, cd) = (d.chunk, d.width, [d.chunk, d.action]);
         let sched = d.scheduler;
-        Self {
-            obs: zeros(d.obs),
-            hist: zeros(cd),
-            enc_in: zeros(if d.vision.is_some() { d.enc_input } else { 0 }),
-            enc_hidden: zeros(d.enc_hidden),
-            emb: zeros(d.embed),
-            sched_in: zeros(sched.filter(|s| s.uses_history).map_or(0, |s| s.input)),
-            sched_hidden: zeros(sched.map_or(0, |s| s.hidden)),
-            w: zeros(d.action),
-            eps: zeros(cd),
-            a: zeros(cd),
-            chunk: zeros(cd),
-            cond: zeros(w),
-            freq: zeros(d.k_max * d.freq),
-            time_hidden: zeros(d.k_max * w),
-            time_emb: zeros(d.k_max * w),
-            c: zeros(d.k_max * w),
-            mods: zeros(d.k_max * d.ada_rows()),
-            x: zeros(c * w),
-            h: zeros(c * w),
-            qkv: zeros(c * 3 * w),
-            attn: zeros(c * w),
-            proj: zeros(c * w),
-            mlp_hidden: zeros(c * d.mlp_hidden),
-            scores: zeros(c),
-            v: zeros(cd),
-        }
+        Ok(Self {
+            obs: a.zeros("observation", &[d.obs])?,
+            hist: a.zeros("history", &cd)?,
+            enc_in: a.zeros("encoder input", &[if d.vision.is_some() { d.enc_input } else { 0 }])?,
+            enc_hidden: a.zeros("encoder hidden", &[d.enc_hidden])?,
+            emb: a.zeros("embedding", &[d.embed])?,
+            sched_in: a.zeros("scheduler input", &[sched.filter(|s| s.uses_history).map_or(0, |s| s.input)])?,
+            sched_hidden: a.zeros("scheduler hidden", &[sched.map_or(0, |s| s.hidden)])?,
+            w: a.zeros("w", &[d.action])?,
+            eps: a.zeros("noise", &cd)?,
+            a: a.zeros("ODE state", &cd)?,
+            chunk: a.zeros("chunk", &cd)?,
+            cond: a.zeros("conditioning", &[w])?,
+            freq: a.zeros("time features", &[d.k_max, d.freq])?,
+            time_hidden: a.zeros("time hidden", &[d.k_max, w])?,
+            time_emb: a.zeros("time embedding", &[d.k_max, w])?,
+            c: a.zeros("step conditioning", &[d.k_max, w])?,
+            mods: a.zeros("adaLN outputs", &[d.k_max, 6 * d.depth + 2, w])?,
+            x: a.zeros("residual stream", &[c, w])?,
+            h: a.zeros("normalised tokens", &[c, w])?,
+            qkv: a.zeros("qkv", &[c, 3, w])?,
+            attn: a.zeros("attention", &[c, w])?,
+            proj: a.zeros("projection", &[c, w])?,
+            mlp_hidden: a.zeros("MLP hidden", &[c, d.mlp_hidden])?,
+            scores: a.zeros("scores", &[c])?,
+            v: a.zeros("velocity", &cd)?,
+        })
     }
 }

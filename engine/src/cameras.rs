@@ -8,7 +8,7 @@ use crate::dims::VisionDims;
 use crate::error::LoadError;
 use crate::matmul::MatMul;
 use crate::resnet::ImageEncoder;
-use crate::weights::with_reader;
+use crate::weights::with_bytes;
 
 pub struct Cameras {
     v: VisionDims,
@@ -18,9 +18,9 @@ pub struct Cameras {
 }
 
 impl Cameras {
-    /// The encoders of `weights` (a checkpoint's safetensors) under `encoder.vision.camera<i>.`.
-    pub fn load(weights: &Path, v: &VisionDims, portable: bool) -> Result<Self, LoadError> {
-        let encoders = with_reader(weights, MatMul::detect(1, portable), |r| {
+    /// The encoders in `bytes` (the checkpoint's safetensors file `weights`) under `encoder.vision.camera<i>.`.
+    pub fn load(weights: &Path, bytes: &[u8], v: &VisionDims, portable: bool) -> Result<Self, LoadError> {
+        let encoders = with_bytes(weights, bytes, MatMul::detect(1, portable), |r| {
             (0..v.cameras)
                 .map(|i| {
                     let prefix = format!("encoder.vision.camera{i}.");

@@ -12,7 +12,7 @@ use crate::matmul::MatMul;
 use crate::observe::{observe, source};
 use crate::velocity::{conditioning, velocity};
 use crate::weights::Weights;
-use mars_policy::checkpoint::{self, CheckpointMeta, WEIGHTS_FILE};
+use mars_policy::checkpoint::{self, CheckpointError, CheckpointMeta, WEIGHTS_FILE};
 use mars_policy::config::PolicyKind;
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
@@ -112,20 +112,34 @@ impl Engine {
     /// the engine cannot run its config.
     pub fn load(dir: &Path, cfg: EngineConfig) -> Result<Self, LoadError> {
         cfg.validate().map_err(LoadError::Config)?;
-        let meta = checkpoint::load(dir, &candle_core::Device::Cpu)?.meta;
+        let meta_path = dir.join(checkpoint::META_FILE);
+        let io = |path: &Path, source| LoadError::Checkpoint(CheckpointError::Io { path: path.to_owned(), source });
+        let meta = std::fs::read_to_string(&meta_path).map_err(|e| io(&meta_path, e))?;
+        let weights_path = dir.join(WEIGHTS_FILE);
+        let weights = std::fs::read(&weights_path).map_err(|e| io(&weights_path, e))?;
+        Self::load_from(dir, &meta, &weights, cfg)
+    }
+
+    /// [`Engine::load`] of the checkpoint `dir`'s files as read: `policy.json`'s text and `model.safetensors`'
+    /// bytes.
+    pub fn load_from(dir: &Path, meta_text: &str, weights: &[u8], cfg: EngineConfig) -> Result<Self, LoadError> {
+        cfg.validate().map_err(LoadError::Config)?;
+        let meta = checkpoint::load_from(dir, meta_text, weights, &candle_core::Device::Cpu)?.meta;
         let dims = Dims::new(&meta.model, meta.kind)
             .map_err(|problem| LoadError::Unsupported { path: dir.to_path_buf(), problem })?;
         let mm = MatMul::detect(cfg.threads, cfg.portable_kernels);
         let fixed_w = meta.kind.fixed_w(&meta.model);
-        let weights = Weights::load(&dir.join(WEIGHTS_FILE), &dims, fixed_w, mm)?;
+        let path = dir.join(WEIGHTS_FILE);
         let cameras = match &dims.vision {
-            Some(v) => Some(Cameras::load(&dir.join(WEIGHTS_FILE), v, cfg.portable_kernels)?),
+            Some(v) => Some(Cameras::load(&path, weights, v, cfg.portable_kernels)?),
             None => None,
         };
+        let weights = Weights::from_bytes(&path, weights, &dims, fixed_w, mm)?;
+        let buf = Buffers::new(&dims).map_err(|problem| LoadError::Unsupported { path: dir.to_path_buf(), problem })?;
         let mut engine = Self {
             meta,
             cameras,
-            buf: Buffers::new(&dims),
+            buf,
             dims,
             weights,
             rng: StdRng::seed_from_u64(cfg.seed),

@@ -234,7 +234,10 @@ impl ImageEncoder {
         if let Head::SpatialSoftmax { keypoints, .. } = &head {
             act = act.max(pixels * keypoints.output);
         }
-        let buf = |n: usize| vec![0.0f32; n].into_boxed_slice();
+        let mut alloc = crate::buffers::Allocator::default();
+        let mut buf = |what: &str, n: usize| {
+            alloc.zeros(what, &[n]).map_err(|p| LoadError::Config(format!("a {height} × {width} camera encoder: {p}")))
+        };
         Ok(Self {
             mm,
             height,
@@ -243,13 +246,13 @@ impl ImageEncoder {
             stem_norm: norm("stem_norm", w)?,
             pooled_hw,
             blocks,
-            out: buf(cfg.out_dim()),
+            out: buf("output", cfg.out_dim())?,
             head,
-            x: buf(act),
-            t1: buf(act),
-            t2: buf(act),
-            t3: buf(act),
-            cols: buf(cols),
+            x: buf("activation", act)?,
+            t1: buf("activation", act)?,
+            t2: buf("activation", act)?,
+            t3: buf("activation", act)?,
+            cols: buf("im2col", cols)?,
             norm_scratch: NormScratch::new(8 * w),
         })
     }

@@ -76,7 +76,18 @@ pub(crate) fn with_reader<T>(
 ) -> Result<T, LoadError> {
     let err = |problem: String| LoadError::Tensor { path: path.into(), name: "*".into(), problem };
     let bytes = std::fs::read(path).map_err(|e| err(e.to_string()))?;
-    let st = SafeTensors::deserialize(&bytes).map_err(|e| err(e.to_string()))?;
+    with_bytes(path, &bytes, mm, read)
+}
+
+/// [`with_reader`] over the bytes of the safetensors file `path`.
+pub(crate) fn with_bytes<T>(
+    path: &Path,
+    bytes: &[u8],
+    mm: MatMul,
+    read: impl FnOnce(&Reader) -> Result<T, LoadError>,
+) -> Result<T, LoadError> {
+    let err = |problem: String| LoadError::Tensor { path: path.into(), name: "*".into(), problem };
+    let st = SafeTensors::deserialize(bytes).map_err(|e| err(e.to_string()))?;
     read(&Reader { st, path, mm })
 }
 
@@ -134,11 +145,18 @@ fn stack(parts: &[Linear]) -> Linear {
 }
 
 impl Weights {
-    /// Reads the weights of a checkpoint that `mars_policy::checkpoint::load` has already validated; the
-    /// shapes are checked again here so that a mismatch can never reach a kernel. `fixed_w`:
-    /// `PolicyKind::fixed_w` (`Some` for a baseline, which has no scheduler; `d.scheduler` follows it too).
-    pub fn load(path: &Path, d: &Dims, fixed_w: Option<f32>, mm: MatMul) -> Result<Self, LoadError> {
-        with_reader(path, mm, |r| Self::read(r, d, fixed_w))
+    /// Reads the weights (`bytes`: the safetensors file `path`) of a checkpoint that
+    /// `mars_policy::checkpoint::load` has already validated; the shapes are checked again here so that a mismatch
+    /// can never reach a kernel. `fixed_w`: `PolicyKind::fixed_w` (`Some` for a baseline, which has no scheduler;
+    /// `d.scheduler` follows it too).
+    pub fn from_bytes(
+        path: &Path,
+        bytes: &[u8],
+        d: &Dims,
+        fixed_w: Option<f32>,
+        mm: MatMul,
+    ) -> Result<Self, LoadError> {
+        with_bytes(path, bytes, mm, |r| Self::read(r, d, fixed_w))
     }
 
     fn read(r: &Reader, d: &Dims, fixed_w: Option<f32>) -> Result<Self, LoadError> {

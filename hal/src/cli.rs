@@ -3,6 +3,8 @@
 use std::path::PathBuf;
 use std::time::Duration;
 
+use anyhow::Context;
+
 use crate::fault::FaultConfig;
 use crate::fci::{LateCommands, Realtime};
 use crate::profile::{BackendKind, Profile};
@@ -225,12 +227,15 @@ pub fn run_hal(args: HalArgs) -> anyhow::Result<Report> {
     if profile.sim.faults.any() {
         tracing::warn!(faults = ?profile.sim.faults, "fault injection is on");
     }
-    if let Some(d) = args.duration_s {
-        anyhow::ensure!(d.is_finite() && d > 0.0, "--duration-s must be a positive number of seconds, got {d}");
-    }
+    let duration = match args.duration_s {
+        Some(d) => Some(Duration::try_from_secs_f64(d).ok().filter(|t| !t.is_zero()).with_context(|| {
+            format!("--duration-s must be a positive number of seconds (that fits a Duration), got {d}")
+        })?),
+        None => None,
+    };
     let opts = RunOptions {
         robot: args.robot.unwrap_or_else(|| profile.name.clone()),
-        duration: args.duration_s.map(Duration::from_secs_f64),
+        duration,
         core: args.core,
         rt_priority: args.rt_priority,
         lock_memory: !args.no_lock_memory,

@@ -120,6 +120,19 @@ pub enum BackendKind {
     Ros2,
 }
 
+/// The largest joint position magnitude (rad or m), velocity (/s), acceleration (/s²) and jerk (/s³) limits, and
+/// gripper opening (m) and speed (m/s) a profile may give: far above any arm's (the FR3: 2.62 rad/s, 10 rad/s²,
+/// 5000 rad/s³), and they keep every product the safety filter and the smoother form finite (a `ddq_max` of 1e11
+/// turned the filter's rest range inside out, and 1e300 would make its setpoints NaN).
+pub const MAX_POSITION: f64 = 1e3;
+pub const MAX_VELOCITY: f64 = 1e2;
+pub const MAX_ACCELERATION: f64 = 1e4;
+pub const MAX_JERK: f64 = 1e7;
+
+/// The longest `command_timeout_ms`, `gripper_command_interval_ms` and `[ros2] feedback_timeout_ms` (a minute):
+/// far above any sensible setting, and it keeps their conversions to ticks and nanoseconds far from overflow.
+pub const MAX_TIMEOUT_MS: f64 = 60_000.0;
+
 #[derive(Debug, thiserror::Error)]
 pub enum ProfileError {
     // The cause is in the message and deliberately not a `source`, so `{:#}` does not print it twice.
@@ -160,6 +173,13 @@ impl Profile {
         (0..self.joints).map(|i| JointVelocityBound::new(self.velocity_limits, i, self.dq_max[i])).collect()
     }
 
+    /// The bounds the safety filter plans its own trajectories with: the planning bounds, a further A²/J inside
+    /// (the velocity a joint gains while its acceleration ramps down at the jerk limit).
+    pub fn filter_velocity_bounds(&self) -> Vec<JointVelocityBound> {
+        let lag = |i: usize| self.ddq_max[i] * self.ddq_max[i] / self.jerk_max[i];
+        self.planning_velocity_bounds().iter().enumerate().map(|(i, b)| b.tightened(lag(i))).collect()
+    }
+
     /// The bounds trajectories are planned with: [`Self::velocity_bounds`] less `velocity_headroom`.
     pub fn planning_velocity_bounds(&self) -> Vec<JointVelocityBound> {
         self.velocity_bounds().iter().map(|b| b.with_headroom(self.velocity_headroom)).collect()
@@ -190,9 +210,13 @@ impl Profile {
             return bad(format!("rate_hz = {} but must be in 1..=10000", self.rate_hz));
         }
         let period_ms = 1e3 / self.rate_hz;
-        if !(self.command_timeout_ms.is_finite() && self.command_timeout_ms >= 2.0 * period_ms) {
+        if !(self.command_timeout_ms.is_finite()
+            && self.command_timeout_ms >= 2.0 * period_ms
+            && self.command_timeout_ms <= MAX_TIMEOUT_MS)
+        {
             return bad(format!(
-                "command_timeout_ms = {} but must be at least two control periods ({:.3} ms)",
+                "command_timeout_ms = {} but must be at least two control periods ({:.3} ms) and at most \
+                 {MAX_TIMEOUT_MS} ms",
                 self.command_timeout_ms,
                 2.0 * period_ms
             ));
@@ -210,6 +234,18 @@ impl Profile {
             }
             if let Some(i) = v.iter().position(|x| !x.is_finite()) {
                 return bad(format!("{field}[{i}] is not a finite number"));
+            }
+        }
+        for (field, v, max) in [
+            ("q_min", &self.q_min, MAX_POSITION),
+            ("q_max", &self.q_max, MAX_POSITION),
+            ("home", &self.home, MAX_POSITION),
+            ("dq_max", &self.dq_max, MAX_VELOCITY),
+            ("ddq_max", &self.ddq_max, MAX_ACCELERATION),
+            ("jerk_max", &self.jerk_max, MAX_JERK),
+        ] {
+            if let Some(i) = v.iter().position(|x| x.abs() > max) {
+                return bad(format!("{field}[{i}] = {:?} but its magnitude must be at most {max}", v[i]));
             }
         }
         if let Err(msg) = self.velocity_limits.check_joints(self.joints) {
@@ -256,9 +292,25 @@ impl Profile {
                 ));
             }
         }
+        for (i, b) in self.filter_velocity_bounds().iter().enumerate() {
+            let (lo, hi) = b.rest_range(self.q_min[i], self.q_max[i]);
+            if lo.partial_cmp(&hi) != Some(std::cmp::Ordering::Less) {
+                return bad(format!(
+                    "joint {i}: the safety filter keeps ddq_max²/jerk_max = {} further inside the velocity bounds, which \
+                     leaves it no position to rest in: lower ddq_max or raise jerk_max",
+                    self.ddq_max[i] * self.ddq_max[i] / self.jerk_max[i]
+                ));
+            }
+        }
         if !(self.gripper_min.is_finite() && self.gripper_max.is_finite() && self.gripper_min < self.gripper_max) {
             return bad(format!(
                 "gripper range [{}, {}] is not a finite, non-empty interval",
+                self.gripper_min, self.gripper_max
+            ));
+        }
+        if self.gripper_min.abs().max(self.gripper_max.abs()) > MAX_POSITION {
+            return bad(format!(
+                "gripper range [{}, {}] reaches past ±{MAX_POSITION}",
                 self.gripper_min, self.gripper_max
             ));
         }
@@ -271,9 +323,18 @@ impl Profile {
                 return bad(format!("{field} = {v} but must be a positive number"));
             }
         }
+        if self.gripper_speed_max > MAX_VELOCITY {
+            return bad(format!("gripper_speed_max = {} but must be at most {MAX_VELOCITY}", self.gripper_speed_max));
+        }
+        if self.gripper_command_interval_ms > MAX_TIMEOUT_MS {
+            return bad(format!(
+                "gripper_command_interval_ms = {} but must be at most {MAX_TIMEOUT_MS} ms",
+                self.gripper_command_interval_ms
+            ));
+        }
         let s = &self.sim;
-        if !(s.tracking_time_constant_s.is_finite() && s.tracking_time_constant_s >= 0.0) {
-            return bad(format!("sim.tracking_time_constant_s = {} must be ≥ 0", s.tracking_time_constant_s));
+        if !(s.tracking_time_constant_s.is_finite() && (0.0..=3600.0).contains(&s.tracking_time_constant_s)) {
+            return bad(format!("sim.tracking_time_constant_s = {} must be in [0, 3600]", s.tracking_time_constant_s));
         }
         if !(s.position_noise_std.is_finite() && s.position_noise_std >= 0.0) {
             return bad(format!("sim.position_noise_std = {} must be ≥ 0", s.position_noise_std));
@@ -405,6 +466,25 @@ mod tests {
         assert!(invalid(&t).contains("sim.faults.nan_joint = 9"), "{}", invalid(&t));
         let t = format!("{}\n[sim.faults]\ndrop_sometimes = 1\n", fr3_text());
         assert!(invalid(&t).contains("drop_sometimes"));
+    }
+
+    /// Found by mars-fuzz: `ddq_max = 1.01e11` on one joint passed and the safety filter's first step panicked
+    /// (its rest range, A²/J inside the braking curves, was inside out). Limits far beyond any arm's are refused,
+    /// and so is a ratio that leaves the filter nowhere to rest.
+    #[test]
+    fn limits_beyond_any_arm_and_an_empty_filter_range_are_refused() {
+        let ddq = |v: &str| {
+            fr3_text().replace("ddq_max = [10.0, 10.0, 10.0, 10.0,", &format!("ddq_max = [10.0, 10.0, 10.0, {v},"))
+        };
+        assert!(invalid(&ddq("101e9")).contains("ddq_max[3] = 101000000000.0 but its magnitude must be at most"));
+        let e =
+            invalid(&ddq("9000.0").replace(
+                "jerk_max = [5000.0, 5000.0, 5000.0, 5000.0,",
+                "jerk_max = [5000.0, 5000.0, 5000.0, 9000000.0,",
+            ));
+        assert!(e.contains("joint 3: the safety filter keeps ddq_max²/jerk_max = 9 further inside"), "{e}");
+        let t = fr3_text().replace("q_min = [-2.9007,", "q_min = [-1e300,");
+        assert!(invalid(&t).contains("q_min[0] = -1e300"), "{}", invalid(&t));
     }
 
     #[test]

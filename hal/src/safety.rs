@@ -175,9 +175,9 @@ impl SafetyFilter {
         let unused = JointVelocityBound::new(VelocityLimits::Constant, 0, 1.0);
         let (mut bound, mut plan) = ([unused; MAX_JOINTS], [unused; MAX_JOINTS]);
         let (mut q_min, mut q_max) = ([0.0; MAX_JOINTS], [0.0; MAX_JOINTS]);
-        for (i, (b, planning)) in p.velocity_bounds().into_iter().zip(p.planning_velocity_bounds()).enumerate() {
+        for (i, (b, planning)) in p.velocity_bounds().into_iter().zip(p.filter_velocity_bounds()).enumerate() {
             bound[i] = b;
-            plan[i] = planning.tightened(p.ddq_max[i] * p.ddq_max[i] / p.jerk_max[i]);
+            plan[i] = planning;
             (q_min[i], q_max[i]) = plan[i].rest_range(p.q_min[i], p.q_max[i]);
         }
         Self {
@@ -313,7 +313,9 @@ impl SafetyFilter {
         if let Ok(t) = &r
             && cmd.mode == CommandMode::Position as u32
         {
-            let v = self.stream.filter(|p| p.session == cmd.session && p.seq + 1 == cmd.seq).map(|p| {
+            // `checked_add`: a controller's seq is its own word (u64::MAX overflowed here, found by mars-fuzz).
+            let next = |p: &StreamPoint| p.seq.checked_add(1) == Some(cmd.seq);
+            let v = self.stream.filter(|p| p.session == cmd.session && next(p)).map(|p| {
                 let mut v = [0.0; MAX_JOINTS];
                 for ((v, q), q0) in v.iter_mut().zip(&t.position).zip(&p.q).take(self.n) {
                     *v = (q - q0) / self.dt;
@@ -476,7 +478,7 @@ impl SafetyFilter {
         }
         if let Some(pv) = p.v {
             // The two velocities are means over their intervals, whose middles lie (gap + 1)/2 ticks apart.
-            let a = (v - pv[i]) / (0.5 * (cmd.seq - p.seq + 1) as f64 * self.dt);
+            let a = (v - pv[i]) / (0.5 * ((cmd.seq - p.seq) as f64 + 1.0) * self.dt);
             if a.abs() > self.a_max[i] * (1.0 + EPS) {
                 return Some(Some(("implied acceleration", a, self.a_max[i])));
             }
@@ -649,6 +651,17 @@ mod tests {
             c.gripper = f64::NAN;
             assert_eq!(f.admit(&c, false), Err(Refusal::GripperNotFinite));
             assert_eq!(f.rejected, 3);
+        }
+    }
+
+    /// Found by mars-fuzz: a command whose seq is u64::MAX, then another of its session, overflowed the stream's
+    /// "next command" test (a panic in a debug build of the HAL).
+    #[test]
+    fn the_largest_seq_is_judged_without_overflow() {
+        let p = fr3();
+        let mut f = SafetyFilter::new(&p, &p.home);
+        for seq in [u64::MAX - 1, u64::MAX, u64::MAX, 0, 1] {
+            assert!(f.admit(&JointCommand::position(1, seq, 0, &p.home), false).is_ok(), "seq {seq}");
         }
     }
 

@@ -40,6 +40,18 @@ impl HeartbeatThread {
         node_name: &str,
         progress: impl Fn() -> u64 + Send + 'static,
     ) -> Result<Self, WireError> {
+        Self::start_then(robot, side, node_name, progress, || {})
+    }
+
+    /// As [`HeartbeatThread::start`], the thread first running `setup` (marsd raises it to a real-time priority
+    /// there, so that a busy machine cannot silence a controller that is alive).
+    pub fn start_then(
+        robot: &str,
+        side: Side,
+        node_name: &str,
+        progress: impl Fn() -> u64 + Send + 'static,
+        setup: impl FnOnce() + Send + 'static,
+    ) -> Result<Self, WireError> {
         let ns = RobotNamespace::new(robot)?;
         let node_name = node_name.to_owned();
         let stop = Arc::new(AtomicBool::new(false));
@@ -48,6 +60,7 @@ impl HeartbeatThread {
         let thread = std::thread::Builder::new()
             .name(format!("{node_name}-heartbeat"))
             .spawn(move || {
+                setup();
                 let opened =
                     create_node(&node_name).and_then(|(node, _)| Ok((Heartbeat::new(&node, &ns, side)?, node)));
                 let (mut heartbeat, _node) = match opened {

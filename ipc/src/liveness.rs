@@ -166,6 +166,16 @@ impl PeerWatch {
 
     /// Watch `side`'s heartbeat. Returns once the listener is attached, so no later heartbeat is missed.
     pub fn spawn(ns: &RobotNamespace, side: Side) -> Result<Self, WireError> {
+        Self::spawn_then(ns, side, || {})
+    }
+
+    /// As [`PeerWatch::spawn`], the watch thread first running `setup` (marsd raises it to a real-time priority
+    /// there, so that a busy machine cannot delay the verdict).
+    pub fn spawn_then(
+        ns: &RobotNamespace,
+        side: Side,
+        setup: impl FnOnce() + Send + 'static,
+    ) -> Result<Self, WireError> {
         let shared = Arc::new(Shared {
             state: AtomicU8::new(0),
             deaths: AtomicU64::new(0),
@@ -178,7 +188,8 @@ impl PeerWatch {
         let thread = std::thread::Builder::new()
             .name(format!("mars-watch-{side:?}").to_lowercase())
             .spawn(move || {
-                let setup = (|| {
+                setup();
+                let opened = (|| {
                     let watcher = if side == Side::Hal { "controller" } else { "hal" };
                     let (node, _) = create_node(&format!("mars-{watcher}-watch-{}", ns.robot()))?;
                     let (name, service) = open(&node, &ns, side)?;
@@ -188,7 +199,7 @@ impl PeerWatch {
                         .map_err(|e| WireError::Port { service: name.as_str().to_owned(), reason: format!("{e:?}") })?;
                     Ok::<_, WireError>((node, listener))
                 })();
-                match setup {
+                match opened {
                     Err(e) => {
                         let _ = ready_tx.send(Err(e));
                     }

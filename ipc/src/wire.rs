@@ -279,6 +279,23 @@ impl ImageFrame {
     }
 }
 
+/// Whether a received image of header `h` and a payload of `found` bytes may be read: this build's schema, and
+/// exactly the bytes the header's size and encoding make. Allocation-free.
+pub fn check_image(h: &ImageHeader, found: usize) -> Result<(), ImageReceiveError> {
+    check_schema_version(h.schema_version).map_err(ImageReceiveError::Schema)?;
+    let expected = h.expected_len();
+    if expected != Some(found) {
+        return Err(ImageReceiveError::Length {
+            width: h.width,
+            height: h.height,
+            encoding: h.encoding,
+            expected,
+            found,
+        });
+    }
+    Ok(())
+}
+
 pub struct ImageReader {
     name: ServiceName,
     subscriber: Subscriber<ipc::Service, [u8], ImageHeader>,
@@ -297,18 +314,7 @@ impl ImageReader {
         let Some(sample) = self.subscriber.receive().map_err(ImageReceiveError::Port)? else {
             return Ok(None);
         };
-        let h = *sample.user_header();
-        check_schema_version(h.schema_version).map_err(ImageReceiveError::Schema)?;
-        let (expected, found) = (h.expected_len(), sample.payload().len());
-        if expected != Some(found) {
-            return Err(ImageReceiveError::Length {
-                width: h.width,
-                height: h.height,
-                encoding: h.encoding,
-                expected,
-                found,
-            });
-        }
+        check_image(sample.user_header(), sample.payload().len())?;
         Ok(Some(ImageFrame { sample }))
     }
 

@@ -9,7 +9,7 @@ use std::time::Instant;
 use crate::LeRobotError;
 use crate::cache::{self, FrameCache, Source};
 use crate::episodes::{self, Episode, FileIndex};
-use crate::info::{Feature, Info};
+use crate::info::{Feature, Info, MAX_IMAGE_SIDE};
 use crate::table::Table;
 use crate::video;
 
@@ -136,8 +136,8 @@ impl LeRobotDataset {
         if !matches!(f.dtype.as_str(), "float32" | "float64") {
             return Err(bad(format!("dtype {}, not a float vector", f.dtype)));
         }
-        if f.shape.len() != 1 {
-            return Err(bad(format!("shape {:?}, not a vector", f.shape)));
+        if f.shape.len() != 1 || f.shape[0] == 0 {
+            return Err(bad(format!("shape {:?}, not a vector of at least one value", f.shape)));
         }
         Ok(f.len())
     }
@@ -152,8 +152,12 @@ impl LeRobotDataset {
                 f.dtype
             )));
         }
+        let side = |n: usize| (1..=MAX_IMAGE_SIDE).contains(&n).then_some(n as u32);
         match f.shape[..] {
-            [h, w, 3] => Ok((h as u32, w as u32)),
+            [h, w, 3] => match (side(h), side(w)) {
+                (Some(h), Some(w)) => Ok((h, w)),
+                _ => Err(bad(format!("shape {:?}: images of 1 to {MAX_IMAGE_SIDE} pixels a side", f.shape))),
+            },
             _ => Err(bad(format!("shape {:?}, not (height, width, 3)", f.shape))),
         }
     }
@@ -183,10 +187,11 @@ impl LeRobotDataset {
                 index: e.index,
                 len: e.length,
                 tasks: e.tasks.clone(),
-                state: Vec::with_capacity(e.length * state_dim),
-                action: Vec::with_capacity(e.length * action_dim),
+                // Sized once the data file shows the rows are there, not by what the metadata claims.
+                state: Vec::new(),
+                action: Vec::new(),
                 images: Vec::with_capacity(keys.images.len()),
-                timestamps: Vec::with_capacity(e.length),
+                timestamps: Vec::new(),
             })
             .collect();
         self.read_vectors(keys, state_dim, action_dim, &mut out)?;
@@ -299,6 +304,9 @@ impl LeRobotDataset {
                     )));
                 }
                 let o = &mut out[i];
+                o.state.reserve_exact(mine.len() * state_dim);
+                o.action.reserve_exact(mine.len() * action_dim);
+                o.timestamps.reserve_exact(mine.len());
                 for &r in &mine {
                     o.state.extend_from_slice(&state[r * state_dim..(r + 1) * state_dim]);
                     o.action.extend_from_slice(&action[r * action_dim..(r + 1) * action_dim]);
@@ -332,7 +340,7 @@ impl LeRobotDataset {
             })?;
             by_file.entry(range.file).or_default().push(i);
         }
-        let frame_len = (height * width * 3) as usize;
+        let frame_len = height as usize * width as usize * 3;
         for (file, eps) in by_file {
             let path = self.info.file_path(&self.root, template, Some(key), file.chunk, file.file)?;
             let video = self.video_frames(&path, (height, width), cache, report)?;

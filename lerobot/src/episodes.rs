@@ -78,12 +78,19 @@ pub fn load(root: &Path, info: &Info) -> Result<Vec<Episode>, LeRobotError> {
             error: std::io::Error::new(std::io::ErrorKind::NotFound, "no episodes metadata (*.parquet)"),
         });
     }
-    let video_keys: Vec<&String> = info.features.iter().filter(|(_, f)| f.is_video()).map(|(k, _)| k).collect();
-    let video_cols: Vec<[String; 4]> = video_keys
-        .iter()
-        .map(|k| ["chunk_index", "file_index", "from_timestamp", "to_timestamp"].map(|c| format!("videos/{k}/{c}")))
-        .collect();
-    let mut columns: Vec<&str> = vec![
+    let columns = columns(info);
+    let columns: Vec<&str> = columns.iter().map(String::as_str).collect();
+    // Not sized by `total_episodes`: that is the file's word, checked against the rows below.
+    let mut episodes = Vec::new();
+    for path in &files {
+        episodes.extend(from_table(&Table::read(path, Some(&columns))?, info)?);
+    }
+    check(episodes, info)
+}
+
+/// The columns of an episodes file that [`from_table`] reads.
+pub fn columns(info: &Info) -> Vec<String> {
+    let mut columns: Vec<String> = [
         "episode_index",
         "length",
         "tasks",
@@ -91,48 +98,74 @@ pub fn load(root: &Path, info: &Info) -> Result<Vec<Episode>, LeRobotError> {
         "data/file_index",
         "dataset_from_index",
         "dataset_to_index",
-    ];
-    columns.extend(video_cols.iter().flatten().map(String::as_str));
-    let mut episodes = Vec::with_capacity(info.total_episodes);
-    for path in &files {
-        let t = Table::read(path, Some(&columns))?;
-        let (index, length, tasks) = (t.i64s("episode_index")?, t.i64s("length")?, t.string_lists("tasks")?);
-        let (chunk, file) = (t.i64s("data/chunk_index")?, t.i64s("data/file_index")?);
-        let (from, to) = (t.i64s("dataset_from_index")?, t.i64s("dataset_to_index")?);
-        let mut videos = Vec::with_capacity(video_keys.len());
-        for cols in &video_cols {
-            videos.push((t.i64s(&cols[0])?, t.i64s(&cols[1])?, t.f64s(&cols[2])?, t.f64s(&cols[3])?));
-        }
-        for r in 0..t.rows() {
-            let bad = |problem: String| LeRobotError::Episode { episode: index[r], problem };
-            if length[r] <= 0 || to[r] - from[r] != length[r] {
-                return Err(bad(format!(
-                    "length {} but dataset rows {}..{} in {}",
-                    length[r],
-                    from[r],
-                    to[r],
-                    path.display()
-                )));
-            }
-            let mut ranges = BTreeMap::new();
-            for (k, (c, f, a, b)) in video_keys.iter().zip(&videos) {
-                if !(a[r].is_finite() && b[r].is_finite() && a[r] >= 0.0 && a[r] < b[r]) {
-                    return Err(bad(format!("video `{k}` from {} s to {} s is not a time range", a[r], b[r])));
-                }
-                let range = VideoRange { file: FileIndex { chunk: c[r], file: f[r] }, from_s: a[r], to_s: b[r] };
-                ranges.insert((*k).clone(), range);
-            }
-            episodes.push(Episode {
-                index: index[r],
-                length: length[r] as usize,
-                tasks: tasks[r].clone(),
-                data: FileIndex { chunk: chunk[r], file: file[r] },
-                dataset_from_index: from[r],
-                dataset_to_index: to[r],
-                videos: ranges,
-            });
-        }
+    ]
+    .map(String::from)
+    .into();
+    for k in video_keys(info) {
+        columns
+            .extend(["chunk_index", "file_index", "from_timestamp", "to_timestamp"].map(|c| format!("videos/{k}/{c}")));
     }
+    columns
+}
+
+fn video_keys(info: &Info) -> Vec<&String> {
+    info.features.iter().filter(|(_, f)| f.is_video()).map(|(k, _)| k).collect()
+}
+
+/// The episodes of one episodes file, each checked on its own (a positive length that its rows span, a time
+/// range for every video).
+pub fn from_table(t: &Table, info: &Info) -> Result<Vec<Episode>, LeRobotError> {
+    let path = &t.path;
+    let video_keys = video_keys(info);
+    let (index, length, tasks) = (t.i64s("episode_index")?, t.i64s("length")?, t.string_lists("tasks")?);
+    let (chunk, file) = (t.i64s("data/chunk_index")?, t.i64s("data/file_index")?);
+    let (from, to) = (t.i64s("dataset_from_index")?, t.i64s("dataset_to_index")?);
+    let mut videos = Vec::with_capacity(video_keys.len());
+    for k in &video_keys {
+        let col = |c: &str| format!("videos/{k}/{c}");
+        videos.push((
+            t.i64s(&col("chunk_index"))?,
+            t.i64s(&col("file_index"))?,
+            t.f64s(&col("from_timestamp"))?,
+            t.f64s(&col("to_timestamp"))?,
+        ));
+    }
+    let mut episodes = Vec::with_capacity(t.rows());
+    for r in 0..t.rows() {
+        let bad = |problem: String| LeRobotError::Episode { episode: index[r], problem };
+        if length[r] <= 0 || from[r] < 0 || to[r].checked_sub(from[r]) != Some(length[r]) {
+            return Err(bad(format!(
+                "length {} but dataset rows {}..{} in {}",
+                length[r],
+                from[r],
+                to[r],
+                path.display()
+            )));
+        }
+        let mut ranges = BTreeMap::new();
+        for (k, (c, f, a, b)) in video_keys.iter().zip(&videos) {
+            if !(a[r].is_finite() && b[r].is_finite() && a[r] >= 0.0 && a[r] < b[r]) {
+                return Err(bad(format!("video `{k}` from {} s to {} s is not a time range", a[r], b[r])));
+            }
+            let range = VideoRange { file: FileIndex { chunk: c[r], file: f[r] }, from_s: a[r], to_s: b[r] };
+            ranges.insert((*k).clone(), range);
+        }
+        episodes.push(Episode {
+            index: index[r],
+            length: length[r] as usize,
+            tasks: tasks[r].clone(),
+            data: FileIndex { chunk: chunk[r], file: file[r] },
+            dataset_from_index: from[r],
+            dataset_to_index: to[r],
+            videos: ranges,
+        });
+    }
+    Ok(episodes)
+}
+
+/// The episodes of every file together: in episode order, indices 0..N once each, as many episodes and frames
+/// as `info.json` says.
+pub fn check(mut episodes: Vec<Episode>, info: &Info) -> Result<Vec<Episode>, LeRobotError> {
     episodes.sort_by_key(|e| e.index);
     for (i, e) in episodes.iter().enumerate() {
         if e.index != i as i64 {
@@ -146,8 +179,9 @@ pub fn load(root: &Path, info: &Info) -> Result<Vec<Episode>, LeRobotError> {
             });
         }
     }
-    let frames: usize = episodes.iter().map(|e| e.length).sum();
-    if episodes.len() != info.total_episodes || frames != info.total_frames {
+    let frames = episodes.iter().try_fold(0usize, |n, e| n.checked_add(e.length));
+    if episodes.len() != info.total_episodes || frames != Some(info.total_frames) {
+        let frames = frames.map_or("more than 2⁶⁴".to_owned(), |n| n.to_string());
         return Err(LeRobotError::Episode {
             episode: -1,
             problem: format!(

@@ -10,6 +10,8 @@ pub enum LeRobotError {
     Exists { path: PathBuf },
     #[error("{path}: not a LeRobot dataset's metadata: {error}")]
     Info { path: PathBuf, error: serde_json::Error },
+    #[error("{path}: {problem}")]
+    Meta { path: PathBuf, problem: String },
     #[error(
         "{path}: codebase_version {found}, but this reader takes LeRobot v3.0 datasets. A v2.1 dataset converts with \
          LeRobot's own converter: `python -m lerobot.scripts.convert_dataset_v21_to_v30 --repo-id=<id>` (LeRobot ≥ 0.4)"
@@ -19,6 +21,8 @@ pub enum LeRobotError {
     MissingKey { key: String, available: String },
     #[error("feature `{key}`: {problem}")]
     Feature { key: String, problem: String },
+    #[error("path template `{template}`: {problem}")]
+    Template { template: String, problem: String },
     #[error("{path}: not a readable parquet file (truncated or corrupt?): {error}")]
     Parquet { path: PathBuf, error: String },
     #[error("{path}: column `{column}`: {problem}")]

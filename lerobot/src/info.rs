@@ -1,7 +1,7 @@
 //! `meta/info.json`: the dataset's version, rate, features (dtype, shape, names) and where its files are.
 
 use std::collections::BTreeMap;
-use std::path::{Path, PathBuf};
+use std::path::{Component, Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
@@ -9,6 +9,14 @@ use crate::LeRobotError;
 
 /// The only layout this crate reads and writes.
 pub const CODEBASE_VERSION: &str = "v3.0";
+
+/// The highest frame rate read (a camera or a control loop faster than 10 kHz is not a robot demonstration).
+pub const MAX_FPS: f64 = 10_000.0;
+/// The most values one frame of a feature may have (a 4096 × 4096 RGB image has 3 · 2²⁴): a shape beyond it is
+/// refused when `info.json` is read, so no product of a feature's sizes can overflow.
+pub const MAX_FEATURE_VALUES: usize = 1 << 26;
+/// A camera image's largest height and width.
+pub const MAX_IMAGE_SIDE: usize = 4096;
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Info {
@@ -52,9 +60,9 @@ impl Feature {
         self.dtype == "video"
     }
 
-    /// Values per frame.
+    /// Values per frame (a loaded dataset's features have at most [`MAX_FEATURE_VALUES`]; saturates otherwise).
     pub fn len(&self) -> usize {
-        self.shape.iter().product()
+        self.shape.iter().try_fold(1usize, |n, &d| n.checked_mul(d)).unwrap_or(usize::MAX)
     }
 
     pub fn is_empty(&self) -> bool {
@@ -67,17 +75,49 @@ impl Info {
     pub fn load(root: &Path) -> Result<Self, LeRobotError> {
         let path = root.join("meta/info.json");
         let text = std::fs::read_to_string(&path).map_err(|error| LeRobotError::Read { path: path.clone(), error })?;
+        Self::parse(&text, path)
+    }
+
+    /// [`Info::load`] of the text of `path` (named in errors).
+    pub fn parse(text: &str, path: PathBuf) -> Result<Self, LeRobotError> {
         // The version first, on its own: an older layout may lack the fields v3.0 needs.
         #[derive(Deserialize)]
         struct Version {
             codebase_version: String,
         }
         let v: Version =
-            serde_json::from_str(&text).map_err(|error| LeRobotError::Info { path: path.clone(), error })?;
+            serde_json::from_str(text).map_err(|error| LeRobotError::Info { path: path.clone(), error })?;
         if v.codebase_version != CODEBASE_VERSION {
             return Err(LeRobotError::Version { path, found: v.codebase_version });
         }
-        serde_json::from_str(&text).map_err(|error| LeRobotError::Info { path, error })
+        let info: Self =
+            serde_json::from_str(text).map_err(|error| LeRobotError::Info { path: path.clone(), error })?;
+        info.validate().map_err(|problem| LeRobotError::Meta { path, problem })?;
+        Ok(info)
+    }
+
+    /// What the rest of the reader relies on: a positive, finite rate; feature shapes whose product is a size a
+    /// frame can have; path templates that stay inside the dataset's folder (for every video key).
+    pub fn validate(&self) -> Result<(), String> {
+        if !(self.fps.is_finite() && self.fps > 0.0 && self.fps <= MAX_FPS) {
+            return Err(format!("fps is {}, must be a rate in (0, {MAX_FPS}] frames per second", self.fps));
+        }
+        for (key, f) in &self.features {
+            let n = f.shape.iter().try_fold(1usize, |n, &d| n.checked_mul(d)).filter(|&n| n <= MAX_FEATURE_VALUES);
+            if n.is_none() {
+                return Err(format!(
+                    "feature `{key}` has shape {:?}: more than {MAX_FEATURE_VALUES} values a frame",
+                    f.shape
+                ));
+            }
+        }
+        let err = |e: LeRobotError| e.to_string();
+        Self::relative_path(&self.data_path, None, 0, 0).map_err(err)?;
+        for key in self.features.iter().filter(|(_, f)| f.is_video()).map(|(k, _)| k) {
+            let template = self.video_path.as_deref().ok_or(format!("video feature `{key}` but no video_path"))?;
+            Self::relative_path(template, Some(key), 0, 0).map_err(err)?;
+        }
+        Ok(())
     }
 
     pub fn feature(&self, key: &str) -> Result<&Feature, LeRobotError> {
@@ -97,17 +137,25 @@ impl Info {
         chunk: i64,
         file: i64,
     ) -> Result<PathBuf, LeRobotError> {
+        Ok(root.join(Self::relative_path(template, video_key, chunk, file)?))
+    }
+
+    /// The template filled in: a path inside the dataset's folder, or why not.
+    fn relative_path(template: &str, video_key: Option<&str>, chunk: i64, file: i64) -> Result<PathBuf, LeRobotError> {
         let filled = template
             .replace("{video_key}", video_key.unwrap_or(""))
             .replace("{chunk_index:03d}", &format!("{chunk:03}"))
             .replace("{file_index:03d}", &format!("{file:03}"));
+        let bad = |problem: String| LeRobotError::Template { template: template.to_owned(), problem };
         if filled.contains('{') {
-            return Err(LeRobotError::Feature {
-                key: template.to_owned(),
-                problem: "a path template with placeholders other than video_key, chunk_index:03d, file_index:03d"
-                    .into(),
-            });
+            return Err(bad("placeholders other than video_key, chunk_index:03d, file_index:03d".into()));
         }
-        Ok(root.join(filled))
+        // Only names inside the dataset's folder: no `..`, no absolute path (which `join` would take instead of
+        // the root), whatever the template or a video key says.
+        let rel = Path::new(&filled);
+        if filled.is_empty() || !rel.components().all(|c| matches!(c, Component::Normal(_) | Component::CurDir)) {
+            return Err(bad(format!("makes the path {filled:?}, which leaves the dataset's folder (or names none)")));
+        }
+        Ok(rel.to_owned())
     }
 }

@@ -11,6 +11,7 @@
 //!   tools and `mars train --dataset` read them.
 
 pub mod cache;
+pub mod contain;
 pub mod dataset;
 pub mod demos;
 pub mod episodes;

@@ -24,7 +24,7 @@ pub struct DecodedVideo {
 
 impl DecodedVideo {
     pub fn frame_len(&self) -> usize {
-        (self.width * self.height * 3) as usize
+        self.width as usize * self.height as usize * 3
     }
 
     pub fn frame(&self, i: usize) -> &[u8] {

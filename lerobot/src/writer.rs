@@ -537,7 +537,7 @@ impl DatasetWriter {
             Field::new("task_index", DataType::Int64, true),
             Field::new("task", DataType::Utf8, true),
         ])
-        .with_metadata([("pandas".to_owned(), pandas.to_string())].into());
+        .with_metadata(std::collections::BTreeMap::from([("pandas".to_owned(), pandas.to_string())]));
         let columns: Vec<ArrayRef> = vec![
             Arc::new(Int64Array::from_iter_values(0..self.tasks.len() as i64)),
             Arc::new(StringArray::from_iter_values(&self.tasks)),
@@ -654,7 +654,7 @@ fn data_schema(spec: &DatasetSpec) -> Schema {
         hf.insert(name.into(), json!({"dtype": "int64", "_type": "Value"}));
     }
     let meta = json!({ "info": { "features": Value::Object(hf) } }).to_string();
-    Schema::new(fields).with_metadata([("huggingface".to_owned(), meta)].into())
+    Schema::new(fields).with_metadata(std::collections::BTreeMap::from([("huggingface".to_owned(), meta)]))
 }
 
 /// One statistic of one feature for every episode: list<double>, or for a camera list<list<list<double>>>

@@ -9,7 +9,7 @@ use crate::train::{EpochLog, Trained};
 use candle_core::{DType, Device, Shape, Tensor};
 use candle_nn::{Init, VarBuilder, VarMap};
 use serde::{Deserialize, Serialize};
-use std::collections::{BTreeSet, HashMap};
+use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 
@@ -90,8 +90,14 @@ pub fn save_parts(
 pub fn load_meta(dir: &Path) -> Result<CheckpointMeta, CheckpointError> {
     let path = dir.join(META_FILE);
     let text = std::fs::read_to_string(&path).map_err(|source| CheckpointError::Io { path: path.clone(), source })?;
+    parse_meta(dir, &text)
+}
+
+/// [`load_meta`] of the text of `dir`'s `policy.json`.
+pub fn parse_meta(dir: &Path, text: &str) -> Result<CheckpointMeta, CheckpointError> {
+    let path = dir.join(META_FILE);
     let meta_err = |problem: String| CheckpointError::Meta { path: path.clone(), problem };
-    let meta: CheckpointMeta = serde_json::from_str(&text).map_err(|e| meta_err(e.to_string()))?;
+    let meta: CheckpointMeta = serde_json::from_str(text).map_err(|e| meta_err(e.to_string()))?;
     if meta.format != FORMAT || meta.version != VERSION {
         return Err(meta_err(format!(
             "format {} v{}, this build reads {FORMAT} v{VERSION}",
@@ -119,69 +125,82 @@ pub fn load(dir: &Path, device: &Device) -> Result<Loaded, CheckpointError> {
     let meta = load_meta(dir)?;
     let path = dir.join(WEIGHTS_FILE);
     let bytes = std::fs::read(&path).map_err(|source| CheckpointError::Io { path: path.clone(), source })?;
-    let st = safetensors::SafeTensors::deserialize(&bytes)
+    load_weights(dir, meta, &bytes, device)
+}
+
+/// [`load`] of `dir`'s files as read (`policy.json`'s text, `model.safetensors`' bytes).
+pub fn load_from(dir: &Path, meta_text: &str, weights: &[u8], device: &Device) -> Result<Loaded, CheckpointError> {
+    load_weights(dir, parse_meta(dir, meta_text)?, weights, device)
+}
+
+fn load_weights(dir: &Path, meta: CheckpointMeta, bytes: &[u8], device: &Device) -> Result<Loaded, CheckpointError> {
+    let path = dir.join(WEIGHTS_FILE);
+    let st = safetensors::SafeTensors::deserialize(bytes)
         .map_err(|e| CheckpointError::Corrupt { path: path.clone(), problem: e.to_string() })?;
-    let mut tensors = HashMap::new();
-    for (name, view) in st.tensors() {
-        let tensor_err = |problem: String| CheckpointError::Tensor { path: path.clone(), name: name.clone(), problem };
-        if view.dtype() != safetensors::Dtype::F32 {
-            return Err(tensor_err(format!("dtype {:?}, expected F32", view.dtype())));
-        }
-        let t = candle_core::safetensors::Load::load(&view, device).map_err(|e| tensor_err(e.to_string()))?;
-        let finite = t.flatten_all().and_then(|f| f.to_vec1::<f32>()).map_err(|e| tensor_err(e.to_string()))?;
-        if finite.iter().any(|v| !v.is_finite()) {
-            return Err(tensor_err("contains NaN or infinite values".into()));
-        }
-        tensors.insert(name, t);
-    }
+    let names: Vec<String> = st.names().into_iter().map(str::to_owned).collect();
     let used: Arc<Mutex<BTreeSet<String>>> = Arc::default();
-    let backend = CheckedTensors { tensors, used: used.clone() };
+    let backend = CheckedTensors { st, used: used.clone() };
     let vb = VarBuilder::from_backend(Box::new(backend), DType::F32, device.clone());
     let model = MarsModel::new(&meta.model, meta.kind, vb)
         .map_err(|e| CheckpointError::Model { path: path.clone(), problem: e.to_string() })?;
     let used = used.lock().unwrap_or_else(|e| e.into_inner());
-    if let Some(extra) = st.names().into_iter().find(|n| !used.contains(*n)) {
+    if let Some(extra) = names.into_iter().find(|n| !used.contains(n)) {
         return Err(CheckpointError::Tensor {
             path,
-            name: extra.to_string(),
+            name: extra,
             problem: format!("not part of a `{}` model with this config (wrong policy kind or config?)", meta.kind),
         });
     }
     Ok(Loaded { model, meta })
 }
 
-/// A `VarBuilder` backend over loaded tensors that reports a missing or wrong-shape tensor by name and records
-/// which tensors the model used, so leftovers can be reported too.
-struct CheckedTensors {
-    tensors: HashMap<String, Tensor>,
+/// A `VarBuilder` backend over the safetensors file that hands out a tensor only once its shape is the one the
+/// config makes (checked before the tensor is copied out of the file: a hostile header cannot size an allocation),
+/// its dtype F32 and its values finite; it reports a missing or wrong tensor by name and records which tensors the
+/// model used, so leftovers can be reported too.
+struct CheckedTensors<'a> {
+    st: safetensors::SafeTensors<'a>,
     /// Shared with `load`, which keeps a handle: the backend itself moves into the `VarBuilder`.
     used: Arc<Mutex<BTreeSet<String>>>,
 }
 
-impl candle_nn::var_builder::SimpleBackend for CheckedTensors {
-    fn get(&self, s: Shape, name: &str, _h: Init, dtype: DType, dev: &Device) -> candle_core::Result<Tensor> {
-        let Some(t) = self.tensors.get(name) else {
-            candle_core::bail!("tensor `{name}` (shape {:?}) is missing from the checkpoint", s.dims());
+impl CheckedTensors<'_> {
+    fn tensor(&self, name: &str, shape: Option<&Shape>, dev: &Device) -> candle_core::Result<Tensor> {
+        let Ok(view) = self.st.tensor(name) else {
+            let shape = shape.map_or(String::new(), |s| format!(" (shape {:?})", s.dims()));
+            candle_core::bail!("tensor `{name}`{shape} is missing from the checkpoint");
         };
-        if t.shape() != &s {
+        if let Some(s) = shape
+            && view.shape() != s.dims()
+        {
             candle_core::bail!(
                 "tensor `{name}` has shape {:?} in the checkpoint, the config needs {:?}",
-                t.dims(),
+                view.shape(),
                 s.dims()
             );
         }
+        if view.dtype() != safetensors::Dtype::F32 {
+            candle_core::bail!("tensor `{name}`: dtype {:?}, expected F32", view.dtype());
+        }
+        let t = candle_core::safetensors::Load::load(&view, dev)?;
+        if t.flatten_all()?.to_vec1::<f32>()?.iter().any(|v| !v.is_finite()) {
+            candle_core::bail!("tensor `{name}` contains NaN or infinite values");
+        }
         self.used.lock().unwrap_or_else(|e| e.into_inner()).insert(name.to_string());
-        t.to_dtype(dtype)?.to_device(dev)
+        Ok(t)
+    }
+}
+
+impl candle_nn::var_builder::SimpleBackend for CheckedTensors<'_> {
+    fn get(&self, s: Shape, name: &str, _h: Init, dtype: DType, dev: &Device) -> candle_core::Result<Tensor> {
+        self.tensor(name, Some(&s), dev)?.to_dtype(dtype)
     }
 
     fn get_unchecked(&self, name: &str, dtype: DType, dev: &Device) -> candle_core::Result<Tensor> {
-        match self.tensors.get(name) {
-            Some(t) => t.to_dtype(dtype)?.to_device(dev),
-            None => candle_core::bail!("tensor `{name}` is missing from the checkpoint"),
-        }
+        self.tensor(name, None, dev)?.to_dtype(dtype)
     }
 
     fn contains_tensor(&self, name: &str) -> bool {
-        self.tensors.contains_key(name)
+        self.st.tensor(name).is_ok()
     }
 }

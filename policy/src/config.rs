@@ -18,6 +18,44 @@ fn invalid(field: &'static str, problem: impl Into<String>) -> ConfigError {
     ConfigError::Invalid { field, problem: problem.into() }
 }
 
+/// The largest sizes a model may have, checked wherever a config is read (a TOML file, a checkpoint's
+/// `policy.json`) before anything is sized by them. Far above any model trained here (widths 64–512, K_max 10,
+/// 96-pixel images), they keep every product of sizes far from overflow and every buffer a size a machine has
+/// (a `k_max` of 10⁹ would ask the engine for 256 GB).
+pub mod limits {
+    /// `obs_dim` (the state, then every camera's pixels), and the state's share of it.
+    pub const MAX_OBS_DIM: usize = 1 << 26;
+    /// `action_dim`.
+    pub const MAX_ACTION_DIM: usize = 1024;
+    /// `chunk_len` (= `history_len`).
+    pub const MAX_CHUNK_LEN: usize = 1024;
+    /// Widths: `obs_embed_dim`, `scheduler_hidden`, `dit_width`, an encoder's `hidden`, `resnet.width`, keypoints.
+    pub const MAX_WIDTH: usize = 1 << 14;
+    /// `dit_depth`.
+    pub const MAX_DEPTH: usize = 64;
+    /// `dit_mlp_ratio`.
+    pub const MAX_MLP_RATIO: usize = 16;
+    /// `k_max`: Euler steps of one call (the paper's 10; FM is commonly run with 10 to 100).
+    pub const MAX_K: usize = 1000;
+    /// A vision encoder's `cameras`.
+    pub const MAX_CAMERAS: usize = 16;
+    /// A camera image's height and width (and the crop's).
+    pub const MAX_IMAGE_SIDE: usize = 4096;
+    /// `train.batch_size`, `train.knn_m`.
+    pub const MAX_BATCH: usize = 1 << 16;
+}
+
+/// `v` in 1..=`max`, or the error naming `field`.
+fn size_in(field: &'static str, v: usize, max: usize) -> Result<(), ConfigError> {
+    if (1..=max).contains(&v) {
+        Ok(())
+    } else if v == 0 {
+        Err(invalid(field, "must be at least 1"))
+    } else {
+        Err(invalid(field, format!("is {v}, more than this build's limit of {max}")))
+    }
+}
+
 /// MARS and the baselines it is compared with; all share one network and differ in source, losses and K.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "kebab-case")]
@@ -109,9 +147,14 @@ impl VisionConfig {
     }
 
     fn validate(&self, obs_dim: usize) -> Result<(), ConfigError> {
-        if self.cameras == 0 || self.hidden == 0 || self.resnet.width == 0 {
-            return Err(invalid("model.encoder", "cameras, hidden and resnet.width must be at least 1"));
+        size_in("model.encoder.cameras", self.cameras, limits::MAX_CAMERAS)?;
+        size_in("model.encoder.hidden", self.hidden, limits::MAX_WIDTH)?;
+        size_in("model.encoder.resnet.width", self.resnet.width, limits::MAX_WIDTH / 8)?;
+        if let crate::nn::resnet::ResNetHead::SpatialSoftmax { keypoints } = self.resnet.head {
+            size_in("model.encoder.resnet.head.keypoints", keypoints, limits::MAX_WIDTH)?;
         }
+        size_in("model.encoder.image_height", self.image_height, limits::MAX_IMAGE_SIDE)?;
+        size_in("model.encoder.image_width", self.image_width, limits::MAX_IMAGE_SIDE)?;
         if self.crop_height < 32 || self.crop_width < 32 {
             let size = format!("{}×{}: a ResNet-18 needs at least 32×32", self.crop_height, self.crop_width);
             return Err(invalid("model.encoder.crop_height", size));
@@ -277,27 +320,25 @@ impl ModelConfig {
     }
 
     pub fn validate(&self) -> Result<(), ConfigError> {
-        let positive = [
-            ("model.obs_dim", self.obs_dim),
-            ("model.action_dim", self.action_dim),
-            ("model.chunk_len", self.chunk_len),
-            ("model.history_len", self.history_len),
-            ("model.obs_embed_dim", self.obs_embed_dim),
-            ("model.scheduler_hidden", self.scheduler_hidden),
-            ("model.dit_width", self.dit_width),
-            ("model.dit_depth", self.dit_depth),
-            ("model.dit_heads", self.dit_heads),
-            ("model.dit_mlp_ratio", self.dit_mlp_ratio),
-            ("model.k_max", self.k_max),
+        use limits::*;
+        let sizes = [
+            ("model.obs_dim", self.obs_dim, MAX_OBS_DIM),
+            ("model.action_dim", self.action_dim, MAX_ACTION_DIM),
+            ("model.chunk_len", self.chunk_len, MAX_CHUNK_LEN),
+            ("model.history_len", self.history_len, MAX_CHUNK_LEN),
+            ("model.obs_embed_dim", self.obs_embed_dim, MAX_WIDTH),
+            ("model.scheduler_hidden", self.scheduler_hidden, MAX_WIDTH),
+            ("model.dit_width", self.dit_width, MAX_WIDTH),
+            ("model.dit_depth", self.dit_depth, MAX_DEPTH),
+            ("model.dit_heads", self.dit_heads, MAX_WIDTH),
+            ("model.dit_mlp_ratio", self.dit_mlp_ratio, MAX_MLP_RATIO),
+            ("model.k_max", self.k_max, MAX_K),
         ];
-        for (field, v) in positive {
-            if v == 0 {
-                return Err(invalid(field, "must be at least 1"));
-            }
+        for (field, v, max) in sizes {
+            size_in(field, v, max)?;
         }
         match &self.encoder {
-            EncoderConfig::StateMlp { hidden: 0 } => return Err(invalid("model.encoder.hidden", "must be at least 1")),
-            EncoderConfig::StateMlp { .. } => {}
+            EncoderConfig::StateMlp { hidden } => size_in("model.encoder.hidden", *hidden, MAX_WIDTH)?,
             EncoderConfig::Vision(v) => v.validate(self.obs_dim)?,
         }
         if self.history_len != self.chunk_len {
@@ -336,9 +377,8 @@ impl TrainConfig {
         if self.batch_size < 2 {
             return Err(invalid("train.batch_size", "must be at least 2"));
         }
-        if self.knn_m == 0 {
-            return Err(invalid("train.knn_m", "must be at least 1"));
-        }
+        size_in("train.batch_size", self.batch_size, limits::MAX_BATCH)?;
+        size_in("train.knn_m", self.knn_m, limits::MAX_BATCH)?;
         for (field, v) in [
             ("train.lr", self.lr),
             ("train.weight_decay", self.weight_decay),

@@ -111,10 +111,14 @@ pub fn load(input: &DatasetInput, cfg: &ModelConfig) -> anyhow::Result<(Vec<Demo
             (keys, (v.image_height as u32, v.image_width as u32))
         }
     };
-    let obs_dim = state_dim + image_keys.len() * (image_hw.0 * image_hw.1 * 3) as usize;
+    // Checked: the dataset's sizes are its own word (a state of usize::MAX values must be an error, not a panic).
+    let obs_dim = (image_hw.0 as usize)
+        .checked_mul(image_hw.1 as usize)
+        .and_then(|px| px.checked_mul(3 * image_keys.len()))
+        .and_then(|images| images.checked_add(state_dim));
     anyhow::ensure!(
-        obs_dim == cfg.obs_dim,
-        "the dataset's `{}` ({state_dim} values){} make observations of {obs_dim} values; the policy's \
+        obs_dim == Some(cfg.obs_dim),
+        "the dataset's `{}` ({state_dim} values){} make observations of {} values; the policy's \
          model.obs_dim is {}",
         input.state_key,
         if image_keys.is_empty() {
@@ -122,6 +126,7 @@ pub fn load(input: &DatasetInput, cfg: &ModelConfig) -> anyhow::Result<(Vec<Demo
         } else {
             format!(" and {} camera(s) at {}×{}×3", image_keys.len(), image_hw.0, image_hw.1)
         },
+        obs_dim.map_or("more than 2⁶⁴".into(), |n| n.to_string()),
         cfg.obs_dim
     );
     let keys = Keys { state: input.state_key.clone(), action: input.action_key.clone(), images: image_keys };

@@ -63,6 +63,13 @@ pub fn try_sched_fifo(priority: i32) -> Outcome {
     }
 }
 
+/// Returns the calling thread to the normal scheduler (SCHED_OTHER), e.g. once its real-time part is done.
+pub fn back_to_sched_other() {
+    let param = libc::sched_param { sched_priority: 0 };
+    // Cannot fail for SCHED_OTHER at priority 0 on this thread; nothing to report if it did.
+    let _ = unsafe { libc::pthread_setschedparam(libc::pthread_self(), libc::SCHED_OTHER, &param) };
+}
+
 /// Locks the process's current and future pages in RAM so a page fault never stalls a loop.
 ///
 /// With a finite RLIMIT_MEMLOCK, MCL_FUTURE also makes later allocations fail once the limit is reached, so

@@ -2,8 +2,24 @@
 //! watchdog's thresholds. Everything is validated before anything moves; every error names the file and key.
 
 use std::path::{Path, PathBuf};
+use std::time::Duration;
 
 use serde::Deserialize;
+
+/// The longest `handshake_timeout_s` (a day): a HAL started by hand later than that is a mistake, and every bound
+/// here keeps the conversions to `Duration` and to nanoseconds far from overflow (a `1e300` is refused at load,
+/// not a panic in a running loop).
+pub const MAX_HANDSHAKE_TIMEOUT_S: f64 = 86_400.0;
+/// The longest of the loops' times in ms (a minute): `servo.stale_state_ms`, `policy.lead_ms`,
+/// `policy.handoff_margin_ms`, `watchdog.max_state_gap_ms` and the injected fault delays.
+pub const MAX_LOOP_MS: f64 = 60_000.0;
+/// The fastest policy rate (the fastest servo rate a profile may have).
+pub const MAX_POLICY_RATE_HZ: f64 = 10_000.0;
+/// `histograms.interval_s`: at least 10 ms (an interval log line and a live update per interval), at most an hour.
+pub const HISTOGRAM_INTERVAL_S: (f64, f64) = (0.01, 3600.0);
+/// The most episode traces kept for the plot: each holds up to 4096 steps of joint positions (~0.25 MB), all
+/// allocated up front and locked with the rest of marsd's memory.
+pub const MAX_TRACES_KEPT: usize = 1000;
 
 #[derive(Debug, thiserror::Error)]
 pub enum ConfigError {
@@ -110,6 +126,11 @@ pub struct WatchdogConfig {
     /// Command sends that failed in a row before tripping (default 10).
     #[serde(default = "default_max_consecutive_send_errors")]
     pub max_consecutive_send_errors: u64,
+    /// SCHED_FIFO priority (1–99) of the threads that watch and report: the HAL's liveness watch, our heartbeat
+    /// and the main thread that logs a trip. Under the loops', above every ordinary process: a busy machine then
+    /// delays neither the verdict that the HAL died nor a trip's report (default 60).
+    #[serde(default = "default_watch_priority")]
+    pub priority: i32,
 }
 
 #[derive(Debug, Clone, Deserialize)]
@@ -146,6 +167,9 @@ fn default_traces_kept() -> usize {
 fn default_max_consecutive_send_errors() -> u64 {
     10
 }
+fn default_watch_priority() -> i32 {
+    60
+}
 fn yes() -> bool {
     true
 }
@@ -177,17 +201,32 @@ impl DaemonConfig {
         Ok(cfg)
     }
 
-    fn validate(&self, origin: &str) -> Result<(), ConfigError> {
+    /// Checks every field; also after the command line changed some ([`crate::daemon::prepare`] calls it
+    /// again), so that nothing a loop converts to a `Duration` or to nanoseconds can overflow there.
+    pub fn validate(&self, origin: &str) -> Result<(), ConfigError> {
         let bad = |key: &'static str, msg: String| Err(ConfigError::Invalid { path: origin.to_owned(), key, msg });
-        let positive = |key: &'static str, v: f64| {
-            if v.is_finite() && v > 0.0 { Ok(()) } else { bad(key, format!("must be a positive number, got {v}")) }
+        let in_range = |key: &'static str, v: f64, zero_ok: bool, max: f64, unit: &str| {
+            let low_ok = if zero_ok { v >= 0.0 } else { v > 0.0 };
+            if v.is_finite() && low_ok && v <= max {
+                return Ok(());
+            }
+            let what = if zero_ok { "a number ≥ 0" } else { "a positive number" };
+            bad(key, format!("must be {what} of at most {max} {unit}, got {v:?}"))
         };
         if self.robot.is_empty() {
             return bad("robot", "must not be empty".into());
         }
-        positive("handshake_timeout_s", self.handshake_timeout_s)?;
-        positive("servo.stale_state_ms", self.servo.stale_state_ms)?;
-        positive("servo.settle_tolerance", self.servo.settle_tolerance)?;
+        in_range("handshake_timeout_s", self.handshake_timeout_s, false, MAX_HANDSHAKE_TIMEOUT_S, "s")?;
+        if self.traces_kept > MAX_TRACES_KEPT {
+            return bad("traces_kept", format!("must be at most {MAX_TRACES_KEPT}, got {}", self.traces_kept));
+        }
+        in_range("servo.stale_state_ms", self.servo.stale_state_ms, false, MAX_LOOP_MS, "ms")?;
+        if !(self.servo.settle_tolerance.is_finite() && self.servo.settle_tolerance > 0.0) {
+            return bad(
+                "servo.settle_tolerance",
+                format!("must be a positive number, got {}", self.servo.settle_tolerance),
+            );
+        }
         if !(self.servo.reset_speed.is_finite() && self.servo.reset_speed > 0.0 && self.servo.reset_speed <= 1.0) {
             return bad("servo.reset_speed", format!("must be in (0, 1], got {}", self.servo.reset_speed));
         }
@@ -197,16 +236,19 @@ impl DaemonConfig {
                 format!("must be in [0, 0.5) rad, got {}", self.servo.position_margin),
             );
         }
-        for (key, p) in [("servo.priority", self.servo.priority), ("policy.priority", self.policy.priority)] {
+        let priorities = [
+            ("servo.priority", self.servo.priority),
+            ("policy.priority", self.policy.priority),
+            ("watchdog.priority", self.watchdog.priority),
+        ];
+        for (key, p) in priorities {
             if !(1..=99).contains(&p) {
                 return bad(key, format!("SCHED_FIFO priorities are 1..=99, got {p}"));
             }
         }
-        positive("policy.rate_hz", self.policy.rate_hz)?;
-        positive("policy.lead_ms", self.policy.lead_ms)?;
-        if !(self.policy.handoff_margin_ms.is_finite() && self.policy.handoff_margin_ms >= 0.0) {
-            return bad("policy.handoff_margin_ms", format!("must be ≥ 0, got {}", self.policy.handoff_margin_ms));
-        }
+        in_range("policy.rate_hz", self.policy.rate_hz, false, MAX_POLICY_RATE_HZ, "Hz")?;
+        in_range("policy.lead_ms", self.policy.lead_ms, false, MAX_LOOP_MS, "ms")?;
+        in_range("policy.handoff_margin_ms", self.policy.handoff_margin_ms, true, MAX_LOOP_MS, "ms")?;
         if self.policy.handoff_margin_ms >= self.policy.lead_ms {
             return bad("policy.handoff_margin_ms", "must be shorter than policy.lead_ms, or no budget is left".into());
         }
@@ -217,7 +259,7 @@ impl DaemonConfig {
                 format!("{} ms is longer than one policy period ({period_ms:.1} ms)", self.policy.lead_ms),
             );
         }
-        positive("watchdog.max_state_gap_ms", self.watchdog.max_state_gap_ms)?;
+        in_range("watchdog.max_state_gap_ms", self.watchdog.max_state_gap_ms, false, MAX_LOOP_MS, "ms")?;
         for (key, v) in [
             ("watchdog.max_consecutive_overruns", self.watchdog.max_consecutive_overruns),
             ("watchdog.max_consecutive_late_chunks", self.watchdog.max_consecutive_late_chunks),
@@ -228,12 +270,34 @@ impl DaemonConfig {
                 return bad(key, "must be at least 1".into());
             }
         }
-        positive("histograms.interval_s", self.histograms.interval_s)?;
-        let d = self.faults.engine_step_delay_ms;
-        if !(d.is_finite() && d >= 0.0) {
-            return bad("faults.engine_step_delay_ms", format!("must be ≥ 0, got {d}"));
+        let (lo, hi) = HISTOGRAM_INTERVAL_S;
+        let interval = self.histograms.interval_s;
+        if !(interval.is_finite() && (lo..=hi).contains(&interval)) {
+            return bad("histograms.interval_s", format!("must be in [{lo}, {hi}] s, got {interval:?}"));
         }
+        in_range("faults.engine_step_delay_ms", self.faults.engine_step_delay_ms, true, MAX_LOOP_MS, "ms")?;
+        in_range("faults.record_writer_delay_ms", self.faults.record_writer_delay_ms, true, MAX_LOOP_MS, "ms")?;
         Ok(())
+    }
+
+    /// How long marsd waits for the HAL's first usable frame (validated: never overflows).
+    pub fn handshake_timeout(&self) -> Duration {
+        Duration::from_secs_f64(self.handshake_timeout_s)
+    }
+
+    /// One histogram interval (validated).
+    pub fn histogram_interval(&self) -> Duration {
+        Duration::from_secs_f64(self.histograms.interval_s)
+    }
+
+    /// The injected busy-wait of every ODE step (validated).
+    pub fn engine_step_delay(&self) -> Duration {
+        Duration::from_secs_f64(self.faults.engine_step_delay_ms * 1e-3)
+    }
+
+    /// The injected sleep of the recording's writer per frame (validated).
+    pub fn record_writer_delay(&self) -> Duration {
+        Duration::from_secs_f64(self.faults.record_writer_delay_ms * 1e-3)
     }
 
     pub fn policy_period_ns(&self) -> u64 {
@@ -265,5 +329,57 @@ mod tests {
             DaemonConfig::parse(&zero, "marsd.toml"),
             Err(ConfigError::Invalid { key: "watchdog.max_consecutive_send_errors", .. })
         ));
+    }
+
+    /// Values TOML accepts that a loop could not convert (`Duration::from_secs_f64` panics on 1e300 and on a
+    /// negative number): each refused at load, naming its key, so marsd exits 2 before anything moves.
+    #[test]
+    fn hostile_times_and_sizes_are_refused_at_load_naming_the_key() {
+        let with = |key: &str, line: &str| {
+            let text = shipped();
+            let old = text.lines().find(|l| l.starts_with(&format!("{key} ="))).unwrap_or_else(|| panic!("{key}"));
+            text.replace(old, line)
+        };
+        let faults = |line: &str| format!("{}\n[faults]\n{line}\n", shipped());
+        let cases = [
+            ("handshake_timeout_s", with("handshake_timeout_s", "handshake_timeout_s = 1e300")),
+            ("handshake_timeout_s", with("handshake_timeout_s", "handshake_timeout_s = nan")),
+            ("histograms.interval_s", with("interval_s", "interval_s = 1e300")),
+            ("histograms.interval_s", with("interval_s", "interval_s = 1e-12")),
+            ("faults.record_writer_delay_ms", faults("record_writer_delay_ms = -1.0")),
+            ("faults.record_writer_delay_ms", faults("record_writer_delay_ms = inf")),
+            ("faults.engine_step_delay_ms", faults("engine_step_delay_ms = 1e300")),
+            ("servo.stale_state_ms", with("stale_state_ms", "stale_state_ms = 1e300")),
+            ("watchdog.max_state_gap_ms", with("max_state_gap_ms", "max_state_gap_ms = 1e20")),
+            ("traces_kept", with("traces_kept", "traces_kept = 1000000000000")),
+        ];
+        for (key, text) in cases {
+            match DaemonConfig::parse(&text, "marsd.toml") {
+                Err(ConfigError::Invalid { key: k, msg, .. }) => assert_eq!(k, key, "{msg}"),
+                other => panic!("{key}: expected a refusal naming it, got {other:?}"),
+            }
+        }
+        // What the command line changes is checked again by `prepare`, through the same `validate`.
+        let mut cfg = DaemonConfig::parse(&shipped(), "marsd.toml").unwrap();
+        cfg.faults.record_writer_delay_ms = -1.0;
+        let e = cfg.validate("marsd.toml").unwrap_err().to_string();
+        assert!(e.contains("faults.record_writer_delay_ms") && e.contains("got -1"), "{e}");
+    }
+
+    /// Every duration of an accepted configuration converts (what the daemon does with them).
+    #[test]
+    fn the_largest_accepted_times_convert_to_durations() {
+        let mut cfg = DaemonConfig::parse(&shipped(), "marsd.toml").unwrap();
+        cfg.handshake_timeout_s = MAX_HANDSHAKE_TIMEOUT_S;
+        cfg.histograms.interval_s = HISTOGRAM_INTERVAL_S.1;
+        cfg.faults.engine_step_delay_ms = MAX_LOOP_MS;
+        cfg.faults.record_writer_delay_ms = MAX_LOOP_MS;
+        cfg.validate("t").unwrap();
+        assert_eq!(cfg.handshake_timeout(), Duration::from_secs(86_400));
+        assert_eq!(cfg.histogram_interval(), Duration::from_secs(3600));
+        assert_eq!(
+            (cfg.engine_step_delay(), cfg.record_writer_delay()),
+            (Duration::from_secs(60), Duration::from_secs(60))
+        );
     }
 }

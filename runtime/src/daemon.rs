@@ -76,14 +76,13 @@ impl Prepared {
 
 /// Loads and cross-checks the profile, task and checkpoint. Any error here means nothing moved.
 pub fn prepare(cfg: DaemonConfig) -> anyhow::Result<Prepared> {
+    // Again: the command line may have changed what the file said.
+    cfg.validate(&cfg.source.display().to_string())?;
     let profile = Profile::load(&cfg.profile)?;
     profile.validate()?;
     let task = HilTask::load(&cfg.task, &profile).with_context(|| format!("task {}", cfg.task.display()))?;
-    let engine_cfg = EngineConfig {
-        seed: cfg.seed,
-        injected_step_delay: Duration::from_secs_f64(cfg.faults.engine_step_delay_ms * 1e-3),
-        ..EngineConfig::default()
-    };
+    let engine_cfg =
+        EngineConfig { seed: cfg.seed, injected_step_delay: cfg.engine_step_delay(), ..EngineConfig::default() };
     let engine = Engine::load(&cfg.checkpoint, engine_cfg)
         .with_context(|| format!("checkpoint {}", cfg.checkpoint.display()))?;
     let ck = cfg.checkpoint.display();
@@ -166,7 +165,7 @@ pub fn run(p: Prepared) -> anyhow::Result<Outcome> {
     };
     let loop_cfg = ServoLoopConfig {
         period: Duration::from_secs_f64(profile.period_s()),
-        interval: Duration::from_secs_f64(cfg.histograms.interval_s),
+        interval: cfg.histogram_interval(),
         max_consecutive_send_errors: cfg.watchdog.max_consecutive_send_errors,
     };
 
@@ -182,12 +181,12 @@ pub fn run(p: Prepared) -> anyhow::Result<Outcome> {
     let servo_ch =
         ServoChannels { chunks: chunk_out, observed: obs_in, requests: requests_out, status: status.clone() };
     let (servo_core, servo_prio, lock) = (cfg.servo.core, cfg.servo.priority, cfg.servo.lock_memory);
-    let robot = cfg.robot.clone();
+    let (robot, watch_prio) = (cfg.robot.clone(), cfg.watchdog.priority);
     let (opened_tx, opened_rx) = std::sync::mpsc::channel::<anyhow::Result<()>>();
     let servo = std::thread::Builder::new()
         .name("marsd-servo".into())
         .spawn(move || {
-            let wire = match ServoWire::open(&robot) {
+            let wire = match ServoWire::open(&robot, watch_prio) {
                 Ok(w) => {
                     let _ = opened_tx.send(Ok(()));
                     w
@@ -205,18 +204,25 @@ pub fn run(p: Prepared) -> anyhow::Result<Outcome> {
     // Beats while the servo's tick counter advances; a syscall the servo thread does not make itself.
     let ticks = status.clone();
     let progress = move || ticks.ticks.load(Ordering::Acquire);
-    let heartbeat =
-        match HeartbeatThread::start(&cfg.robot, Side::Controller, &format!("marsd-{}", cfg.robot), progress)
-            .context("opening the liveness heartbeat")
-        {
-            Ok(h) => h,
-            Err(e) => {
-                // Nothing was commanded yet: the servo loop ends at once on a stop request before the handshake.
-                status.stop_requested.store(true, Ordering::Release);
-                let _ = servo.join();
-                return Err(e);
-            }
-        };
+    let heartbeat = match HeartbeatThread::start_then(
+        &cfg.robot,
+        Side::Controller,
+        &format!("marsd-{}", cfg.robot),
+        progress,
+        move || {
+            crate::rt::setup_realtime("heartbeat", None, Some(watch_prio), false);
+        },
+    )
+    .context("opening the liveness heartbeat")
+    {
+        Ok(h) => h,
+        Err(e) => {
+            // Nothing was commanded yet: the servo loop ends at once on a stop request before the handshake.
+            status.stop_requested.store(true, Ordering::Release);
+            let _ = servo.join();
+            return Err(e);
+        }
+    };
     // Signals only set flags; the main thread turns them into a safe stop. A second SIGINT/SIGTERM while
     // stopping exits at once (status 1); the HAL then brakes on command loss. Registered after the wire is
     // open: `ServoWire::open` makes iceoryx2 install its own handlers, which replace whatever is there, and
@@ -275,7 +281,11 @@ pub fn run(p: Prepared) -> anyhow::Result<Outcome> {
         return Err(e.context("opening the task's camera and scene"));
     }
 
-    let no_hal = supervise(&status, &term, &servo, Duration::from_secs_f64(cfg.handshake_timeout_s));
+    // The main thread logs a trip: at the watchers' priority while the loops run, so a busy machine cannot delay
+    // the report; back to the normal scheduler for the summary and plots.
+    let supervisor_rt = crate::rt::setup_realtime("supervisor", None, Some(watch_prio), false);
+    let no_hal = supervise(&status, &term, &servo, cfg.handshake_timeout());
+    crate::rt::back_to_sched_other();
     let servo_joined = servo.join();
     // Stopped once the servo loop has ended (its last command, the hold, is sent): the HAL sees us leave.
     let heartbeat = heartbeat.finish();
@@ -292,7 +302,7 @@ pub fn run(p: Prepared) -> anyhow::Result<Outcome> {
     if let Some(v) = servo_report.first_violation {
         tracing::error!("the first command refused by the final limit check: {v:?}");
     }
-    let run = crate::report::RunFacts { realtime: vec![servo_rt, policy_rt], heartbeat };
+    let run = crate::report::RunFacts { realtime: vec![servo_rt, policy_rt, supervisor_rt], heartbeat };
     let mut summary = Summary::new(&cfg, &mode_names, &servo_report, &policy_report, totals, run);
     summary.record = record;
     summary.trip_seen_ns = Some(status.trip_seen_ns.load(Ordering::Acquire)).filter(|&t| t != 0);
@@ -331,7 +341,7 @@ fn record_setup(cfg: &DaemonConfig, profile: &Profile, task: &HilTask, path: &Pa
         state_names,
         action_names,
         camera,
-        writer_delay: Duration::from_secs_f64(cfg.faults.record_writer_delay_ms * 1e-3),
+        writer_delay: cfg.record_writer_delay(),
         seed: cfg.seed,
         // Absolute, so `marsd replay` finds it from anywhere on this machine (`--checkpoint` elsewhere).
         checkpoint: std::fs::canonicalize(&cfg.checkpoint).unwrap_or_else(|_| cfg.checkpoint.clone()),

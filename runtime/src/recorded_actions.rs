@@ -64,9 +64,20 @@ impl RecordedActions {
         let meta = RunMeta::load(dataset)?;
         let em = meta.episode(n)?;
         let ds = LeRobotDataset::open(dataset)?;
+        anyhow::ensure!(
+            ds.vector_len("mars.call")? == 1,
+            "{}: mars.call must have 1 value a frame (as marsd --record writes it)",
+            dataset.display()
+        );
         let keys = Keys { state: "mars.call".into(), action: "action".into(), images: vec![] };
         let (episodes, _) = ds.read(&keys, (0, 0))?;
-        let e = &episodes[n];
+        let e = episodes.get(n).with_context(|| {
+            format!(
+                "episode {n}: meta/{META_FILE} lists {} episodes but the dataset has {} (0-based)",
+                meta.episodes.len(),
+                episodes.len()
+            )
+        })?;
         anyhow::ensure!(e.len > 0, "episode {n} has no frames");
         Ok(Self {
             marsd_episode: em.marsd_episode,

@@ -107,12 +107,37 @@ pub fn run(args: &ReplayArgs) -> anyhow::Result<ReplayReport> {
         Some(k) => ds.image_size(k)?,
         None => (0, 0),
     };
+    // Before anything is read or decoded: the observation the recording makes must be the checkpoint's.
+    let state_dim = ds.vector_len("observation.state")?;
+    let pixels = (hw.0 as usize * hw.1 as usize * 3) * images.len();
+    anyhow::ensure!(
+        state_dim + pixels == engine.obs_dim(),
+        "the recording's observation has {} values ({state_dim} of state and {} camera(s) of {}×{}), the \
+         checkpoint {} takes {}",
+        state_dim + pixels,
+        images.len(),
+        hw.0,
+        hw.1,
+        checkpoint.display(),
+        engine.obs_dim()
+    );
     let keys = Keys { state: "observation.state".into(), action: "action".into(), images };
-    let (episodes, _) = ds.read(&keys, hw)?;
     let ours = Keys { state: "mars.call".into(), action: "mars.k".into(), images: vec![] };
+    anyhow::ensure!(
+        ds.vector_len("mars.call")? == 1 && ds.vector_len("mars.k")? == 2,
+        "{}: mars.call must have 1 value a frame and mars.k 2 (as marsd --record writes them)",
+        args.dataset.display()
+    );
+    let (episodes, _) = ds.read(&keys, hw)?;
     let (extra, _) = ds.read(&ours, (0, 0))?;
-    let (e, x) = (&episodes[args.episode], &extra[args.episode]);
-    let state_dim = e.state.len() / e.len;
+    let (Some(e), Some(x)) = (episodes.get(args.episode), extra.get(args.episode)) else {
+        anyhow::bail!(
+            "episode {}: meta/{META_FILE} lists {} episodes but the dataset has {} (0-based)",
+            args.episode,
+            meta.episodes.len(),
+            episodes.len()
+        );
+    };
     anyhow::ensure!(
         e.action.len() == e.len * d && em.rest.len() == d,
         "the recording's actions have {} values, the checkpoint's {d}",
@@ -138,8 +163,13 @@ pub fn run(args: &ReplayArgs) -> anyhow::Result<ReplayReport> {
             mars_policy::vision::pixels_to_observation(&frames[t * len..(t + 1) * len], &mut obs[at..at + len]);
             at += len;
         }
-        anyhow::ensure!(at == obs.len(), "the recording's observation has {at} values, the checkpoint's {}", obs.len());
-        let k = x.action[t * 2 + 1] as usize;
+        let k = x.action[t * 2 + 1];
+        anyhow::ensure!(
+            k.fract() == 0.0 && (1.0..=engine.k_max() as f32).contains(&k),
+            "frame {t}: the recorded step count {k} is not in 1..={}",
+            engine.k_max()
+        );
+        let k = k as usize;
         engine.reseed(call_seed(meta.seed, em.marsd_episode, t as u64));
         let out = engine.infer_with(&obs, &history, None, Some(k)).context("replaying a call")?;
         // The frames this chunk was in force for: up to C, until the next call.

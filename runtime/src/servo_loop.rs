@@ -33,7 +33,8 @@ pub struct ServoWire {
 }
 
 impl ServoWire {
-    pub fn open(robot: &str) -> anyhow::Result<Self> {
+    /// Opens the ports of `robot` and the HAL's liveness watch, that thread at SCHED_FIFO `watch_priority`.
+    pub fn open(robot: &str, watch_priority: i32) -> anyhow::Result<Self> {
         let ns = RobotNamespace::new(robot)?;
         let (node, cleaned) = create_node(&format!("marsd-{robot}"))?;
         if cleaned > 0 {
@@ -47,7 +48,9 @@ impl ServoWire {
         Ok(Self {
             states: StateReader::new(&node, &ns)?,
             commands: CommandWriter::new(&node, &ns)?,
-            hal: PeerWatch::hal(&ns)?,
+            hal: PeerWatch::spawn_then(&ns, mars_ipc::Side::Hal, move || {
+                crate::rt::setup_realtime("hal-watch", None, Some(watch_priority), false);
+            })?,
             _node: node,
         })
     }

@@ -45,11 +45,14 @@ pub enum TopEnd {
 
 /// Watches until `--count` views, the daemon's silence, or a signal. An error if no frame came at all.
 pub fn run(args: &TopArgs) -> anyhow::Result<TopEnd> {
+    let timeout = Duration::try_from_secs_f64(args.timeout_s)
+        .ok()
+        .filter(|t| !t.is_zero() && t.as_secs() <= 86_400)
+        .with_context(|| format!("--timeout-s must be a number of seconds in (0, 86400], got {}", args.timeout_s))?;
     let ns = RobotNamespace::new(&args.robot)?;
     let (node, _) = create_node(&format!("marsd-top-{}-{}", args.robot, std::process::id()))?;
     let reader = LiveReader::new(&node, &ns).with_context(|| format!("subscribing to mars/{}/live", args.robot))?;
     let redraw = !args.plain && std::io::stdout().is_terminal();
-    let timeout = Duration::from_secs_f64(args.timeout_s);
     let (mut views, mut last_frame) = (0u64, Instant::now());
     loop {
         if node.wait(Duration::from_millis(50)).is_err() {

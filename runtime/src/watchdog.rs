@@ -234,6 +234,7 @@ mod tests {
             max_consecutive_over_budget: 2,
             max_state_gap_ms: 10.0,
             max_consecutive_send_errors: 2,
+            priority: 60,
         };
         let mut w = ServoWatchdog::new(&cfg);
         assert_eq!(w.tick(100_000_000, 0, false), None, "no frame yet: the handshake timeout applies");

@@ -249,55 +249,73 @@ fn kill_marsd_attempt(attempt: u32) -> Attempt {
     Ok(())
 }
 
-/// Test 3: SIGKILL the HAL while the arm moves: marsd sees it die (iceoryx2 liveness), stops, names the HAL in its
-/// log, reports the trip and exits 3 within 1 s.
+/// Test 3: SIGKILL the HAL while the arm moves: marsd stops the arm (its first trip), names the dead HAL in its
+/// log (iceoryx2 liveness), reports the trip and exits 3.
 #[test]
 fn sigkill_of_the_hal_makes_marsd_trip_and_exit_3() {
     let _rt = rt_rig_lock();
     at_most_one_rerun("SIGKILL of the HAL", kill_hal_attempt);
 }
 
-/// README's figure for SIGKILL of the HAL → marsd's trip line (ms).
-const KILL_HAL_TRIP_MS: f64 = 32.0;
+/// README's figure for SIGKILL of the HAL → marsd's first trip, which stops the arm (ms): the stale-state check
+/// (20 ms without a frame) or liveness, whichever comes first.
+const KILL_HAL_STOP_MS: f64 = 21.0;
+/// README's tested bound for SIGKILL of the HAL → marsd's log line naming the dead HAL (ms). Not 1.5× its ~32 ms
+/// on an idle machine: the killed HAL's exit (the kernel freeing its locked memory, ~20 ms here) and iceoryx2's
+/// clean-up of its nodes run as ordinary work that a busy machine delays, and the stall witness cannot see that.
+const KILL_HAL_NAMED_MS: f64 = 100.0;
+/// README's figure for SIGKILL of the HAL → marsd's exit (ms); it writes its report at normal priority, so the
+/// tested bound is 1 s.
+const KILL_HAL_EXIT_BOUND_MS: f64 = 1000.0;
 
-/// One run of the HAL-kill test; its excuse if a reaction was slower than README's figure allows while the stall
-/// witness saw the machine stall at least the excess meanwhile.
+/// One run of the HAL-kill test; its excuse if the arm's stop was slower than README's figure allows while the
+/// stall witness saw the machine stall at least the excess meanwhile.
 fn kill_hal_attempt(attempt: u32) -> Attempt {
     let Moving { logs, hal, rec, mut marsd, .. } = start_moving("kill-hal", attempt)?;
     let commands_before = rec.commands_len();
     let (killed_at, killed_ns) = (Instant::now(), monotonic_ns());
     hal.signal(libc::SIGKILL);
     let status = marsd.wait_timeout(Duration::from_secs(10));
-    let (exit_after, exited_ns) = (killed_at.elapsed(), monotonic_ns());
+    let exit_after = killed_at.elapsed();
     let r = rec.finish();
     let status = status.unwrap_or_else(|| panic!("marsd still running 10 s after the HAL died\n{}", marsd.logs()));
     let err = marsd.stderr_text();
+    let after_kill_ms = |line: Option<&str>| {
+        let t = line.and_then(stall_witness::log_time::monotonic_of_line).expect("a trip line has a timestamp");
+        (t.saturating_sub(killed_ns) as f64 * 1e-6, t)
+    };
     let trip_text = "the HAL process died or left (iceoryx2 liveness)";
-    let line = find_line(&err, &["watchdog trip", trip_text]);
-    let logged_ns = line.and_then(stall_witness::log_time::monotonic_of_line);
-    let logged_ms = logged_ns.map(|t| t.saturating_sub(killed_ns) as f64 * 1e-6);
+    let named = find_line(&err, &["watchdog trip", trip_text]);
+    let first = find_line(&err, &["watchdog trip"]);
     eprintln!(
-        "SIGKILL of the HAL: marsd logged the trip {} ms and exited {:.1} ms after the kill; {} commands sent \
-         meanwhile",
-        logged_ms.map_or("?".into(), |t| format!("{t:.1}")),
+        "SIGKILL of the HAL: marsd's first trip {:.1} ms, exit {:.1} ms after the kill; {} commands sent meanwhile",
+        first.map_or(f64::NAN, |l| after_kill_ms(Some(l)).0),
         exit_after.as_secs_f64() * 1e3,
         r.commands.len() - commands_before
     );
     assert_eq!(status.code(), Some(3), "{status:?}\n{}", marsd.logs());
     let s = summary(&logs, "marsd");
-    // Two detectors race here: the liveness watch (HalDied, typically 13-21 ms after the kill on this machine)
-    // and the stale-state gap (StaleState, 20 ms). A dead HAL replaces a stale-state trip, also after the loop
-    // stopped (it waits for the verdict), so marsd must name the HAL whichever detector fired first.
+    // Two detectors race here: the liveness watch (HalDied) and the stale-state gap (StaleState, 20 ms). A dead
+    // HAL replaces a stale-state trip, also after the loop stopped (it waits for the verdict), so marsd must name
+    // the HAL whichever detector fired first.
     assert!(
-        line.is_some(),
+        named.is_some(),
         "marsd did not name the dead HAL: it reported trip {} (liveness lost the race against \
-         watchdog.max_state_gap_ms)\n{err}",
+         watchdog.max_state_gap_ms and its grace)\n{err}",
         s["trip"]
     );
-    // README: "SIGKILL of the HAL → marsd logs the trip within ~32 ms ... and exits 3 within ~0.17 s".
-    let (logged_ms, logged_ns) = (logged_ms.expect("the trip line has a timestamp"), logged_ns.unwrap());
-    near_claim("SIGKILL of the HAL → marsd logs the trip", logged_ms, KILL_HAL_TRIP_MS, (killed_ns, logged_ns))?;
-    near_claim("SIGKILL of the HAL → marsd exits", exit_after.as_secs_f64() * 1e3, 171.0, (killed_ns, exited_ns))?;
+    let (stop_ms, stop_ns) = after_kill_ms(first);
+    near_claim(
+        "SIGKILL of the HAL → marsd stops the arm (first trip)",
+        stop_ms,
+        KILL_HAL_STOP_MS,
+        (killed_ns, stop_ns),
+    )?;
+    let (named_ms, _) = after_kill_ms(named);
+    eprintln!("SIGKILL of the HAL → marsd names the dead HAL: {named_ms:.1} ms (tested bound {KILL_HAL_NAMED_MS} ms)");
+    assert!(named_ms <= KILL_HAL_NAMED_MS, "marsd named the dead HAL {named_ms:.1} ms after the kill\n{err}");
+    let exit_ms = exit_after.as_secs_f64() * 1e3;
+    assert!(exit_ms <= KILL_HAL_EXIT_BOUND_MS, "marsd exited {exit_ms:.0} ms after the kill\n{err}");
     assert_eq!(s["stop"], "trip");
     assert_eq!(s["trip"], trip_text);
     check_commands(&r.commands, &Limits::fr3()).unwrap();

@@ -117,28 +117,31 @@ impl Pick {
     }
 
     fn validate(&self, p: &Arm) -> Result<(), (String, String)> {
+        let at_most = |max: f64| if max < f64::MAX { format!(" and at most {max}") } else { String::new() };
         let c = &self.cfg;
         let err = |field: &str, problem: String| Err((field.to_owned(), problem));
-        for (field, v) in [
-            ("policy_rate_hz", c.policy_rate_hz),
-            ("tolerance", c.tolerance),
-            ("timeout_s", c.timeout_s),
-            ("expert.approach_s", c.expert.approach_s),
-            ("expert.grasp_s", c.expert.grasp_s),
-            ("expert.close_s", c.expert.close_s),
-            ("expert.retreat_s", c.expert.retreat_s),
+        // The upper bounds keep what is sized by these (the expert's steps, an episode's ticks) a size a machine
+        // has: an hour of demo segment, a day of episode.
+        for (field, v, max) in [
+            ("policy_rate_hz", c.policy_rate_hz, 10_000.0),
+            ("tolerance", c.tolerance, f64::MAX),
+            ("timeout_s", c.timeout_s, 86_400.0),
+            ("expert.approach_s", c.expert.approach_s, 3600.0),
+            ("expert.grasp_s", c.expert.grasp_s, 3600.0),
+            ("expert.close_s", c.expert.close_s, 3600.0),
+            ("expert.retreat_s", c.expert.retreat_s, 3600.0),
         ] {
-            if !(v.is_finite() && v > 0.0) {
-                return err(field, format!("is {v}, must be a finite number > 0"));
+            if !(v.is_finite() && v > 0.0 && v <= max) {
+                return err(field, format!("is {v:?}, must be a finite number > 0{}", at_most(max)));
             }
         }
-        for (field, v) in [
-            ("start_jitter", c.start_jitter),
-            ("expert.hold_s", c.expert.hold_s),
-            ("expert.waypoint_jitter", c.expert.waypoint_jitter),
+        for (field, v, max) in [
+            ("start_jitter", c.start_jitter, f64::MAX),
+            ("expert.hold_s", c.expert.hold_s, 3600.0),
+            ("expert.waypoint_jitter", c.expert.waypoint_jitter, f64::MAX),
         ] {
-            if !(v.is_finite() && v >= 0.0) {
-                return err(field, format!("is {v}, must be a finite number ≥ 0"));
+            if !(v.is_finite() && v >= 0.0 && v <= max) {
+                return err(field, format!("is {v:?}, must be a finite number ≥ 0{}", at_most(max)));
             }
         }
         let ticks = p.rate_hz / c.policy_rate_hz;

@@ -373,7 +373,7 @@ fn serve(
 
 /// The arm's sample from a feedback message: its first `joints` positions (Galaxea's docs show 6, some with the
 /// gripper as a 7th), or `None` when it has fewer.
-fn arm_sample(m: &JointState, joints: usize) -> Option<ArmSample> {
+pub fn arm_sample(m: &JointState, joints: usize) -> Option<ArmSample> {
     if m.position.len() < joints {
         return None;
     }

@@ -31,6 +31,9 @@ pub struct CameraParams {
 /// for a gigapixel image.
 pub const MAX_CAMERA_SIDE: u32 = 8192;
 
+/// The most cameras one profile bridges.
+pub const MAX_CAMERAS: usize = 16;
+
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct Ros2Params {
@@ -122,6 +125,12 @@ impl Ros2Params {
                 return Err(format!("{field} = {topic:?}: {why}"));
             }
         }
+        if self.cameras.len() > MAX_CAMERAS {
+            return Err(format!(
+                "{} cameras: at most {MAX_CAMERAS} (each has a thread of its own)",
+                self.cameras.len()
+            ));
+        }
         for (i, c) in self.cameras.iter().enumerate() {
             if let Err(e) = mars_ipc::RobotNamespace::new("r").and_then(|ns| ns.camera(&c.id).map(|_| ())) {
                 return Err(format!("cameras[{i}].id = {:?}: {e}", c.id));
@@ -147,9 +156,10 @@ impl Ros2Params {
         }
         let period_ms = 1e3 / rate_hz;
         let timeout = self.feedback_timeout_ms(command_timeout_ms);
-        if !(timeout.is_finite() && timeout >= 2.0 * period_ms) {
+        let max = crate::profile::MAX_TIMEOUT_MS;
+        if !(timeout.is_finite() && timeout >= 2.0 * period_ms && timeout <= max) {
             return Err(format!(
-                "feedback_timeout_ms = {timeout} must be at least two feedback periods ({:.3} ms)",
+                "feedback_timeout_ms = {timeout} must be at least two feedback periods ({:.3} ms) and at most {max} ms",
                 2.0 * period_ms
             ));
         }

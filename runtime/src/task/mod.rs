@@ -51,14 +51,19 @@ impl HilTask {
     pub fn load(path: &Path, profile: &Profile) -> Result<Self, TaskError> {
         let origin = path.display().to_string();
         let text = std::fs::read_to_string(path).map_err(|error| TaskError::Read { path: origin.clone(), error })?;
+        Self::parse(&text, origin, profile)
+    }
+
+    /// [`HilTask::load`] of a task file's text (`origin` names it in errors).
+    pub fn parse(text: &str, origin: String, profile: &Profile) -> Result<Self, TaskError> {
         let kind = text
             .parse::<toml::Table>()
             .map_err(|e| TaskError::Parse { path: origin.clone(), error: Box::new(e) })?
             .get("kind")
             .map(|k| k.as_str().map(str::to_owned));
         match kind {
-            None => Pick::parse(&text, &origin, &arm(profile)).map(Self::Pick),
-            Some(Some(k)) if k == "push_t" => PushTHil::parse(&text, &origin, profile).map(Self::PushT),
+            None => Pick::parse(text, &origin, &arm(profile)).map(Self::Pick),
+            Some(Some(k)) if k == "push_t" => PushTHil::parse(text, &origin, profile).map(Self::PushT),
             Some(k) => Err(TaskError::Invalid {
                 path: origin,
                 field: "kind".into(),

@@ -179,18 +179,20 @@ fn validate(c: &PushTHilConfig, p: &Profile) -> Result<(), (String, String)> {
             format!("Push-T acts through the FR3's kinematics; the profile is {} ({} joints)", p.name, p.joints),
         );
     }
-    for (field, v) in [
-        ("policy_rate_hz", c.policy_rate_hz),
-        ("timeout_s", c.timeout_s),
-        ("scene_timeout_s", c.scene_timeout_s),
-        ("table.height", c.table.height),
-        ("camera.rate_hz", c.camera.rate_hz),
-        ("camera.max_age_ms", c.camera.max_age_ms),
+    // The upper bounds keep the conversions to nanoseconds (deadlines added to the clock) far from overflow.
+    for (field, v, max) in [
+        ("policy_rate_hz", c.policy_rate_hz, 10_000.0),
+        ("timeout_s", c.timeout_s, 86_400.0),
+        ("scene_timeout_s", c.scene_timeout_s, 86_400.0),
+        ("table.height", c.table.height, 10.0),
+        ("camera.rate_hz", c.camera.rate_hz, 10_000.0),
+        ("camera.max_age_ms", c.camera.max_age_ms, 60_000.0),
     ] {
-        if !(v.is_finite() && v > 0.0) {
-            return err(field, format!("is {v}, must be a finite number > 0"));
+        if !(v.is_finite() && v > 0.0 && v <= max) {
+            return err(field, format!("is {v:?}, must be a finite number > 0 and at most {max}"));
         }
     }
+    check_world(&c.world).map_or(Ok(()), |(field, problem)| err(field, problem))?;
     let period = f64::from(c.world.control_period);
     if (c.policy_rate_hz * period - 1.0).abs() > 1e-6 {
         return err(
@@ -218,6 +220,27 @@ fn validate(c: &PushTHilConfig, p: &Profile) -> Result<(), (String, String)> {
         return err("world.pusher_start", format!("({sx}, {sy}) lies outside table.workspace {w:?}"));
     }
     Ok(())
+}
+
+/// The world's numbers the physics and the scene divide by or size shapes with: finite, positive where a size or a
+/// speed, and at most 1000 physics substeps a control period.
+fn check_world(w: &PushTConfig) -> Option<(&'static str, String)> {
+    let sizes = [("world.bar", &w.bar[..]), ("world.stem", &w.stem[..])];
+    let positive = [("world.pusher_radius", w.pusher_radius), ("world.pusher_speed", w.pusher_speed)];
+    if let Some((f, v)) = sizes.iter().find(|(_, v)| v.iter().any(|x| !(x.is_finite() && *x > 0.0))) {
+        return Some((f, format!("{v:?} must be positive sizes (m)")));
+    }
+    if let Some((f, v)) = positive.iter().find(|(_, x)| !(x.is_finite() && *x > 0.0)) {
+        return Some((f, format!("is {v}, must be a finite number > 0")));
+    }
+    let rest = [&w.start[..], &w.goal[..], &w.pusher_start[..], &w.start_noise[..], &w.tolerance[..]];
+    if rest.iter().any(|v| v.iter().any(|x| !x.is_finite())) {
+        return Some(("world", "start, goal, pusher_start, start_noise and tolerance must be finite".into()));
+    }
+    if !(1..=1000).contains(&w.substeps) {
+        return Some(("world.substeps", format!("is {}, must be in 1..=1000", w.substeps)));
+    }
+    None
 }
 
 impl mars_tasks::Task for PushTHil {
