@@ -491,10 +491,10 @@ impl HalControl {
         self.filter.resync(q, v, a);
     }
 
-    /// For this tick's step only: the robot may judge it against this history instead of ours (see
-    /// [`SafetyFilter::also_judged_from`]).
-    pub fn also_judged_from(&mut self, q: &[f64], v: &[f64], a: &[f64]) {
-        self.filter.also_judged_from(q, v, a);
+    /// For this tick's step only: the robot may judge it against this history instead of ours, over `cycles`
+    /// cycles (see [`SafetyFilter::also_judged_from`]).
+    pub fn also_judged_from(&mut self, q: &[f64], v: &[f64], a: &[f64], cycles: u64) {
+        self.filter.also_judged_from(q, v, a, cycles);
     }
 
     /// The HAL was asked to exit: stop following, brake the setpoint to rest (see [`Self::stopped`]).

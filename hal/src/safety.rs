@@ -108,6 +108,17 @@ struct StreamPoint {
     v: Option<[f64; MAX_JOINTS]>,
 }
 
+/// The most other histories one step is kept within the limits from (see [`SafetyFilter::also_judged_from`]).
+pub const MAX_ALTERNATIVES: usize = 8;
+
+/// Another history the robot may judge the next step against, over `cycles` cycles (franka-sim records a command
+/// that came late over the cycles since the last one it recorded).
+#[derive(Debug, Clone, Copy)]
+struct Alternative {
+    from: Setpoint,
+    cycles: u64,
+}
+
 /// The fraction of the acceleration and jerk limits the filter's own trajectories use (marsd's smoother plans at
 /// 0.9 for the same reason).
 const OWN_PLAN_FACTOR: f64 = 0.95;
@@ -135,8 +146,8 @@ pub struct SafetyFilter {
     kp: f64,
     kv: f64,
     stream: Option<StreamPoint>,
-    /// For the next step only: another history the robot may judge it against (see [`Self::also_judged_from`]).
-    alternative: Option<Setpoint>,
+    /// For the next step only: other histories the robot may judge it against (see [`Self::also_judged_from`]).
+    alternatives: [Option<Alternative>; MAX_ALTERNATIVES],
     /// The setpoints of the last frames published, by frame seq modulo the length.
     published: [Option<Published>; PUBLISHED_KEPT],
     pub rejected: u64,
@@ -188,7 +199,7 @@ impl SafetyFilter {
             kp: KV.min(0.5 * p.rate_hz) / 4.0,
             kv: KV.min(0.5 * p.rate_hz),
             stream: None,
-            alternative: None,
+            alternatives: [None; MAX_ALTERNATIVES],
             published: [None; PUBLISHED_KEPT],
             rejected: 0,
             clamped: 0,
@@ -214,26 +225,54 @@ impl SafetyFilter {
         self.a = arr(a);
     }
 
-    /// For the next step only: the robot may judge it against this history (position, velocity, acceleration)
-    /// instead of ours, which it cannot tell us yet (franka-sim, when it may have thrown a late command of ours
-    /// away: `fci::setpoint_sync`). The step is then kept within the rate limits from both, for each joint where
-    /// some step is; where none is (the two histories' accelerations a jerk limit or more apart), from ours only:
-    /// ours is the likelier, and a step between the two breaks the limits from both (a version that took the middle
-    /// raised franka-sim's reflexes).
-    pub fn also_judged_from(&mut self, q: &[f64], v: &[f64], a: &[f64]) {
-        self.alternative = Some(Setpoint { q: arr(q), v: arr(v), a: arr(a) });
+    /// For the next step only: the robot may judge it against this history (position, velocity, acceleration),
+    /// over `cycles` cycles, instead of ours, which it cannot tell us yet (franka-sim, where it may have thrown a late
+    /// command of ours away: `fci::late_reads`). Called once per such history, likelier first. The step is kept
+    /// within the rate limits from ours and from each in turn, for each joint where some step is within the limits
+    /// from ours and all those heeded before; where none is, that history is not heeded: ours is the likelier, and
+    /// a step between two histories breaks the limits from both (a version that took the middle raised franka-sim's
+    /// reflexes). Beyond [`MAX_ALTERNATIVES`], ignored.
+    pub fn also_judged_from(&mut self, q: &[f64], v: &[f64], a: &[f64], cycles: u64) {
+        if let Some(slot) = self.alternatives.iter_mut().find(|s| s.is_none()) {
+            *slot = Some(Alternative { from: Setpoint { q: arr(q), v: arr(v), a: arr(a) }, cycles: cycles.max(1) });
+        }
     }
 
-    /// Joint `i`'s step accelerations (the filter's own law, `v += a·dt; q += v·dt`) within the planned jerk and
-    /// acceleration limits from our setpoint and from `alt` alike, if there are any. From `alt` the step reads as
-    /// `a + d` of acceleration: it starts from another position and velocity.
-    fn both_histories_bound(&self, i: usize, alt: &Setpoint) -> Option<(f64, f64)> {
+    /// Joint `i`'s step accelerations (the filter's own law, `v += a·dt; q += v·dt`) within `factor` of the jerk and
+    /// acceleration limits as the robot judges the step from `alt`: over `m` cycles from another position and
+    /// velocity, the step's acceleration reads as `α + a/m²` there.
+    fn alternative_bound(&self, i: usize, alt: &Alternative, factor: f64) -> (f64, f64) {
         let dt = self.dt;
+        let (am, jm) = (self.a_max[i] * factor, self.j_max[i] * factor);
+        let step = alt.cycles as f64 * dt;
+        let (q, v, a) = alt.from.of(i);
+        let alpha = ((self.q[i] + self.v[i] * dt - q) / step - v) / step;
+        let beta = (dt / step) * (dt / step);
+        let lo = (-am).max(a - jm * step);
+        let hi = am.min(a + jm * step);
+        ((lo - alpha) / beta, (hi - alpha) / beta)
+    }
+
+    /// Joint `i`'s step accelerations within the planned limits from ours alone.
+    fn own_bound(&self, i: usize) -> (f64, f64) {
         let (am, jm) = (self.a_max[i] * OWN_PLAN_FACTOR, self.j_max[i] * OWN_PLAN_FACTOR);
-        let d = ((self.q[i] - alt.q[i]) + (self.v[i] - alt.v[i]) * dt) / (dt * dt);
-        let lo = (self.a[i] - jm * dt).max(alt.a[i] - jm * dt - d).max(-am).max(-am - d);
-        let hi = (self.a[i] + jm * dt).min(alt.a[i] + jm * dt - d).min(am).min(am - d);
-        (lo <= hi).then_some((lo, hi))
+        ((self.a[i] - jm * self.dt).max(-am), (self.a[i] + jm * self.dt).min(am))
+    }
+
+    /// Narrows `(lo, hi)` by each alternative heeded for joint `i` (bit k of `heeded`: the k-th), in turn, where
+    /// that leaves a step; returns the alternatives it could heed.
+    fn heed(&self, i: usize, (lo, hi): &mut (f64, f64), alts: &[Option<Alternative>], heeded: u8) -> u8 {
+        let mut kept = 0;
+        for (k, alt) in alts.iter().enumerate().filter(|(k, _)| heeded & (1 << k) != 0) {
+            let Some(alt) = alt else { continue };
+            let (alo, ahi) = self.alternative_bound(i, alt, OWN_PLAN_FACTOR);
+            let (blo, bhi) = (lo.max(alo), hi.min(ahi));
+            if blo <= bhi {
+                (*lo, *hi) = (blo, bhi);
+                kept |= 1 << k;
+            }
+        }
+        kept
     }
 
     /// The setpoint now goes out in state frame `frame`: a command answering that frame may continue from it.
@@ -471,26 +510,35 @@ impl SafetyFilter {
         })
     }
 
+    /// Whether joint `i`'s step to `t` is within the limits from each alternative heeded for it.
+    fn within_heeded(&self, i: usize, t: f64, alts: &[Option<Alternative>], heeded: u8) -> bool {
+        let a = ((t - self.q[i]) / self.dt - self.v[i]) / self.dt;
+        alts.iter().enumerate().filter(|(k, _)| heeded & (1 << k) != 0).all(|(_, alt)| {
+            alt.is_none_or(|alt| {
+                let (lo, hi) = self.alternative_bound(i, &alt, 1.0);
+                let slack = EPS * lo.abs().max(hi.abs()).max(1.0);
+                a >= lo - slack && a <= hi + slack
+            })
+        })
+    }
+
     /// Advance the applied setpoint one tick toward `target`, or to rest (zero velocity where it is) when
     /// `target` is `None`. Returns the new setpoint positions.
     pub fn step(&mut self, target: Option<&[f64; MAX_JOINTS]>) -> &[f64] {
         let dt = self.dt;
-        // The other history, and for each joint whether a step within the limits from both exists. Not for an arm
-        // held at rest: it stays where it is.
+        // The other histories, and for each joint those a step within the planned limits from ours and them exists
+        // for. Not for an arm held at rest: it stays where it is.
         let holding = target.is_none() && self.at_rest();
-        let alternative = self.alternative.take().filter(|_| !holding).map(|alt| {
-            let both: [Option<(f64, f64)>; MAX_JOINTS] =
-                std::array::from_fn(|i| if i < self.n { self.both_histories_bound(i, &alt) } else { None });
-            (alt, both)
-        });
+        let alts = std::mem::replace(&mut self.alternatives, [None; MAX_ALTERNATIVES]);
+        let alts = if holding { [None; MAX_ALTERNATIVES] } else { alts };
+        let heeded: [u8; MAX_JOINTS] =
+            std::array::from_fn(|i| if i < self.n { self.heed(i, &mut self.own_bound(i), &alts, u8::MAX) } else { 0 });
         // A target the setpoint can reach this very tick within every limit is applied exactly, as libfranka
         // applies a compliant command: a controller that streams limit-respecting commands gets them unchanged
         // (and the next command's implied rates are its own finite differences, so it is never clamped).
         if let Some(t) = target
             && self.reachable_in_one_tick(t)
-            && alternative.as_ref().is_none_or(|(alt, both)| {
-                (0..self.n).all(|i| both[i].is_none() || self.step_excess_from(i, alt.of(i), t[i]).is_none())
-            })
+            && (0..self.n).all(|i| self.within_heeded(i, t[i], &alts, heeded[i]))
         {
             #[allow(clippy::needless_range_loop)] // q, v, a and t indexed by joint
             for i in 0..self.n {
@@ -542,14 +590,10 @@ impl SafetyFilter {
             if target.is_none() && v.abs() + a.abs() * dt <= 0.5 * jm * dt * dt && v.abs() <= 0.5 * am * dt {
                 a_new = -v / dt;
             }
-            // Within the limits from the other history too, where that leaves a step within ours.
-            if let Some((_, both)) = &alternative
-                && let Some((alt_lo, alt_hi)) = both[i]
-            {
-                let (both_lo, both_hi) = (lo.max(alt_lo), hi.min(alt_hi));
-                if both_lo <= both_hi {
-                    a_new = a_new.clamp(both_lo, both_hi);
-                }
+            // Within the limits from the other histories too, where that leaves a step within ours.
+            let mut bound = (lo, hi);
+            if self.heed(i, &mut bound, &alts, heeded[i]) != 0 {
+                a_new = a_new.clamp(bound.0, bound.1);
             }
             let mut v_new = v + a_new * dt;
             let mut q_new = q + v_new * dt;
@@ -895,7 +939,7 @@ mod tests {
 
         let mut f = SafetyFilter::new(&p, &p.home);
         f.resync(&q, &v, &a);
-        f.also_judged_from(&qb, &vb, &ab);
+        f.also_judged_from(&qb, &vb, &ab, 1);
         let c = f.step(Some(&target))[0];
         for (name, from) in [("ours", (q[0], v[0], a[0])), ("the robot's guess", from_b)] {
             let (_, acc, jerk) = rates_of(c, from, dt);
@@ -918,7 +962,7 @@ mod tests {
         let ([q, v, a], [qb, vb, ab], target) = late_by(&p, 2, (-0.3174507, -0.13396, 0.001), -4.5e-6, -4400.0);
         let mut f = SafetyFilter::new(&p, &p.home);
         f.resync(&q, &v, &a);
-        f.also_judged_from(&qb, &vb, &ab);
+        f.also_judged_from(&qb, &vb, &ab, 1);
         assert_eq!(f.step(Some(&target))[2], target[2], "applied exactly: within the limits from ours");
         assert_eq!(f.infeasible_steps, 0);
     }
@@ -931,7 +975,7 @@ mod tests {
         let other: Vec<f64> = p.home.iter().map(|q| q + 5e-6).collect();
         let zero = vec![0.0; p.joints];
         for _ in 0..10 {
-            f.also_judged_from(&other, &zero, &zero);
+            f.also_judged_from(&other, &zero, &zero, 1);
             assert_eq!(f.step(None), &p.home[..]);
         }
     }

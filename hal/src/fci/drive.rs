@@ -233,10 +233,12 @@ fn control(
                 report.resyncs_thrown_away += u64::from(robot_setpoints.last_from == Some(ResyncFrom::LateThrownAway));
                 last_resync = Some((report.cycles, missed));
             }
-            if let Some(h) = robot_setpoints.if_thrown_away() {
-                hal.control.also_judged_from(&h.q, &h.v, &h.a);
-                report.judged_twice += 1;
+            let mut judged_twice = false;
+            for (h, cycles) in robot_setpoints.alternatives() {
+                hal.control.also_judged_from(&h.q, &h.v, &h.a, cycles);
+                judged_twice = true;
             }
+            report.judged_twice += u64::from(judged_twice);
             let mut cycle = Cycle {
                 state,
                 hand: hand.as_deref_mut(),

@@ -12,6 +12,7 @@ pub mod drive;
 pub mod error;
 pub mod franka_sim;
 pub mod hand;
+mod late_reads;
 pub mod params;
 pub mod recent_cycles;
 pub mod recover;
@@ -19,6 +20,11 @@ pub mod report;
 pub mod setpoint_sync;
 pub mod state;
 pub mod status;
+
+#[cfg(test)]
+mod against_sim;
+#[cfg(test)]
+mod sim_checker;
 
 pub use connect::{Fci, connect};
 pub use error::FciError;
