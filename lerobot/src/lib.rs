@@ -18,6 +18,7 @@ pub mod episodes;
 mod error;
 pub mod file_limits;
 pub mod info;
+pub mod page_sizes;
 pub mod stats;
 pub mod table;
 pub mod video;

@@ -8,7 +8,6 @@ use arrow_array::types::{Float32Type, Float64Type, Int64Type};
 use arrow_array::{Array, ArrayRef, RecordBatch};
 use arrow_schema::DataType;
 use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
-use parquet::file::reader::ChunkReader;
 
 use crate::LeRobotError;
 
@@ -32,17 +31,16 @@ impl Table {
         Self::decode(path, bytes::Bytes::from(bytes), columns)
     }
 
-    fn decode<R: ChunkReader + 'static>(path: &Path, r: R, columns: Option<&[&str]>) -> Result<Self, LeRobotError> {
+    fn decode(path: &Path, r: bytes::Bytes, columns: Option<&[&str]>) -> Result<Self, LeRobotError> {
         crate::contain::decode(|| Self::decode_uncontained(path, r, columns))
             .unwrap_or_else(|panic| Err(LeRobotError::parquet(path, format!("the parquet reader failed: {panic}"))))
     }
 
-    fn decode_uncontained<R: ChunkReader + 'static>(
-        path: &Path,
-        r: R,
-        columns: Option<&[&str]>,
-    ) -> Result<Self, LeRobotError> {
-        let builder = ParquetRecordBatchReaderBuilder::try_new(r).map_err(|e| LeRobotError::parquet(path, e))?;
+    fn decode_uncontained(path: &Path, r: bytes::Bytes, columns: Option<&[&str]>) -> Result<Self, LeRobotError> {
+        let builder =
+            ParquetRecordBatchReaderBuilder::try_new(r.clone()).map_err(|e| LeRobotError::parquet(path, e))?;
+        // Before the reader reserves what a page header declares (up to 2 GiB each).
+        crate::page_sizes::check(&r, builder.metadata()).map_err(|e| LeRobotError::parquet(path, e))?;
         let builder = match columns {
             None => builder,
             Some(names) => {
