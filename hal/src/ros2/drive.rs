@@ -87,9 +87,11 @@ pub fn run(profile: &Profile, opts: &RunOptions) -> anyhow::Result<Report> {
         retakes = c.retakes,
         "ROS 2 link"
     );
-    for (id, counts) in &backend.link.cameras {
+    let cameras = backend.link.cameras.clone();
+    backend.link.close();
+    // Counted once the camera threads have ended: none is between taking a frame and publishing it.
+    for (id, counts) in &cameras {
         info!(camera = %id, "ROS 2 camera: {counts}");
     }
-    backend.link.close();
     Ok(report)
 }

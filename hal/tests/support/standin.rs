@@ -24,7 +24,7 @@ pub fn venv() -> PathBuf {
     install_venv(".ci/dds-venv", ".venv-dds", "mars-dds-install.lock")
 }
 
-/// A DDS domain (1–232) for one stand-in and its HAL. Each domain is held by an flock for as long as the
+/// A DDS domain (1–101) for one stand-in and its HAL. Each domain is held by an flock for as long as the
 /// returned guard lives, so no two tests of this machine (threads or processes) share one; the search starts
 /// from this process's id, so concurrent binaries rarely even try the same one.
 pub fn unique_domain() -> (u16, File) {
