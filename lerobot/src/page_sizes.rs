@@ -167,7 +167,11 @@ impl Reader<'_> {
     fn skip_list(&mut self, depth: usize) -> Result<(), String> {
         let b = self.byte()?;
         let n = if b >> 4 == 15 { self.varint()? } else { u64::from(b >> 4) };
-        self.skip_elements(n, b & 0x0f, depth)
+        // Each element takes at least a byte, so a count past the bytes left fails at the end of the input.
+        for _ in 0..n {
+            self.element(b & 0x0f, depth)?;
+        }
+        Ok(())
     }
 
     fn skip_map(&mut self, depth: usize) -> Result<(), String> {
@@ -179,14 +183,6 @@ impl Reader<'_> {
         for _ in 0..n {
             self.element(kinds >> 4, depth)?;
             self.element(kinds & 0x0f, depth)?;
-        }
-        Ok(())
-    }
-
-    /// `n` elements: each takes at least a byte, so a count past the bytes left fails at the end of the input.
-    fn skip_elements(&mut self, n: u64, kind: u8, depth: usize) -> Result<(), String> {
-        for _ in 0..n {
-            self.element(kind, depth)?;
         }
         Ok(())
     }

@@ -32,22 +32,6 @@ fn doctor(out: &Path) -> (String, serde_json::Value, Duration) {
     (stdout, json, took)
 }
 
-/// Takes `core` for `ms` from every thread below SCHED_FIFO 99 (doctor's probe runs at the servo's 80); false if
-/// this process may not.
-fn hog(core: usize, ms: u64) -> bool {
-    // SAFETY: the calling thread's own affinity and scheduling.
-    let mut set: libc::cpu_set_t = unsafe { std::mem::zeroed() };
-    unsafe { libc::CPU_SET(core, &mut set) };
-    let pinned = unsafe { libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &set) } == 0;
-    let param = libc::sched_param { sched_priority: 99 };
-    let fifo = unsafe { libc::pthread_setschedparam(libc::pthread_self(), libc::SCHED_FIFO, &param) } == 0;
-    let end = Instant::now() + Duration::from_millis(ms);
-    while pinned && fifo && Instant::now() < end {
-        std::hint::spin_loop();
-    }
-    pinned && fifo
-}
-
 #[test]
 fn marsd_doctor_sees_its_core_taken_for_40_ms_and_says_what_to_expect() {
     let _rt = rt_rig_lock().expect("taking the real-time rig lock");
@@ -59,7 +43,7 @@ fn marsd_doctor_sees_its_core_taken_for_40_ms_and_says_what_to_expect() {
     let out = std::env::temp_dir().join(format!("mars-doctor-stall-test-{}", std::process::id()));
     let stall = std::thread::spawn(move || {
         std::thread::sleep(Duration::from_millis(500));
-        hog(core, 40)
+        stall_witness::hog::take_core(core, 40)
     });
     let (stdout, json, _) = doctor(&out);
     assert!(stall.join().unwrap(), "a root test run takes SCHED_FIFO 99 as the doctor takes 80");

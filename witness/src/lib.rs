@@ -29,6 +29,7 @@
 
 pub mod core_watch;
 pub mod evidence;
+pub mod hog;
 pub mod log_time;
 pub mod rerun;
 pub mod steal;

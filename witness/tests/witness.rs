@@ -1,27 +1,9 @@
 //! The witness against stalls made for it: a thread above it (SCHED_FIFO 99) that takes a core for 40 ms.
 
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
+use stall_witness::hog::take_core;
 use stall_witness::{core_watch, monotonic_ns, witness};
-
-/// Takes `core` for `ms` from everything below SCHED_FIFO 99, the witness included. False if it could not.
-fn hog(core: usize, ms: u64) -> bool {
-    std::thread::spawn(move || {
-        // SAFETY: the calling thread's own affinity and scheduling.
-        let mut set: libc::cpu_set_t = unsafe { std::mem::zeroed() };
-        unsafe { libc::CPU_SET(core, &mut set) };
-        let pinned = unsafe { libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &set) } == 0;
-        let param = libc::sched_param { sched_priority: 99 };
-        let fifo = unsafe { libc::pthread_setschedparam(libc::pthread_self(), libc::SCHED_FIFO, &param) } == 0;
-        let end = Instant::now() + Duration::from_millis(ms);
-        while pinned && fifo && Instant::now() < end {
-            std::hint::spin_loop();
-        }
-        pinned && fifo
-    })
-    .join()
-    .unwrap()
-}
 
 #[test]
 fn a_core_taken_for_40_ms_is_witnessed_on_that_core_and_excuses_a_failure_there() {
@@ -34,7 +16,7 @@ fn a_core_taken_for_40_ms_is_witnessed_on_that_core_and_excuses_a_failure_there(
     }
     std::thread::sleep(Duration::from_millis(20));
     let from = monotonic_ns();
-    assert!(hog(0, 40), "a root test run can take SCHED_FIFO 99 when the witness could take 95");
+    assert!(take_core(0, 40), "a root test run can take SCHED_FIFO 99 when the witness could take 95");
     let to = monotonic_ns();
     let e = w.stall_in(from, to, 30.0).expect("the witness saw core 0 taken");
     eprintln!("{e}");

@@ -1,0 +1,23 @@
+//! A stall made on purpose, for tests of what should see one (the witness itself, `marsd doctor`).
+
+use std::time::{Duration, Instant};
+
+/// Takes `core` for `ms` from everything below SCHED_FIFO 99 (the witness's 95, the loops' 85/80/70/60), from a
+/// thread of its own pinned there; returns when done. False if this process may not pin or raise a thread.
+pub fn take_core(core: usize, ms: u64) -> bool {
+    std::thread::spawn(move || {
+        // SAFETY: the calling thread's own affinity and scheduling.
+        let mut set: libc::cpu_set_t = unsafe { std::mem::zeroed() };
+        unsafe { libc::CPU_SET(core, &mut set) };
+        let pinned = unsafe { libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &set) } == 0;
+        let param = libc::sched_param { sched_priority: 99 };
+        let fifo = unsafe { libc::pthread_setschedparam(libc::pthread_self(), libc::SCHED_FIFO, &param) } == 0;
+        let end = Instant::now() + Duration::from_millis(ms);
+        while pinned && fifo && Instant::now() < end {
+            std::hint::spin_loop();
+        }
+        pinned && fifo
+    })
+    .join()
+    .unwrap_or(false)
+}
