@@ -80,8 +80,11 @@ fn number_after(text: &str, name: &str) -> f64 {
 
 /// The HAL report's robot line ("robot 127.0.0.1: … 0 reflexes …"): no reflex, and the robot's own control
 /// command success rate (over its last 100 cycles) ≥ 0.95 throughout. A lower rate r means (1 − r)·100 commands
-/// missing in 100 cycles: excused only by the stall witness's evidence of as many ms of stall (less the 5 the bound
-/// allows) in the 300 ms (100 of franka-sim's cycles on a slow day) before the HAL saw it.
+/// missing in 100 cycles: excused only by evidence of as many ms of stall (less the 5 the bound allows) in the
+/// 300 ms (100 of franka-sim's cycles on a slow day) before the HAL saw it — the stall witness's, or franka-sim's own
+/// log of its physics falling behind real time then (a slow simulator misses our commands by itself, and as an
+/// ordinary process it can be slowed by what the witness, above every loop, does not see). A reflex has no such
+/// excuse from the simulator: the HAL must follow a slow franka-sim without one.
 fn assert_robot_line_clean(hal_stdout: &str, hal_stderr: &str, sim_log: &str) -> Attempt {
     let line = assert_no_reflex(hal_stdout, hal_stderr, sim_log);
     let rate = number_after(line, "control success rate min");
@@ -91,10 +94,18 @@ fn assert_robot_line_clean(hal_stdout: &str, hal_stderr: &str, sim_log: &str) ->
     let failure = format!("the robot's control command success rate fell to {rate}: {line}");
     let at = line.split("(at ").nth(1).and_then(|t| stall_witness::log_time::time_of_day(&format!("2000-01-01T{t}")));
     let at = at.and_then(stall_witness::log_time::monotonic_of_time_of_day).unwrap_or_else(|| panic!("{failure}"));
-    let missing = ((1.0 - rate) * 100.0).round();
-    witness()
-        .excuse(failure.clone(), at.saturating_sub(300_000_000), at, missing - 5.0)
-        .map_or_else(|| panic!("{failure}"), Err)
+    let (from, missing) = (at.saturating_sub(300_000_000), ((1.0 - rate) * 100.0).round());
+    let excuse = witness().excuse(failure.clone(), from, at, missing - 5.0);
+    let excuse = excuse.or_else(|| stall_witness::peer::franka_sim_excuse(failure.clone(), sim_log, from, at, missing - 5.0));
+    excuse.map_or_else(|| panic!("{failure}; {}", seen_at(from, at, sim_log)), Err)
+}
+
+/// What the stall witness and franka-sim's log said of `[from, to]`, for a failure they do not excuse.
+fn seen_at(from: u64, to: u64, sim_log: &str) -> String {
+    let witness = witness().seen_in(from, to).map_or("the stall witness did not watch it".into(), |e| e.to_string());
+    let sim = stall_witness::peer::franka_sim_overloaded(sim_log, from, to, 0.0);
+    let sim = sim.map_or("franka-sim logged no overload then".into(), |a| a.to_string());
+    format!("{witness}; {sim}")
 }
 
 /// The HAL report's robot line, with no reflex in it nor in the HAL's log (on failure, the simulator's own
@@ -224,7 +235,7 @@ fn sigkill_of_marsd_mid_motion_brakes_the_fr3_to_rest_with_no_reflex() {
 }
 
 /// One run of the test above; its excuse if a reflex or a fall of the robot's success rate came while the stall
-/// witness saw the machine stall.
+/// witness saw the machine stall (for the success rate, also while franka-sim logged its physics falling behind).
 fn sigkill_attempt(attempt: u32) -> Attempt {
     let (rig, mut hal, rec, mut marsd) = start_on_franka_sim(&format!("fskill{attempt}"), 0);
     let Some((_, moving)) = rec.wait_moving(START, || marsd.running()) else {
@@ -232,7 +243,9 @@ fn sigkill_attempt(attempt: u32) -> Attempt {
     };
     let from = rec.states_len();
     marsd.signal(libc::SIGKILL);
-    assert!(marsd.wait_timeout(Duration::from_secs(5)).is_some());
+    if marsd.wait_timeout(Duration::from_secs(5)).is_none() {
+        panic!("marsd not reaped 5 s after its SIGKILL; as the kernel sees it: {}", marsd.kernel_view());
+    }
     let (_, held) = rec.expect_state("the HAL holding after the SIGKILL", from, Duration::from_secs(3), |s| {
         s.is(status::HOLDING) && s.session == moving.session
     });

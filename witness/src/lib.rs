@@ -15,8 +15,12 @@
 //! itself. Where it cannot run above the loops (no SCHED_FIFO: an unprivileged user) it gives no evidence at all:
 //! a witness under the normal scheduler would see the loops' own work as stalls.
 //!
-//! [`rerun`] is the rule the tests follow: at most one rerun per test, only with the witness's evidence for that
-//! very failure's time, printed to the test's stderr (past libtest's capture) and appended to `$MARS_RERUN_LOG`,
+//! [`peer`]: for a failure only a peer simulator's pace can cause (franka-sim's control success rate), that peer's
+//! own log of falling behind real time — an account neither of the code under test nor of this witness, and the
+//! only other evidence a rerun may rest on.
+//!
+//! [`rerun`] is the rule the tests follow: at most one rerun per test, only with such evidence for that very
+//! failure's time, printed to the test's stderr (past libtest's capture) and appended to `$MARS_RERUN_LOG`,
 //! which `.ci/run` sums up in its last line.
 //!
 //! ```no_run
@@ -31,6 +35,7 @@ pub mod core_watch;
 pub mod evidence;
 pub mod hog;
 pub mod log_time;
+pub mod peer;
 pub mod rerun;
 pub mod steal;
 
@@ -90,7 +95,7 @@ impl Witness {
     }
 
     /// An [`Excuse`] for `failure`, if the witness saw the machine stall for at least `min_ms` within `[from_ns,
-    /// to_ns]` ([`Self::stall_in`]); the only way to make one.
+    /// to_ns]` ([`Self::stall_in`]) (the one other way: a peer's own account, [`peer`]).
     pub fn excuse(&self, failure: impl Into<String>, from_ns: u64, to_ns: u64, min_ms: f64) -> Option<Excuse> {
         self.stall_in(from_ns, to_ns, min_ms).map(|e| Excuse::new(failure.into(), e))
     }
@@ -139,7 +144,7 @@ impl Witness {
             let t = log_time::monotonic_of_line(line)?;
             excuses.push(self.excuse(line.trim(), t.saturating_sub(before_ns), t + after_ns, min_ms)?);
         }
-        excuses.into_iter().max_by(|a, b| a.evidence().stalled_ms().total_cmp(&b.evidence().stalled_ms()))
+        excuses.into_iter().max_by(|a, b| a.stalled_ms().total_cmp(&b.stalled_ms()))
     }
 
     /// What the witness saw within `[from_ns, to_ns]`, stalled or not (for a test's log); `None` when it cannot

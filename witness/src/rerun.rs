@@ -1,7 +1,8 @@
 //! The rerun rule of the timing tests: a failure the stall witness explains — its evidence for that very
 //! failure's time — may be run once more; a second failure fails, explained or not.
 //!
-//! An [`Excuse`] can only be made by [`crate::Witness::excuse`], so no test can rerun on its own evidence.
+//! An [`Excuse`] can only be made by [`crate::Witness::excuse`] or, for a failure only a peer simulator's pace can
+//! cause, from that peer's own account of its pace ([`crate::peer`]), so no test can rerun on its own evidence.
 //! Every rerun is printed to the real stderr (libtest's capture does not hide it) and appended, one line each, to
 //! the file `$MARS_RERUN_LOG` names, if any (`.ci/run` sums it up in its last line).
 
@@ -9,27 +10,46 @@ use std::fmt;
 use std::io::Write;
 
 use crate::Evidence;
+use crate::peer::PeerAccount;
 
-/// A failure and the witness's evidence that the machine stalled at its time.
+/// A failure and the evidence that the machine stalled at its time.
 #[derive(Debug, Clone)]
 pub struct Excuse {
     failure: String,
-    evidence: Evidence,
+    grounds: Grounds,
+}
+
+/// Whose account excuses a failure.
+#[derive(Debug, Clone)]
+enum Grounds {
+    Witness(Evidence),
+    Peer(PeerAccount),
 }
 
 impl Excuse {
     pub(crate) fn new(failure: String, evidence: Evidence) -> Self {
-        Self { failure, evidence }
+        Self { failure, grounds: Grounds::Witness(evidence) }
     }
 
-    pub fn evidence(&self) -> &Evidence {
-        &self.evidence
+    pub(crate) fn by_peer(failure: String, account: PeerAccount) -> Self {
+        Self { failure, grounds: Grounds::Peer(account) }
+    }
+
+    /// How long the machine stalled by the evidence (ms).
+    pub fn stalled_ms(&self) -> f64 {
+        match &self.grounds {
+            Grounds::Witness(e) => e.stalled_ms(),
+            Grounds::Peer(a) => a.lost_ms(),
+        }
     }
 }
 
 impl fmt::Display for Excuse {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "{} — {}", self.failure, self.evidence)
+        match &self.grounds {
+            Grounds::Witness(e) => write!(f, "{} — {e}", self.failure),
+            Grounds::Peer(a) => write!(f, "{} — {a}", self.failure),
+        }
     }
 }
 

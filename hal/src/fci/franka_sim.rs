@@ -49,6 +49,9 @@ impl FrankaSim {
         let child = Command::new(&server)
             .args(args)
             .env("FR3_MJCF", venv.join("fr3.xml"))
+            // Its log's times in UTC, like ours, so a line of its lines up with ours (its overload warnings are
+            // the evidence a test may rerun on: `stall_witness::peer`).
+            .env("TZ", "UTC")
             .stdin(Stdio::null())
             .stdout(out.try_clone()?)
             .stderr(out)

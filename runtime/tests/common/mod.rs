@@ -198,6 +198,25 @@ impl Proc {
         }
     }
 
+    /// Each of its threads as the kernel sees them now (name, state, the kernel function it sleeps in): why a
+    /// process that was sent SIGKILL has not been reaped yet.
+    pub fn kernel_view(&self) -> String {
+        let pid = self.child.id();
+        let Ok(tasks) = std::fs::read_dir(format!("/proc/{pid}/task")) else {
+            return format!("/proc/{pid}/task cannot be read (reaped since?)");
+        };
+        let thread = |t: &Path| {
+            let stat = std::fs::read_to_string(t.join("stat")).unwrap_or_default();
+            let wchan = std::fs::read_to_string(t.join("wchan")).unwrap_or_default();
+            // `pid (comm) S …`: the name may hold spaces and parentheses, the state follows the last ')'.
+            let (name, rest) = stat.rsplit_once(')').unwrap_or(("?", ""));
+            let name = name.split_once('(').map_or("?", |(_, n)| n);
+            format!("{name} {} in {}", rest.split_whitespace().next().unwrap_or("?"), if wchan.is_empty() { "-" } else { &wchan })
+        };
+        let threads: Vec<String> = tasks.flatten().map(|t| thread(&t.path())).collect();
+        format!("{} threads: {}", threads.len(), threads.join("; "))
+    }
+
     /// The exit code; panics (with the logs) if it did not exit within `timeout` or died of a signal.
     pub fn exit_code(&mut self, timeout: Duration) -> i32 {
         match self.wait_timeout(timeout) {

@@ -63,7 +63,7 @@ pub fn late_chunks_excuse(s: &serde_json::Value) -> Option<Excuse> {
         let late_ms = ready.saturating_sub(need) as f64 * 1e-6;
         let e =
             witness().excuse_on(super::policy_core(), format!("a chunk {late_ms:.1} ms late"), woke, ready, late_ms)?;
-        if worst.as_ref().is_none_or(|w| w.evidence().stalled_ms() < e.evidence().stalled_ms()) {
+        if worst.as_ref().is_none_or(|w| w.stalled_ms() < e.stalled_ms()) {
             worst = Some(e);
         }
     }

@@ -89,8 +89,7 @@ mod tests {
 
     /// Random streams like marsd's (jerk up to 4500 rad/s³), commands late one time in twenty (by 1–3 cycles), in
     /// three (by 1–4) or in two (by 1–8), the HAL missing 1–3 states now and then (none, 1 % or 3 % of states):
-    /// franka-sim judges every command within its limits. (The model of 3e81ccc: 11, 352 and 1065 commands out of
-    /// its limits of about 18 000 each.)
+    /// franka-sim judges every command within its limits.
     #[test]
     fn late_commands_and_unseen_states_keep_every_command_within_the_limits() {
         for (late, unseen) in [((0.05, 3), 0.0), ((0.3, 4), 0.01), ((0.5, 8), 0.03)] {
