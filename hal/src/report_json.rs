@@ -62,6 +62,7 @@ pub fn to_json(r: &Report) -> Value {
         "infeasible_steps": r.infeasible_steps,
         "errors": r.errors.total(),
         "loop_allocations": r.allocations_after_warmup.map(|(c, _)| c.system),
+        "loop_allocations_while_robot_stopped": r.allocations_while_robot_stopped.system,
         "robot": robot,
     })
 }

@@ -102,8 +102,11 @@ pub struct Report {
     /// Log events lost to a full ring.
     pub events_dropped: u64,
     /// The loop thread's heap allocations after warm-up, and the state frames it published meanwhile (each
-    /// costs iceoryx2 one pooled block); `None` when the binary does not count allocations.
+    /// costs iceoryx2 one pooled block); `None` when the binary does not count allocations. Without those below.
     pub allocations_after_warmup: Option<(Counts, u64)>,
+    /// The loop thread's allocations between ticks while the robot had stopped itself (a reflex: the driver's
+    /// report of it, the robot's error recovery, a new motion's start), after warm-up; nothing is commanded then.
+    pub allocations_while_robot_stopped: Counts,
     /// The robot's own side (the fci backend).
     pub robot: Option<crate::fci::RobotLoopReport>,
 }
@@ -185,8 +188,17 @@ impl std::fmt::Display for Report {
         match self.allocations_after_warmup {
             Some((c, sent)) => writeln!(
                 f,
-                "  loop allocations after warm-up: {} system-allocator calls, {} pooled blocks for {sent} frames sent",
-                c.system, c.pooled
+                "  loop allocations after warm-up: {} system-allocator calls, {} pooled blocks for {sent} frames sent{}",
+                c.system,
+                c.pooled,
+                match self.allocations_while_robot_stopped {
+                    Counts { system: 0, pooled: 0 } => String::new(),
+                    a => format!(
+                        " (and {} system-allocator calls, {} pooled blocks between ticks while the robot had stopped \
+                         itself)",
+                        a.system, a.pooled
+                    ),
+                }
             )?,
             None => writeln!(
                 f,
@@ -236,6 +248,9 @@ pub struct HalLoop {
     commanded: bool,
     at_warmup: Option<(Counts, u64)>,
     at_last_tick: Option<(Counts, u64)>,
+    /// The robot stopped itself after the last tick: the allocations until the next are the reflex path's.
+    robot_stopped: bool,
+    while_robot_stopped: Counts,
     /// The measurement the start was judged on: tick 0 reports it instead of reading anew.
     first: Option<Measurement>,
     pub realtime: RtStatus,
@@ -315,6 +330,8 @@ impl HalLoop {
             commanded: false,
             at_warmup: None,
             at_last_tick: None,
+            robot_stopped: false,
+            while_robot_stopped: Counts::default(),
             first: Some(first),
             realtime,
             late_us: Histogram::new_with_bounds(1, 10_000_000, 3)?,
@@ -333,15 +350,31 @@ impl HalLoop {
         self.ev.send(event);
     }
 
-    /// The robot stopped itself: hold (see [`HalControl::on_robot_fault`]).
+    /// The robot stopped itself: hold (see [`HalControl::on_robot_fault`]). Until a tick finds the robot taken
+    /// over again, what the thread allocates between ticks is counted apart (see [`Report`]).
     pub fn on_robot_fault(&mut self) {
         self.control.on_robot_fault(&mut self.ev);
+        self.robot_stopped = true;
+    }
+
+    /// While the robot is stopped: adds what the thread allocated since the last tick ended to the count apart.
+    fn count_apart_while_robot_stopped(&mut self) {
+        if !self.robot_stopped {
+            return;
+        }
+        if let (Some(_), Some((last, _)), Some(now)) = (self.at_warmup, self.at_last_tick, alloc_count::thread_counts())
+        {
+            self.while_robot_stopped.system += now.system - last.system;
+            self.while_robot_stopped.pooled += now.pooled - last.pooled;
+        }
+        self.robot_stopped = self.control.robot_fault();
     }
 
     /// One tick that began at `woke`: read the backend, take the commands, filter, apply, publish the frame.
     /// Allocates nothing but iceoryx2's pooled block for the frame.
     pub fn tick(&mut self, backend: &mut dyn Backend, woke: Stamp) -> Next {
         self.ticks_timed.begin(woke);
+        self.count_apart_while_robot_stopped();
         let (control, ev) = (&mut self.control, &mut self.ev);
         // Frames carry CLOCK_MONOTONIC time, which the controller shares: it computes state ages from it.
         let now_ns = monotonic_ns();
@@ -459,8 +492,11 @@ impl HalLoop {
     pub fn finish(mut self, ended: Ended, overruns: u64, robot: Option<crate::fci::RobotLoopReport>) -> Report {
         self.ticks_timed.finish();
         alloc_count::loop_ended();
+        let apart = self.while_robot_stopped;
         let allocations_after_warmup = self.at_warmup.zip(self.at_last_tick).map(|((c0, sent0), (c1, sent1))| {
-            (Counts { system: c1.system - c0.system, pooled: c1.pooled - c0.pooled }, sent1 - sent0)
+            let counts =
+                Counts { system: c1.system - c0.system - apart.system, pooled: c1.pooled - c0.pooled - apart.pooled };
+            (counts, sent1 - sent0)
         });
         if ended == Ended::Signal {
             info!("termination requested");
@@ -496,6 +532,7 @@ impl HalLoop {
             dropped_frames: self.dropped_frames,
             events_dropped,
             allocations_after_warmup,
+            allocations_while_robot_stopped: apart,
             robot,
         }
     }

@@ -458,6 +458,11 @@ fn stalled_hal_recovers(_attempt: u32) -> Attempt {
     let (code, out, _) = rig.exit(Duration::from_secs(10));
     assert_eq!(code, Some(0), "{out}");
     assert!(out.contains("1 reflexes, 1 recoveries") && out.contains("communication_constraints_violation"), "{out}");
+    // The ticks allocated nothing, through the reflex and the recovery too; what the thread allocated between them
+    // while the robot had stopped itself (franka-rs's error, its report, the recovery, the new motion's start) is
+    // counted apart.
+    assert!(out.contains("loop allocations after warm-up: 0 system-allocator calls"), "{out}");
+    assert!(out.contains("between ticks while the robot had stopped itself"), "{out}");
     Ok(())
 }
 

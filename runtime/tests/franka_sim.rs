@@ -96,7 +96,8 @@ fn assert_robot_line_clean(hal_stdout: &str, hal_stderr: &str, sim_log: &str) ->
     let at = at.and_then(stall_witness::log_time::monotonic_of_time_of_day).unwrap_or_else(|| panic!("{failure}"));
     let (from, missing) = (at.saturating_sub(300_000_000), ((1.0 - rate) * 100.0).round());
     let excuse = witness().excuse(failure.clone(), from, at, missing - 5.0);
-    let excuse = excuse.or_else(|| stall_witness::peer::franka_sim_excuse(failure.clone(), sim_log, from, at, missing - 5.0));
+    let excuse =
+        excuse.or_else(|| stall_witness::peer::franka_sim_excuse(failure.clone(), sim_log, from, at, missing - 5.0));
     excuse.map_or_else(|| panic!("{failure}; {}", seen_at(from, at, sim_log)), Err)
 }
 

@@ -110,7 +110,10 @@ mod tests {
 
     #[test]
     fn an_overload_warning_covers_the_five_seconds_before_it() {
-        let line = logged(10, "WARNING franka_sim.mujoco_franka_sim: simulation running at 0.80x real time (physics overloaded)");
+        let line = logged(
+            10,
+            "WARNING franka_sim.mujoco_franka_sim: simulation running at 0.80x real time (physics overloaded)",
+        );
         let now = monotonic_ns();
         let a = franka_sim_overloaded(&line, now - 12_000_000_000, now - 11_000_000_000, 100.0).unwrap();
         assert!((a.real_time_factor - 0.8).abs() < 1e-9 && (a.lost_ms() - 1000.0).abs() < 1.0, "{a}");

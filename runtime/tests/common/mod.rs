@@ -211,7 +211,11 @@ impl Proc {
             // `pid (comm) S …`: the name may hold spaces and parentheses, the state follows the last ')'.
             let (name, rest) = stat.rsplit_once(')').unwrap_or(("?", ""));
             let name = name.split_once('(').map_or("?", |(_, n)| n);
-            format!("{name} {} in {}", rest.split_whitespace().next().unwrap_or("?"), if wchan.is_empty() { "-" } else { &wchan })
+            format!(
+                "{name} {} in {}",
+                rest.split_whitespace().next().unwrap_or("?"),
+                if wchan.is_empty() { "-" } else { &wchan }
+            )
         };
         let threads: Vec<String> = tasks.flatten().map(|t| thread(&t.path())).collect();
         format!("{} threads: {}", threads.len(), threads.join("; "))
