@@ -244,9 +244,7 @@ fn sigkill_attempt(attempt: u32) -> Attempt {
     };
     let from = rec.states_len();
     marsd.signal(libc::SIGKILL);
-    if marsd.wait_timeout(Duration::from_secs(5)).is_none() {
-        panic!("marsd not reaped 5 s after its SIGKILL; as the kernel sees it: {}", marsd.kernel_view());
-    }
+    marsd.expect_reaped(Duration::from_secs(5), "its SIGKILL");
     let (_, held) = rec.expect_state("the HAL holding after the SIGKILL", from, Duration::from_secs(3), |s| {
         s.is(status::HOLDING) && s.session == moving.session
     });

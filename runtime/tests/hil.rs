@@ -214,9 +214,7 @@ fn kill_marsd_attempt(attempt: u32) -> Attempt {
     let killed_at = monotonic_ns();
     marsd.signal(libc::SIGKILL);
     let from = rec.states_len();
-    if marsd.wait_timeout(Duration::from_secs(5)).is_none() {
-        panic!("marsd not reaped 5 s after its SIGKILL; as the kernel sees it: {}", marsd.kernel_view());
-    }
+    marsd.expect_reaped(Duration::from_secs(5), "its SIGKILL");
     let (_, held) = rec.expect_state("the HAL holding after the SIGKILL", from, Duration::from_secs(3), |s| {
         s.is(status::HOLDING) && s.timestamp_ns > killed_at
     });

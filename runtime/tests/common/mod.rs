@@ -198,6 +198,18 @@ impl Proc {
         }
     }
 
+    /// Waits up to `timeout` for it to be reaped after `signal` (e.g. "its SIGKILL"); panics with how the kernel
+    /// sees its threads if it was not.
+    pub fn expect_reaped(&mut self, timeout: Duration, signal: &str) {
+        if self.wait_timeout(timeout).is_none() {
+            panic!(
+                "{} not reaped {timeout:?} after {signal}; as the kernel sees it: {}",
+                self.name,
+                self.kernel_view()
+            );
+        }
+    }
+
     /// Each of its threads as the kernel sees them now (name, state, the kernel function it sleeps in): why a
     /// process that was sent SIGKILL has not been reaped yet.
     pub fn kernel_view(&self) -> String {
