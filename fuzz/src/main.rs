@@ -24,6 +24,9 @@ struct Args {
 
 #[derive(clap::Args, Clone)]
 struct RunArgs {
+    /// The first case to run (the cases a stopped run did not reach: the number its report or progress gives).
+    #[arg(long, default_value_t = 0)]
+    first_case: u64,
     /// Cases per target.
     #[arg(long, default_value_t = 100_000)]
     cases: u64,
@@ -82,6 +85,7 @@ fn options(a: &RunArgs) -> Result<Options, String> {
     let progress = secs(a.progress_s, "progress-s")?;
     let limit = secs(a.time_limit_s, "time-limit-s")?;
     Ok(Options {
+        first_case: a.first_case,
         cases: a.cases,
         seed: a.seed,
         out: a.out.clone(),
@@ -99,7 +103,7 @@ fn run_all(list: Vec<Arc<dyn Target>>, a: &RunArgs) -> ExitCode {
             return ExitCode::from(2);
         }
     };
-    println!("mars-fuzz: seed {}, {} cases per target", opts.seed, opts.cases);
+    println!("mars-fuzz: seed {}, {} cases per target from case {}", opts.seed, opts.cases, opts.first_case);
     let reports: Vec<Report> = list
         .into_iter()
         .map(|t| {

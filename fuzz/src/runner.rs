@@ -31,6 +31,9 @@ pub trait Target: Send + Sync {
 
 #[derive(Debug, Clone)]
 pub struct Options {
+    /// The first case's number: a run stopped at case N goes on with `first_case = N` and makes the same inputs
+    /// the unstopped run would have made.
+    pub first_case: u64,
     pub cases: u64,
     pub seed: u64,
     /// Where failing inputs are written.
@@ -55,6 +58,8 @@ pub struct Failure {
 #[derive(Debug, Clone)]
 pub struct Report {
     pub target: &'static str,
+    /// The run's first case; it ran `first_case..first_case + cases`.
+    pub first_case: u64,
     pub cases: u64,
     pub failures: Vec<Failure>,
     pub elapsed: Duration,
@@ -82,6 +87,9 @@ impl std::fmt::Display for Report {
             self.slowest.0,
             self.slowest.1.as_secs_f64() * 1e3
         )?;
+        if self.first_case > 0 {
+            write!(f, "  [cases {}..{}]", self.first_case, self.first_case + self.cases)?;
+        }
         if self.contained > 0 {
             write!(f, "  [{} parquet-reader panics contained as errors]", self.contained)?;
         }
@@ -159,7 +167,7 @@ fn run_here(target: &dyn Target, opts: &Options) -> Report {
     let (contained_before, mut slowest, mut accepted) =
         (mars_lerobot::contain::contained_panics(), (0, Duration::ZERO), 0);
     let mut cases = 0;
-    for case in 0..opts.cases {
+    for case in opts.first_case..opts.first_case.saturating_add(opts.cases) {
         if opts.time_limit.is_some_and(|limit| started.elapsed() >= limit) {
             break;
         }
@@ -181,9 +189,9 @@ fn run_here(target: &dyn Target, opts: &Options) -> Report {
             last_print = Instant::now();
             let s = started.elapsed().as_secs_f64();
             eprintln!(
-                "{name}: {} cases in {s:.0} s ({:.0}/s), {} distinct failures",
+                "{name}: {cases} cases in {s:.0} s ({:.0}/s), next case {}, {} distinct failures",
+                cases as f64 / s,
                 case + 1,
-                (case + 1) as f64 / s,
                 failures.len()
             );
         }
@@ -191,6 +199,7 @@ fn run_here(target: &dyn Target, opts: &Options) -> Report {
     watch.stop();
     Report {
         target: name,
+        first_case: opts.first_case,
         cases,
         failures: failures.into_values().collect(),
         elapsed: started.elapsed(),

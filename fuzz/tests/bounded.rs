@@ -17,6 +17,7 @@ const CASES: u64 = 1500;
 fn no_decoder_panics_aborts_or_hangs_on_a_mutated_input() {
     let out = std::env::temp_dir().join(format!("mars-fuzz-ci-{}", std::process::id()));
     let opts = Options {
+        first_case: 0,
         cases: CASES,
         seed: 1,
         out: out.clone(),
