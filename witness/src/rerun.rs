@@ -66,14 +66,41 @@ pub fn at_most_one_rerun(test: &str, mut attempt: impl FnMut(u32) -> Attempt) {
     }
 }
 
-/// Prints `RERUN <test>: <excuse>` past libtest's capture and appends it to `$MARS_RERUN_LOG`.
+/// Prints `RERUN <test>: <excuse>` past libtest's capture and appends it to `$MARS_RERUN_LOG` (an absolute path; a
+/// rerun that cannot be recorded there fails the test).
 pub fn report(test: &str, excuse: &Excuse) {
     let line = format!("RERUN {test}: {excuse}");
     let _ = writeln!(std::io::stderr(), "{line}");
     if let Some(path) = std::env::var_os("MARS_RERUN_LOG") {
-        let file = std::fs::OpenOptions::new().create(true).append(true).open(&path);
-        if let Err(e) = file.and_then(|mut f| writeln!(f, "{line}")) {
-            let _ = writeln!(std::io::stderr(), "cannot append to MARS_RERUN_LOG {}: {e}", path.display());
+        if let Err(e) = append(std::path::Path::new(&path), &line) {
+            // A rerun the summary would not count is a rerun hidden: the test fails instead.
+            panic!("{line}\n  … but it cannot be recorded in MARS_RERUN_LOG {}: {e}", path.to_string_lossy());
         }
+    }
+}
+
+/// Appends `line` to the rerun log, which must be an absolute path (the tests run in their crate's folder).
+fn append(path: &std::path::Path, line: &str) -> std::io::Result<()> {
+    if !path.is_absolute() {
+        return Err(std::io::Error::other("not an absolute path (the tests run in their crate's folder)"));
+    }
+    let mut f = std::fs::OpenOptions::new().create(true).append(true).open(path)?;
+    writeln!(f, "{line}")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_rerun_log_takes_an_absolute_path_only_and_appends_one_line_per_rerun() {
+        let err = append(std::path::Path::new("target/reruns.log"), "RERUN x: y").unwrap_err();
+        assert!(err.to_string().contains("absolute"), "{err}");
+        let path = std::env::temp_dir().join(format!("stall-witness-reruns-{}.log", std::process::id()));
+        let _ = std::fs::remove_file(&path);
+        append(&path, "RERUN a: one").unwrap();
+        append(&path, "RERUN b: two").unwrap();
+        assert_eq!(std::fs::read_to_string(&path).unwrap(), "RERUN a: one\nRERUN b: two\n");
+        std::fs::remove_file(&path).unwrap();
     }
 }
