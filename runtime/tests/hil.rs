@@ -87,7 +87,7 @@ fn r1_lite_ros2_attempt(attempt: u32) -> Attempt {
     {
         return Err(e);
     }
-    assert_eq!(code, 0, "{}", demo.logs());
+    assert_eq!(code, 0, "{}\n{}", demo.logs(), standin_account(&out));
     let s: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
     assert_eq!(u64_at(&s, "/episodes"), 10, "{s}");
@@ -109,6 +109,65 @@ fn r1_lite_ros2_attempt(attempt: u32) -> Attempt {
     let sent = u64_at(&s, "/commands_sent");
     assert!(counts["arm_targets"].as_u64().unwrap() as f64 > 0.9 * sent as f64, "{last} of {sent} commands");
     Ok(())
+}
+
+/// The stand-in's own account of its pace (its summary each second): the seconds in which it paused, wrote its
+/// feedback slowly or sent less of it than its rate, so that a HAL left without feedback shows which side stopped.
+fn standin_account(out: &std::path::Path) -> String {
+    let Ok(log) = std::fs::read_to_string(out.join("standin.log")) else { return "no stand-in log".into() };
+    let events: Vec<serde_json::Value> = log.lines().filter_map(|l| serde_json::from_str(l).ok()).collect();
+    let rate = events.iter().find(|e| e["ev"] == "ready").and_then(|e| e["rate_hz"].as_f64()).unwrap_or(0.0);
+    let (mut summaries, mut unusual, mut before) = (0, Vec::new(), None::<u64>);
+    for e in events.iter().filter(|e| e["ev"] == "summary") {
+        summaries += 1;
+        let feedback = e["counts"]["feedback"].as_u64().unwrap_or(0);
+        let sent = before.map(|b| feedback.saturating_sub(b));
+        before = Some(feedback);
+        let (gap, write) = (e["max_tick_gap_ms"].as_f64().unwrap_or(0.0), e["max_write_ms"].as_f64().unwrap_or(0.0));
+        if gap > 20.0 || write > 20.0 || sent.is_some_and(|n| (n as f64) < 0.9 * rate) {
+            let unix = e["unix_s"].as_f64().unwrap_or(0.0);
+            let (h, m, s) = ((unix % 86400.0) as u64 / 3600, (unix % 3600.0) as u64 / 60, unix % 60.0);
+            unusual.push(format!(
+                "  the second to {h:02}:{m:02}:{s:06.3} UTC: {sent:?} feedback samples, its longest pause {gap:.1} ms, \
+                 its longest feedback write {write:.1} ms"
+            ));
+        }
+    }
+    let stderr = std::fs::read_to_string(out.join("standin.stderr")).unwrap_or_default();
+    let tail: Vec<&str> = stderr.lines().rev().take(10).collect();
+    format!(
+        "--- the stand-in's account: {summaries} summaries at {rate} Hz, {} unusual ---\n{}\n--- its stderr (last \
+         lines) ---\n{}",
+        unusual.len(),
+        unusual.join("\n"),
+        tail.into_iter().rev().collect::<Vec<_>>().join("\n")
+    )
+}
+
+#[test]
+fn the_stand_ins_account_names_the_seconds_it_paused_or_sent_too_little() {
+    let dir = TempDir::new("standin-account");
+    let summary = |unix: f64, feedback: u64, gap: f64, write: f64| {
+        format!(
+            r#"{{"ev": "summary", "unix_s": {unix}, "counts": {{"feedback": {feedback}}}, "max_tick_gap_ms": {gap}, "max_write_ms": {write}}}"#
+        )
+    };
+    let log = [
+        r#"{"ev": "ready", "rate_hz": 1000.0}"#.to_string(),
+        summary(1764276400.0, 1000, 1.2, 0.3),
+        summary(1764276401.0, 2000, 1.1, 0.2),
+        summary(1764276402.5, 2010, 1.0, 101.0),
+        summary(1764276403.5, 3010, 1200.5, 0.2),
+    ];
+    std::fs::write(dir.path().join("standin.log"), log.join("\n")).unwrap();
+    std::fs::write(dir.path().join("standin.stderr"), "Traceback: a DDS write timed out\n").unwrap();
+    let account = standin_account(dir.path());
+    assert!(account.contains("4 summaries at 1000 Hz, 2 unusual"), "{account}");
+    assert!(account.contains("20:46:42.500 UTC: Some(10) feedback samples"), "{account}");
+    assert!(account.contains("longest feedback write 101.0 ms"), "{account}");
+    assert!(account.contains("its longest pause 1200.5 ms"), "{account}");
+    assert!(!account.contains("20:46:41.000"), "a usual second is left out: {account}");
+    assert!(account.contains("a DDS write timed out"), "{account}");
 }
 
 /// One run of test 1 on `demo`'s robot; its excuse if it failed while the stall witness saw the machine stall.

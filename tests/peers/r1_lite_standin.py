@@ -151,7 +151,7 @@ def main():
     log_lock = threading.Lock()
 
     def log(event, **fields):
-        fields = {"ev": event, "t_ns": time.monotonic_ns(), **fields}
+        fields = {"ev": event, "t_ns": time.monotonic_ns(), "unix_s": time.time(), **fields}
         with log_lock:
             log_file.write(json.dumps(fields) + "\n")
             log_file.flush()
@@ -187,9 +187,15 @@ def main():
     log("ready", pid=os.getpid(), domain=args.domain, start=q, start_gripper=gripper, rate_hz=args.rate_hz,
         time_constant_s=args.time_constant_s)
 
+    # Its own pace since the last summary: the longest pause between two of its ticks and the longest feedback
+    # write (a reliable write blocks while the reader's acknowledgements are due), so that a HAL without feedback
+    # can tell whether this peer stopped sending.
+    pace = {"max_tick_gap_ms": 0.0, "max_write_ms": 0.0}
+
     def summary(event):
         log(event, counts=counts, last_arm_target=last_arm_target, last_gripper_target=last_gripper_target,
-            q=q, gripper=gripper, silent=silent["now"], last_feedback_ns=last_feedback_ns)
+            q=q, gripper=gripper, silent=silent["now"], last_feedback_ns=last_feedback_ns, **pace)
+        pace.update(max_tick_gap_ms=0.0, max_write_ms=0.0)
 
     def stamp():
         t = time.time()
@@ -227,8 +233,11 @@ def main():
     started = time.monotonic()
     next_tick = started
     next_summary = started + 1.0
+    last_now = started
     while not stop["now"]:
         now = time.monotonic()
+        pace["max_tick_gap_ms"] = max(pace["max_tick_gap_ms"], (now - last_now) * 1e3)
+        last_now = now
         if now - started > args.duration_s:
             break
         if args.silent_after_s is not None and now - started >= args.silent_after_s:
@@ -279,6 +288,7 @@ def main():
             arm_vel = dq + [0.0] if args.feedback_gripper_as_joint else list(dq)
             arm_fb.write(JointState_(h, arm_names, arm_pos, arm_vel, [0.0] * len(arm_pos)))
             grip_fb.write(JointState_(h, ["right_gripper"], [gripper], [0.0], [0.0]))
+            pace["max_write_ms"] = max(pace["max_write_ms"], (time.monotonic_ns() - sent_ns) * 1e-6)
             counts["feedback"] += 1
             last_feedback_ns = sent_ns
             if counts["feedback"] == 1:

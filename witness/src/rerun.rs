@@ -71,11 +71,11 @@ pub fn at_most_one_rerun(test: &str, mut attempt: impl FnMut(u32) -> Attempt) {
 pub fn report(test: &str, excuse: &Excuse) {
     let line = format!("RERUN {test}: {excuse}");
     let _ = writeln!(std::io::stderr(), "{line}");
-    if let Some(path) = std::env::var_os("MARS_RERUN_LOG") {
-        if let Err(e) = append(std::path::Path::new(&path), &line) {
-            // A rerun the summary would not count is a rerun hidden: the test fails instead.
-            panic!("{line}\n  … but it cannot be recorded in MARS_RERUN_LOG {}: {e}", path.to_string_lossy());
-        }
+    // A rerun the summary would not count is a rerun hidden: the test fails instead.
+    if let Some(path) = std::env::var_os("MARS_RERUN_LOG")
+        && let Err(e) = append(std::path::Path::new(&path), &line)
+    {
+        panic!("{line}\n  … but it cannot be recorded in MARS_RERUN_LOG {}: {e}", path.to_string_lossy());
     }
 }
 
