@@ -11,6 +11,10 @@
 mod ffmpeg_encode;
 #[cfg(feature = "video")]
 pub use ffmpeg_encode::{VideoFile, VideoWriter};
+#[cfg(feature = "video")]
+mod no_realtime;
+#[cfg(feature = "video")]
+pub use no_realtime::realtime_threads_demoted;
 
 #[cfg(not(feature = "video"))]
 mod absent;

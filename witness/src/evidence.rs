@@ -3,6 +3,7 @@
 use std::fmt;
 
 use crate::core_watch::LatenessSeen;
+use crate::outrank::Outranker;
 use crate::steal::StealSeen;
 
 /// The witness's account of a window (CLOCK_MONOTONIC ns): the core whose witness was late longest in it, and
@@ -12,11 +13,18 @@ pub struct Evidence {
     pub window: (u64, u64),
     pub lateness: Option<LatenessSeen>,
     pub steal: Option<StealSeen>,
+    /// A user-space thread seen above the witness (by the time this account was made): then the lateness and the
+    /// steal are no evidence of the machine.
+    pub outranked: Option<Outranker>,
 }
 
 impl Evidence {
-    /// How long the machine stalled in the window, by the larger of the two accounts (ms).
+    /// How long the machine stalled in the window, by the larger of the two accounts (ms); 0 when something
+    /// outranked the witness.
     pub fn stalled_ms(&self) -> f64 {
+        if self.outranked.is_some() {
+            return 0.0;
+        }
         let late = self.lateness.map_or(0.0, |l| l.ms);
         late.max(self.steal.map_or(0.0, |s| s.ms))
     }
@@ -35,9 +43,22 @@ impl fmt::Display for Evidence {
             _ => write!(f, "no late wake-up")?,
         }
         match self.steal {
-            Some(s) => write!(f, "; steal {:.0} ms on cpu {}", s.ms, s.cpu),
-            None => write!(f, "; steal unknown"),
+            Some(s) => write!(f, "; steal {:.0} ms on cpu {}", s.ms, s.cpu)?,
+            None => write!(f, "; steal unknown")?,
         }
+        if let Some(o) = self.outranked {
+            let policy = if o.policy == 1 { "SCHED_FIFO" } else { "SCHED_RR" };
+            write!(
+                f,
+                "; no evidence: pid {} thread {} ({}) ran at {policy} {} above the witness (seen {})",
+                o.pid,
+                o.tid,
+                o.name(),
+                o.priority,
+                time_of_day(o.at_ns)
+            )?;
+        }
+        Ok(())
     }
 }
 

@@ -5,7 +5,9 @@ use std::time::{Duration, Instant};
 /// Takes `core` for `ms` from everything below SCHED_FIFO 99 (the witness's 95, the loops' 85/80/70/60), from a
 /// thread of its own pinned there; returns when done. False if this process may not pin or raise a thread.
 pub fn take_core(core: usize, ms: u64) -> bool {
-    std::thread::spawn(move || {
+    // Named so the witness knows it for a stall made on purpose, not a thread of the code under test above it.
+    let hog = std::thread::Builder::new().name(crate::outrank::HOG_NAME.into());
+    let Ok(hog) = hog.spawn(move || {
         // SAFETY: the calling thread's own affinity and scheduling.
         let mut set: libc::cpu_set_t = unsafe { std::mem::zeroed() };
         unsafe { libc::CPU_SET(core, &mut set) };
@@ -17,7 +19,8 @@ pub fn take_core(core: usize, ms: u64) -> bool {
             std::hint::spin_loop();
         }
         pinned && fifo
-    })
-    .join()
-    .unwrap_or(false)
+    }) else {
+        return false;
+    };
+    hog.join().unwrap_or(false)
 }

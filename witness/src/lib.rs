@@ -10,6 +10,8 @@
 //!   nothing of the rig either.
 //! - [`steal`]: the kernel's per-CPU `steal` counter (/proc/stat), sampled every 10 ms: CPU time the hypervisor
 //!   took.
+//! - [`outrank`]: whether any user-space thread on the machine ran above the witness. Once one did (it may be the
+//!   code under test: SVT-AV1's encoder threads at SCHED_FIFO 99 were), the witness excuses nothing more.
 //!
 //! It shares no code with the HAL or marsd (its one dependency is libc), so a bug there cannot make it excuse
 //! itself. Where it cannot run above the loops (no SCHED_FIFO: an unprivileged user) it gives no evidence at all:
@@ -35,6 +37,7 @@ pub mod core_watch;
 pub mod evidence;
 pub mod hog;
 pub mod log_time;
+pub mod outrank;
 pub mod peer;
 pub mod rerun;
 pub mod steal;
@@ -45,6 +48,7 @@ pub use evidence::Evidence;
 pub use rerun::{Attempt, Excuse, at_most_one_rerun};
 
 use core_watch::CoreWatch;
+use outrank::OutrankWatch;
 use steal::StealWatch;
 
 /// The witness threads' SCHED_FIFO priority: above the HAL (85) and marsd's loops (80, 70), below the kernel's
@@ -55,6 +59,7 @@ pub const PRIORITY: i32 = 95;
 pub struct Witness {
     cores: Vec<CoreWatch>,
     steal: StealWatch,
+    outrank: OutrankWatch,
 }
 
 /// The process's witness, started on the first call. Call it when a timing test starts: it sees only what happens
@@ -67,7 +72,7 @@ pub fn witness() -> &'static Witness {
 impl Witness {
     fn start() -> Self {
         let cores = online_cores().into_iter().map(CoreWatch::start).collect();
-        Self { cores, steal: StealWatch::start() }
+        Self { cores, steal: StealWatch::start(), outrank: OutrankWatch::start(PRIORITY as u32) }
     }
 
     /// Why this witness can give no evidence, if it cannot: some core's thread could not be pinned or made
@@ -161,13 +166,14 @@ impl Witness {
         let lateness: Vec<_> = watched.map(|c| c.lateness_in(window)).collect::<Option<_>>()?;
         let lateness = lateness.into_iter().max_by(|a, b| a.ms.total_cmp(&b.ms));
         let steal = self.steal.largest_in(window, core);
-        Some(Evidence { window, lateness, steal })
+        Some(Evidence { window, lateness, steal, outranked: self.outrank.seen() })
     }
 
     /// Whole periods of `period_ns` lost on `core` within `[from_ns, to_ns]`: its witness's late wake-ups, each
-    /// rounded down to whole periods (0 when the core is not watched or the witness cannot witness).
+    /// rounded down to whole periods (0 when the core is not watched, the witness cannot witness, or something
+    /// outranked it).
     pub fn lost_periods(&self, core: usize, from_ns: u64, to_ns: u64, period_ns: u64) -> u64 {
-        if self.unable().is_some() {
+        if self.unable().is_some() || self.outrank.seen().is_some() {
             return 0;
         }
         let Some(c) = self.cores.iter().find(|c| c.core() == core) else { return 0 };

@@ -22,13 +22,13 @@ pub struct Excuse {
 /// Whose account excuses a failure.
 #[derive(Debug, Clone)]
 enum Grounds {
-    Witness(Evidence),
+    Witness(Box<Evidence>),
     Peer(PeerAccount),
 }
 
 impl Excuse {
     pub(crate) fn new(failure: String, evidence: Evidence) -> Self {
-        Self { failure, grounds: Grounds::Witness(evidence) }
+        Self { failure, grounds: Grounds::Witness(Box::new(evidence)) }
     }
 
     pub(crate) fn by_peer(failure: String, account: PeerAccount) -> Self {

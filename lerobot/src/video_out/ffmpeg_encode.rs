@@ -48,8 +48,13 @@ impl Encoder {
         options: ffmpeg::Dictionary,
     ) -> Result<Self, ffmpeg::Error> {
         let _lifecycle = ENCODER_LIFECYCLE.lock().unwrap_or_else(|e| e.into_inner());
-        // A failed open frees its context here too, under the lock.
-        enc.open_as_with(codec, options).map(|e| Self { encoder: Some(e), frames_sent: 0, eof_sent: false })
+        // A failed open frees its context here too, under the lock. Its threads start normal (SVT-AV1 as root
+        // would make them SCHED_FIFO 99, above a robot's loops).
+        super::no_realtime::open_without_realtime(|| enc.open_as_with(codec, options)).map(|e| Self {
+            encoder: Some(e),
+            frames_sent: 0,
+            eof_sent: false,
+        })
     }
 
     fn send_frame(&mut self, frame: &VideoFrame) -> Result<(), ffmpeg::Error> {
