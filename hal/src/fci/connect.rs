@@ -88,6 +88,10 @@ pub fn connect(addr: &str, timeout: Duration) -> Result<Fci, FciError> {
     }
     let owned = addr.to_string();
     let outcome = run_bounded("fci-connect", timeout, move || {
+        // Without CAP_SYS_NICE, Robot::new's raise fails (below RLIMIT_RTPRIO) and is ignored: the handshake, and
+        // a worker stuck in it for good, never run above the loops (or above the tests' stall witness, which
+        // then saw this thread at SCHED_FIFO 99 and could no longer tell the machine's stalls from ours).
+        drop_sys_nice();
         let robot = Robot::new(&owned, RealtimeConfig::Ignore);
         // Whether or not it connected, Robot::new raised this thread first; undo it before anything else runs here.
         back_to_sched_other();
@@ -138,6 +142,25 @@ pub(crate) fn run_bounded<T: Send + 'static>(
         RecvTimeoutError::Timeout => Unfinished::TimedOut,
         RecvTimeoutError::Disconnected => Unfinished::Panicked,
     })
+}
+
+/// Takes `CAP_SYS_NICE` out of the calling thread's capabilities for good (capabilities are per thread): it can
+/// then raise itself no higher than `RLIMIT_RTPRIO` allows. For a worker thread that must never run real-time.
+fn drop_sys_nice() {
+    const CAP_SYS_NICE: u32 = 23;
+    // capget(2)/capset(2) on this thread (pid 0), version 3: a header and two data structs of three u32 masks.
+    let mut header = [0x2008_0522u32, 0];
+    let mut data = [[0u32; 3]; 2];
+    // SAFETY: the kernel reads the header and writes the two data structs it is given.
+    if unsafe { libc::syscall(libc::SYS_capget, header.as_mut_ptr(), data.as_mut_ptr()) } != 0 {
+        return;
+    }
+    data[0][0] &= !(1 << CAP_SYS_NICE);
+    data[0][1] &= !(1 << CAP_SYS_NICE);
+    // SAFETY: as above; the kernel reads both.
+    if unsafe { libc::syscall(libc::SYS_capset, header.as_mut_ptr(), data.as_ptr()) } != 0 {
+        tracing::warn!("could not drop CAP_SYS_NICE on the FCI connect thread");
+    }
 }
 
 /// Puts the calling thread back on the default time-sharing policy (what franka-rs's raise replaced).
@@ -192,6 +215,22 @@ mod tests {
         assert!(e.to_string().contains(&addr), "{e}");
         // The caller's thread was never touched.
         assert_eq!(policy(), libc::SCHED_OTHER);
+        // Nor raised is the worker left waiting inside Robot::new's handshake (SCHED_FIFO 99 as root before).
+        let worker = stuck_connect_worker_policy().expect("the worker still waits for the silent peer");
+        assert_eq!(worker, "0", "the stuck fci-connect thread's policy (/proc stat field 41)");
+    }
+
+    /// The scheduling policy (/proc stat's field 41) of this process's thread named `fci-connect`, if one lives.
+    fn stuck_connect_worker_policy() -> Option<String> {
+        for task in std::fs::read_dir("/proc/self/task").ok()?.flatten() {
+            let stat = std::fs::read_to_string(task.path().join("stat")).unwrap_or_default();
+            if let Some((head, tail)) = stat.rsplit_once(") ")
+                && head.ends_with("(fci-connect")
+            {
+                return tail.split_whitespace().nth(41 - 3).map(str::to_owned);
+            }
+        }
+        None
     }
 
     #[test]
