@@ -8,19 +8,32 @@ pub fn take_core(core: usize, ms: u64) -> bool {
     // Named so the witness knows it for a stall made on purpose, not a thread of the code under test above it.
     let hog = std::thread::Builder::new().name(crate::outrank::HOG_NAME.into());
     let Ok(hog) = hog.spawn(move || {
-        // SAFETY: the calling thread's own affinity and scheduling.
-        let mut set: libc::cpu_set_t = unsafe { std::mem::zeroed() };
-        unsafe { libc::CPU_SET(core, &mut set) };
-        let pinned = unsafe { libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &set) } == 0;
-        let param = libc::sched_param { sched_priority: 99 };
-        let fifo = unsafe { libc::pthread_setschedparam(libc::pthread_self(), libc::SCHED_FIFO, &param) } == 0;
-        let end = Instant::now() + Duration::from_millis(ms);
-        while pinned && fifo && Instant::now() < end {
-            std::hint::spin_loop();
+        let raised = pin_at_fifo_99(core);
+        if raised {
+            spin_for(ms);
         }
-        pinned && fifo
+        raised
     }) else {
         return false;
     };
     hog.join().unwrap_or(false)
+}
+
+/// Pins the calling thread to `core` and raises it to SCHED_FIFO 99; false if either was refused.
+pub fn pin_at_fifo_99(core: usize) -> bool {
+    // SAFETY: the calling thread's own affinity and scheduling.
+    let mut set: libc::cpu_set_t = unsafe { std::mem::zeroed() };
+    unsafe { libc::CPU_SET(core, &mut set) };
+    let pinned = unsafe { libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &set) } == 0;
+    let param = libc::sched_param { sched_priority: 99 };
+    let fifo = unsafe { libc::pthread_setschedparam(libc::pthread_self(), libc::SCHED_FIFO, &param) } == 0;
+    pinned && fifo
+}
+
+/// Busy for `ms`, never yielding.
+pub fn spin_for(ms: u64) {
+    let end = Instant::now() + Duration::from_millis(ms);
+    while Instant::now() < end {
+        std::hint::spin_loop();
+    }
 }

@@ -2,26 +2,20 @@
 //! marsd) takes a core as the machine would: the witness then excuses nothing. A test binary of its own: once
 //! outranked, a process's witness stays so.
 
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
-use stall_witness::{core_watch, monotonic_ns, outrank, witness};
+use stall_witness::{core_watch, hog, monotonic_ns, outrank, witness};
 
 /// A thread named like the product's, pinned to `core` at SCHED_FIFO 99 for `ms`. False if it could not be.
 fn product_thread_above_the_witness(core: usize, ms: u64) -> bool {
     let spawned = std::thread::Builder::new().name("marsd-record".into()).spawn(move || {
-        // SAFETY: this thread's own affinity and scheduling.
-        let mut set: libc::cpu_set_t = unsafe { std::mem::zeroed() };
-        unsafe { libc::CPU_SET(core, &mut set) };
-        let pinned = unsafe { libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &set) } == 0;
-        let param = libc::sched_param { sched_priority: 99 };
-        let fifo = unsafe { libc::pthread_setschedparam(libc::pthread_self(), libc::SCHED_FIFO, &param) } == 0;
-        let end = Instant::now() + Duration::from_millis(ms);
-        while pinned && fifo && Instant::now() < end {
-            std::hint::spin_loop();
+        let raised = hog::pin_at_fifo_99(core);
+        if raised {
+            hog::spin_for(ms);
         }
         // Then asleep, still above the witness, for its scan to see.
         std::thread::sleep(Duration::from_millis(3 * outrank::SCAN_MS));
-        pinned && fifo
+        raised
     });
     spawned.is_ok_and(|t| t.join().unwrap_or(false))
 }
