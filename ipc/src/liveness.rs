@@ -9,9 +9,9 @@
 //! - the WaitSet reports the deadline missed → [`Peer::Late`], and the watch looks up the nodes of the service's
 //!   notifiers: if every one is dead (its process is gone) → [`Peer::Dead`] at once. Then it asks iceoryx2 to
 //!   clean up dead nodes, which also emits the service's `notifier_dead_event` on behalf of a dead notifier (→
-//!   [`Peer::Dead`] too, for a death another process found first). The look-up only reads the node registry
-//!   (about 1 ms); the clean-up removes files and, on a disk busy with writes, took 8–55 ms, so the verdict does
-//!   not wait for it. A peer that is only slow stays `Late` until its next heartbeat;
+//!   [`Peer::Dead`] too, for a death another process found first). The look-up only reads the node registry;
+//!   the clean-up removes files under iceoryx2's root, so it waits on a busy disk, and the verdict does not wait
+//!   for it. A peer that is only slow stays `Late` until its next heartbeat;
 //! - the peer dropped its notifier (a clean exit: `notifier_dropped_event`) → [`Peer::Left`].
 //!
 //! The watch thread publishes its verdict in an atomic, so a real-time loop reads it with one load per tick and
