@@ -252,7 +252,10 @@ impl Drop for PeerWatch {
 fn peer_died(service: &EventService, config: &Config) -> bool {
     let mut notifier_nodes = Vec::with_capacity(MAX_PORTS);
     service.dynamic_config().list_notifiers(|n| {
-        notifier_nodes.push(n.node_id);
+        // Once per node: the count below compares nodes found dead with nodes.
+        if !notifier_nodes.contains(&n.node_id) {
+            notifier_nodes.push(n.node_id);
+        }
         CallbackProgression::Continue
     });
     let mut dead = 0;
