@@ -117,7 +117,7 @@ pub fn run(out: &Path, config: &Path, layout: &Path, o: &AblateOptions) -> anyho
             crate::checkpoint::save(&dir, &t)?;
             t.log.iter().map(|e| e.total).collect()
         };
-        let r = eval(&dir, layout, o.rollouts, seed + 1000, o.exec_horizon)?;
+        let r = eval(&dir, layout, o.rollouts, seed + 1000, o.exec_horizon)?.report;
         Ok(AblationRun {
             value: *value,
             seed: *seed,

@@ -3,13 +3,15 @@
 use crate::checkpoint;
 use crate::config::{PolicyConfig, PolicyKind};
 use crate::dataset::history_window;
+use crate::evaluation::{DEFAULT_BATCH, Evaluation, evaluate_policy};
 use crate::inference::MarsPolicy;
 use crate::plots;
 use crate::train::{Trained, progress_bar};
 use anyhow::Context;
 use candle_core::{Device, Tensor};
 use mars_tasks::demo::{Demo, DemoSet};
-use mars_tasks::nav2d::eval::{EvalReport, evaluate};
+use mars_tasks::nav2d::eval::EvalReport;
+use mars_tasks::nav2d::evaluate_batched;
 use mars_tasks::nav2d::expert::generate_demos;
 use mars_tasks::nav2d::layout::{Layout, Rect};
 use std::path::{Path, PathBuf};
@@ -158,8 +160,8 @@ pub fn eval(
     rollouts: usize,
     seed: u64,
     exec_horizon: usize,
-) -> anyhow::Result<EvalReport> {
-    eval_with_steps(checkpoint_dir, layout, rollouts, seed, exec_horizon, StepsAblation::default())
+) -> anyhow::Result<Evaluation> {
+    eval_with_steps(checkpoint_dir, layout, rollouts, seed, exec_horizon, DEFAULT_BATCH, StepsAblation::default())
 }
 
 /// How an ablation changes the step count of a checkpoint's K(w); the default changes nothing.
@@ -179,9 +181,11 @@ pub fn eval_with_steps(
     rollouts: usize,
     seed: u64,
     exec_horizon: usize,
+    batch: usize,
     ablation: StepsAblation,
-) -> anyhow::Result<EvalReport> {
+) -> anyhow::Result<Evaluation> {
     anyhow::ensure!(rollouts > 0, "--rollouts must be at least 1");
+    anyhow::ensure!(batch > 0, "--batch must be at least 1");
     anyhow::ensure!(ablation.steps != Some(0), "--steps must be at least 1");
     if let Some(w) = ablation.k_full_w {
         anyhow::ensure!(w > 0.0 && w <= 1.0, "--k-full-w is {w}, must lie in (0, 1]");
@@ -192,16 +196,18 @@ pub fn eval_with_steps(
     if let Some(w) = ablation.k_full_w {
         policy.set_k_full_w(w);
     }
-    let report = evaluate(&layout, &mut policy, rollouts, seed, exec_horizon)?;
+    let evaluation = evaluate_policy(&mut policy, &layout, rollouts, seed, exec_horizon, batch)?;
     let (name, file) = match (ablation.steps, ablation.k_full_w) {
         (Some(k), _) => (format!("{} (K = {k})", meta.kind.name()), format!("eval_k{k}.json")),
         (None, Some(w)) => (format!("{} (k_full_w = {w})", meta.kind.name()), format!("eval_kfull{w}.json")),
         (None, None) => (meta.kind.name().to_string(), "eval.json".to_string()),
     };
     println!("{}", EvalReport::table_header());
-    println!("{}", report.to_table_row(&name));
-    write_json(&checkpoint_dir.join(file), &report)?;
-    Ok(report)
+    println!("{}", evaluation.report.to_table_row(&name));
+    println!("{}", evaluation.intervals);
+    write_json(&checkpoint_dir.join(&file), &evaluation.report)?;
+    write_json(&checkpoint_dir.join(file.replace(".json", "_intervals.json")), &evaluation.intervals)?;
+    Ok(evaluation)
 }
 
 /// Mean ‖w‖∞ of a policy over the demo samples whose observation lies in `region`: where does the scheduler
@@ -429,8 +435,8 @@ pub fn benchmark(
             })
             .collect::<anyhow::Result<Vec<_>>>()?;
         drop(policy);
-        let report = eval(&dir, layout_path, o.rollouts, o.seed + 1000, o.exec_horizon)?;
-        rows.push(crate::report::Row { kind, epochs: meta.train.epochs, train_s, report, w_regions });
+        let Evaluation { report, intervals } = eval(&dir, layout_path, o.rollouts, o.seed + 1000, o.exec_horizon)?;
+        rows.push(crate::report::Row { kind, epochs: meta.train.epochs, train_s, report, intervals, w_regions });
     }
     let md = crate::report::render(&rows, o, &layout);
     std::fs::write(out.join("results.md"), &md).with_context(|| format!("cannot write {}", out.display()))?;
@@ -460,7 +466,7 @@ impl crate::curve::CurveTask for Nav2dCurve {
     fn evaluate(&self, dir: &Path, seed: u64) -> anyhow::Result<crate::curve::Score> {
         let layout = Layout::load(&self.layout)?;
         let (mut policy, _) = MarsPolicy::load(dir, seed)?;
-        let r = evaluate(&layout, &mut policy, self.rollouts, seed, self.exec_horizon)?;
+        let r = evaluate_batched(&layout, &mut policy, self.rollouts, seed, self.exec_horizon, DEFAULT_BATCH)?;
         Ok(crate::curve::Score { success_pct: 100.0 * r.success_rate(), gamma: r.modal_balance, mean_k: r.mean_k })
     }
 }

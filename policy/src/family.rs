@@ -1,31 +1,32 @@
-//! `mars family`: the benchmark on every nav2d layout of a folder, over several training seeds, and the mode
-//! targets checked on the means: does MARS keep each passage in the demos' proportion (as FM does) at a
-//! fraction of FM's steps, on layouts the project was not tuned on?
+//! `mars family`: the benchmark on every nav2d layout of a folder, over several training seeds (each with its own
+//! demos), and the method's targets judged by their 95 % intervals over the seeds: met, not met or undecided.
+//! MARS and FM trained on one seed's demos are compared seed by seed (paired differences).
 
 use crate::cli::{BenchmarkOptions, benchmark};
 use crate::config::PolicyKind;
 use crate::report::Row;
 use anyhow::Context;
+use mars_tasks::stats::{Estimate, Verdict, mean_over_seeds};
 use serde::Serialize;
 use std::fmt::Write;
 use std::path::{Path, PathBuf};
 
-/// The mode targets of the family run (issue 11), checked for MARS against FM on each layout.
+/// The method's targets (issue 34), checked for MARS against FM on each layout.
 #[derive(Debug, Clone, Serialize)]
 pub struct Targets {
-    /// Largest allowed |MARS's share of a passage − the demos' share|, averaged over seeds.
-    pub max_proportion_gap: f32,
-    /// MARS's γ may be at most this much below FM's.
-    pub gamma_below_fm: f32,
+    /// MARS's total-variation distance to the demos' passage shares may exceed FM's by at most this.
+    pub tv_above_fm: f64,
     /// MARS's success rate may be at most this many points below FM's.
-    pub success_below_fm_pts: f32,
+    pub success_below_fm_pts: f64,
     /// Largest allowed mean K for MARS.
-    pub max_mean_k: f32,
+    pub max_mean_k: f64,
+    /// FM's own total-variation distance to its demos' shares.
+    pub fm_max_tv: f64,
 }
 
 impl Default for Targets {
     fn default() -> Self {
-        Self { max_proportion_gap: 0.10, gamma_below_fm: 0.10, success_below_fm_pts: 2.0, max_mean_k: 3.0 }
+        Self { tv_above_fm: 0.05, success_below_fm_pts: 2.0, max_mean_k: 3.0, fm_max_tv: 0.10 }
     }
 }
 
@@ -36,6 +37,7 @@ pub struct FamilyOptions {
     pub targets: Targets,
 }
 
+/// Mean and sample standard deviation (the curve and ablation tables still print these).
 #[derive(Debug, Clone, Copy, Serialize)]
 pub struct MeanStd {
     pub mean: f32,
@@ -65,25 +67,41 @@ pub fn proportions(counts: &[usize]) -> Vec<f32> {
     counts.iter().map(|&c| if total == 0 { 0.0 } else { c as f32 / total as f32 }).collect()
 }
 
-/// max_k |p_k − q_k|.
-pub fn max_gap(p: &[f32], q: &[f32]) -> f32 {
-    p.iter().zip(q).map(|(a, b)| (a - b).abs()).fold(0.0, f32::max)
+/// One seed's figures of one policy.
+#[derive(Debug, Clone, Serialize)]
+pub struct SeedFigures {
+    pub success_pct: f64,
+    pub tv: f64,
+    pub gamma: f64,
+    pub mean_k: f64,
+    pub passage_counts: Vec<usize>,
+}
+
+impl SeedFigures {
+    fn of(row: &Row) -> Self {
+        Self {
+            success_pct: 100.0 * row.intervals.success.value,
+            tv: row.intervals.tv.value,
+            gamma: row.intervals.gamma.value,
+            mean_k: f64::from(row.report.mean_k),
+            passage_counts: row.report.passage_counts.clone(),
+        }
+    }
 }
 
 #[derive(Debug, Clone, Serialize)]
 pub struct PolicyStats {
     pub kind: PolicyKind,
-    /// Success rate in percent.
-    pub success_pct: MeanStd,
-    pub gamma: MeanStd,
-    pub mean_k: MeanStd,
+    /// Means over seeds with their 95 % t intervals.
+    pub success_pct: Estimate,
+    pub tv: Estimate,
+    pub gamma: Estimate,
+    pub mean_k: Estimate,
     /// Mean over seeds of each passage's share.
     pub proportions: Vec<f32>,
-    pub proportion_gap: MeanStd,
     /// Over the seeds whose training time was recorded (`--resume` keeps checkpoints of runs that did not).
-    pub train_s: Option<MeanStd>,
-    /// Per seed: passage counts, for the record.
-    pub passage_counts: Vec<Vec<usize>>,
+    pub train_s: Option<Estimate>,
+    pub per_seed: Vec<SeedFigures>,
 }
 
 #[derive(Debug, Clone, Serialize)]
@@ -92,73 +110,77 @@ pub struct LayoutResult {
     pub n_passages: usize,
     pub demo_proportions: Vec<f32>,
     pub demo_gamma: f32,
+    pub seeds: usize,
     pub policies: Vec<PolicyStats>,
-    /// (claim, met) for MARS against FM.
-    pub verdicts: Vec<(String, bool)>,
+    /// (claim with its interval, verdict) for MARS against FM.
+    pub verdicts: Vec<(String, Verdict)>,
+}
+
+/// The mean over seeds with its interval; no value (no seed, or a non-finite figure) gives NaN throughout.
+fn over_seeds(values: &[f64]) -> Estimate {
+    mean_over_seeds(values).unwrap_or(Estimate::new(f64::NAN, f64::NAN, f64::NAN))
 }
 
 /// Aggregates one layout's benchmark rows over seeds (`runs[seed]` = that seed's rows).
 pub fn aggregate(layout: &str, demo_counts: &[usize], runs: &[Vec<Row>], targets: &Targets) -> LayoutResult {
-    let demo_proportions = proportions(demo_counts);
-    let mut policies = Vec::new();
     let kinds: Vec<PolicyKind> = runs.first().map(|r| r.iter().map(|row| row.kind).collect()).unwrap_or_default();
-    for kind in kinds {
-        let rows: Vec<&Row> = runs.iter().filter_map(|r| r.iter().find(|row| row.kind == kind)).collect();
-        let per_seed = |f: &dyn Fn(&Row) -> f32| MeanStd::of(&rows.iter().map(|r| f(r)).collect::<Vec<_>>());
-        let props: Vec<Vec<f32>> = rows.iter().map(|r| proportions(&r.report.passage_counts)).collect();
-        let mean_props = (0..demo_counts.len())
-            .map(|k| props.iter().map(|p| p[k]).sum::<f32>() / props.len().max(1) as f32)
-            .collect();
-        policies.push(PolicyStats {
-            kind,
-            success_pct: per_seed(&|r| 100.0 * r.report.success_rate()),
-            gamma: per_seed(&|r| r.report.modal_balance),
-            mean_k: per_seed(&|r| r.report.mean_k),
-            proportions: mean_props,
-            proportion_gap: MeanStd::of(&props.iter().map(|p| max_gap(p, &demo_proportions)).collect::<Vec<_>>()),
-            train_s: {
-                let t: Vec<f32> = rows.iter().filter_map(|r| r.train_s).collect();
-                (!t.is_empty()).then(|| MeanStd::of(&t))
-            },
-            passage_counts: rows.iter().map(|r| r.report.passage_counts.clone()).collect(),
-        });
-    }
-    let verdicts = verdicts(&policies, targets);
+    let policies: Vec<PolicyStats> =
+        kinds.into_iter().map(|kind| policy_stats(kind, demo_counts.len(), runs)).collect();
     LayoutResult {
         layout: layout.into(),
         n_passages: demo_counts.len(),
         demo_gamma: mars_tasks::nav2d::eval::modal_balance(demo_counts),
-        demo_proportions,
+        demo_proportions: proportions(demo_counts),
+        seeds: runs.len(),
+        verdicts: verdicts(&policies, targets),
         policies,
-        verdicts,
     }
 }
 
-fn verdicts(policies: &[PolicyStats], t: &Targets) -> Vec<(String, bool)> {
+fn policy_stats(kind: PolicyKind, n_passages: usize, runs: &[Vec<Row>]) -> PolicyStats {
+    let rows: Vec<&Row> = runs.iter().filter_map(|r| r.iter().find(|row| row.kind == kind)).collect();
+    let per_seed: Vec<SeedFigures> = rows.iter().map(|r| SeedFigures::of(r)).collect();
+    let of = |f: fn(&SeedFigures) -> f64| over_seeds(&per_seed.iter().map(f).collect::<Vec<_>>());
+    let props: Vec<Vec<f32>> = rows.iter().map(|r| proportions(&r.report.passage_counts)).collect();
+    let train_s: Vec<f64> = rows.iter().filter_map(|r| r.train_s).map(f64::from).collect();
+    PolicyStats {
+        kind,
+        success_pct: of(|s| s.success_pct),
+        tv: of(|s| s.tv),
+        gamma: of(|s| s.gamma),
+        mean_k: of(|s| s.mean_k),
+        proportions: (0..n_passages)
+            .map(|k| props.iter().map(|p| p[k]).sum::<f32>() / props.len().max(1) as f32)
+            .collect(),
+        train_s: (!train_s.is_empty()).then(|| over_seeds(&train_s)),
+        per_seed,
+    }
+}
+
+/// MARS − FM, seed by seed (both trained on that seed's demos), as a mean over seeds with its interval.
+fn paired(m: &PolicyStats, f: &PolicyStats, figure: fn(&SeedFigures) -> f64) -> Estimate {
+    let d: Vec<f64> = m.per_seed.iter().zip(&f.per_seed).map(|(a, b)| figure(a) - figure(b)).collect();
+    over_seeds(&d)
+}
+
+fn verdicts(policies: &[PolicyStats], t: &Targets) -> Vec<(String, Verdict)> {
     let get = |k: PolicyKind| policies.iter().find(|p| p.kind == k);
     let mut v = Vec::new();
     let Some(m) = get(PolicyKind::Mars) else { return v };
-    v.push((
-        format!(
-            "MARS passage shares within {:.2} of the demos' (max |p − p_demo|): {:.3}",
-            t.max_proportion_gap, m.proportion_gap
-        ),
-        m.proportion_gap.mean <= t.max_proportion_gap,
-    ));
     if let Some(f) = get(PolicyKind::Fm) {
-        v.push((
-            format!("MARS γ at most {:.2} below FM's: {:.2} vs {:.2}", t.gamma_below_fm, m.gamma, f.gamma),
-            m.gamma.mean >= f.gamma.mean - t.gamma_below_fm,
-        ));
-        v.push((
-            format!(
-                "MARS success at most {:.0} points below FM's: {:.1} % vs {:.1} %",
-                t.success_below_fm_pts, m.success_pct, f.success_pct
-            ),
-            m.success_pct.mean >= f.success_pct.mean - t.success_below_fm_pts,
-        ));
+        let tv = paired(m, f, |s| s.tv);
+        let claim = format!("MARS's TV to the demos at most {:.2} above FM's: MARS − FM = {tv:.3}", t.tv_above_fm);
+        v.push((claim, Verdict::at_most(tv, t.tv_above_fm)));
+        let success = paired(m, f, |s| s.success_pct);
+        let claim = format!(
+            "MARS success at most {:.0} points below FM's: MARS − FM = {success:.1} points",
+            t.success_below_fm_pts
+        );
+        v.push((claim, Verdict::at_least(success, -t.success_below_fm_pts)));
+        let claim = format!("FM's TV to its demos ≤ {:.2}: {:.3}", t.fm_max_tv, f.tv);
+        v.push((claim, Verdict::at_most(f.tv, t.fm_max_tv)));
     }
-    v.push((format!("MARS mean K ≤ {:.0}: {:.2}", t.max_mean_k, m.mean_k), m.mean_k.mean <= t.max_mean_k));
+    v.push((format!("MARS mean K ≤ {:.0}: {:.2}", t.max_mean_k, m.mean_k), Verdict::at_most(m.mean_k, t.max_mean_k)));
     v
 }
 
@@ -219,7 +241,8 @@ pub fn render(results: &[LayoutResult], o: &FamilyOptions, layouts_dir: &Path) -
     let _ = writeln!(
         s,
         "Command: `mars family --layouts {} --seeds {} --demos {} --rollouts {}{} --policies {} --jobs {}`; \
-         mean ± std over training seeds 0..{} (demos and rollouts seeded alike).\n",
+         mean over training seeds 0..{} (each seed its own demos and rollouts) with its 95 % t interval; a \
+         target is met or not met when the whole interval says so, undecided otherwise.\n",
         layouts_dir.display(),
         o.seeds,
         b.demos,
@@ -232,14 +255,16 @@ pub fn render(results: &[LayoutResult], o: &FamilyOptions, layouts_dir: &Path) -
     for r in results {
         let _ = writeln!(
             s,
-            "## {} ({} passages; demo shares {} %, demos' own γ {:.2})\n",
+            "## {} ({} passages; demo shares {} %, demos' own γ {:.2}; {} seeds)\n",
             r.layout,
             r.n_passages,
             shares(&r.demo_proportions),
-            r.demo_gamma
+            r.demo_gamma,
+            r.seeds
         );
-        let _ = writeln!(s, "| policy | success % | passage shares % | max \\|p − p_demo\\| | γ | mean K | train s |");
-        let _ = writeln!(s, "|---|---:|---|---:|---:|---:|---:|");
+        let _ =
+            writeln!(s, "| policy | success % | passage shares % (mean) | TV to the demos | γ | mean K | train s |");
+        let _ = writeln!(s, "|---|---|---|---|---|---|---|");
         for p in &r.policies {
             let _ = writeln!(
                 s,
@@ -247,15 +272,15 @@ pub fn render(results: &[LayoutResult], o: &FamilyOptions, layouts_dir: &Path) -
                 p.kind,
                 p.success_pct,
                 shares(&p.proportions),
-                p.proportion_gap,
+                p.tv,
                 p.gamma,
                 p.mean_k,
                 p.train_s.map_or("–".into(), |t| format!("{t:.0}"))
             );
         }
         let _ = writeln!(s);
-        for (claim, ok) in &r.verdicts {
-            let _ = writeln!(s, "- {claim} — {}", if *ok { "met" } else { "NOT met" });
+        for (claim, verdict) in &r.verdicts {
+            let _ = writeln!(s, "- {claim} — {verdict}");
         }
         let _ = writeln!(s);
     }
@@ -267,14 +292,22 @@ mod tests {
     use super::*;
     use mars_tasks::nav2d::eval::EvalReport;
 
+    /// A row of `n` rollouts: `counts[i]` successes through passage i, the rest collisions.
     fn row(kind: PolicyKind, counts: Vec<usize>, n: usize, k: f32) -> Row {
-        let mut report = EvalReport::from_episodes(counts.len(), Vec::new());
-        report.successes = counts.iter().sum();
-        report.n = n;
-        report.modal_balance = mars_tasks::nav2d::eval::modal_balance(&counts);
-        report.passage_counts = counts;
+        use mars_tasks::nav2d::{Episode, Termination};
+        let episode =
+            |termination, mode| Episode { seed: 0, start: [0.0; 2], steps: vec![], calls: vec![], termination, mode };
+        let mut episodes: Vec<Episode> =
+            (0..n - counts.iter().sum::<usize>()).map(|_| episode(Termination::Collision, None)).collect();
+        for (passage, &c) in counts.iter().enumerate() {
+            episodes.extend((0..c).map(|_| episode(Termination::Success, Some(passage))));
+        }
+        let mut report = EvalReport::from_episodes(counts.len(), episodes);
         report.mean_k = k;
-        Row { kind, epochs: 1, train_s: Some(1.0), report, w_regions: Vec::new() }
+        let demo_shares = [0.25, 0.45, 0.30];
+        let shares: &[f64] = if counts.len() == 3 { &demo_shares } else { &[0.5, 0.5] };
+        let intervals = report.intervals(shares, 0);
+        Row { kind, epochs: 1, train_s: Some(1.0), report, intervals, w_regions: Vec::new() }
     }
 
     #[test]
@@ -285,29 +318,41 @@ mod tests {
         assert_eq!(MeanStd::of(&[5.0]).std, 0.0);
     }
 
-    #[test]
-    fn a_collapsed_mars_fails_the_share_and_gamma_targets_and_a_faithful_one_meets_them() {
-        let demos = [25, 45, 30];
-        let fm =
-            vec![row(PolicyKind::Fm, vec![24, 46, 30], 100, 10.0), row(PolicyKind::Fm, vec![26, 44, 30], 100, 10.0)];
-        let collapsed =
-            vec![row(PolicyKind::Mars, vec![4, 68, 24], 100, 1.7), row(PolicyKind::Mars, vec![5, 70, 25], 100, 1.7)];
-        let runs: Vec<Vec<Row>> = fm.into_iter().zip(collapsed).map(|(f, m)| vec![m, f]).collect();
-        let r = aggregate("three", &demos, &runs, &Targets::default());
-        let met: Vec<bool> = r.verdicts.iter().map(|v| v.1).collect();
-        assert_eq!(met, [false, false, true, true], "{:?}", r.verdicts);
-        assert!((r.demo_gamma - 0.75).abs() < 1e-6);
-
-        let fm = vec![row(PolicyKind::Fm, vec![24, 46, 30], 100, 10.0)];
-        let faithful = vec![row(PolicyKind::Mars, vec![27, 41, 31], 99, 2.5)];
-        let runs: Vec<Vec<Row>> = fm.into_iter().zip(faithful).map(|(f, m)| vec![m, f]).collect();
-        let r = aggregate("three", &demos, &runs, &Targets::default());
-        assert!(r.verdicts.iter().all(|v| v.1), "{:?}", r.verdicts);
+    fn runs(fm: &[Vec<usize>], mars: &[Vec<usize>], mars_k: f32) -> Vec<Vec<Row>> {
+        fm.iter()
+            .zip(mars)
+            .map(|(f, m)| {
+                vec![row(PolicyKind::Mars, m.clone(), 100, mars_k), row(PolicyKind::Fm, f.clone(), 100, 10.0)]
+            })
+            .collect()
     }
 
     #[test]
-    fn no_success_gives_zero_shares_and_the_full_gap() {
-        assert_eq!(proportions(&[0, 0]), vec![0.0, 0.0]);
-        assert_eq!(max_gap(&[0.0, 0.0], &[0.3, 0.7]), 0.7);
+    fn a_collapsed_mars_is_judged_not_met_and_a_faithful_one_met_by_their_intervals() {
+        let demos = [25, 45, 30];
+        let fm = [vec![24, 46, 30], vec![26, 44, 30], vec![25, 45, 29], vec![23, 47, 30], vec![25, 44, 31]];
+        let collapsed = [vec![4, 60, 24], vec![5, 62, 25], vec![3, 58, 27], vec![6, 61, 24], vec![4, 63, 23]];
+        let r = aggregate("three", &demos, &runs(&fm, &collapsed, 1.7), &Targets::default());
+        let got: Vec<Verdict> = r.verdicts.iter().map(|v| v.1).collect();
+        // TV 0.2 above FM's, success 10 points below, FM faithful, K low.
+        assert_eq!(got, [Verdict::NotMet, Verdict::NotMet, Verdict::Met, Verdict::Met], "{:?}", r.verdicts);
+        assert!((r.demo_gamma - 0.75).abs() < 1e-6);
+        assert_eq!(r.seeds, 5);
+
+        let faithful = [vec![25, 45, 30], vec![26, 44, 30], vec![24, 46, 30], vec![25, 46, 29], vec![24, 45, 31]];
+        let r = aggregate("three", &demos, &runs(&fm, &faithful, 2.5), &Targets::default());
+        assert!(r.verdicts.iter().all(|v| v.1 == Verdict::Met), "{:?}", r.verdicts);
+    }
+
+    #[test]
+    fn two_seeds_that_disagree_leave_the_targets_undecided() {
+        let demos = [50, 50];
+        let fm = [vec![50, 50], vec![50, 50]];
+        let mars = [vec![50, 50], vec![90, 10]];
+        let r = aggregate("two", &demos, &runs(&fm, &mars, 2.0), &Targets::default());
+        assert_eq!(r.verdicts[0].1, Verdict::Undecided, "{:?}", r.verdicts);
+        // One seed says nothing of the spread between seeds: its interval is unbounded.
+        let r = aggregate("two", &demos, &runs(&fm[..1], &mars[..1], 2.0), &Targets::default());
+        assert!(r.verdicts.iter().all(|v| v.1 == Verdict::Undecided), "{:?}", r.verdicts);
     }
 }

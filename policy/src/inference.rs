@@ -8,7 +8,7 @@ use crate::model::MarsModel;
 use crate::normalize::Normalizer;
 use crate::train::{Trained, randn};
 use candle_core::{Device, Tensor};
-use mars_tasks::rollout::{ChunkPolicy, Prediction};
+use mars_tasks::rollout::{BatchPolicy, ChunkPolicy, Prediction, noise_key};
 use rand::SeedableRng;
 use rand::rngs::StdRng;
 use std::path::Path;
@@ -17,13 +17,15 @@ pub struct MarsPolicy {
     model: MarsModel,
     normalizer: Normalizer,
     rng: StdRng,
+    /// Mixed into every batched call's noise key (the batched path draws no noise from `rng`).
+    seed: u64,
     /// Forces the ODE step count (an ablation); `None` uses K(w).
     steps: Option<usize>,
 }
 
 impl MarsPolicy {
     pub fn new(model: MarsModel, normalizer: Normalizer, seed: u64) -> Self {
-        Self { model, normalizer, rng: StdRng::seed_from_u64(seed), steps: None }
+        Self { model, normalizer, rng: StdRng::seed_from_u64(seed), seed, steps: None }
     }
 
     pub fn load(dir: &Path, seed: u64) -> anyhow::Result<(Self, CheckpointMeta)> {
@@ -39,6 +41,7 @@ impl MarsPolicy {
     /// Re-seed the noise generator (one seed per rollout makes each rollout reproducible on its own).
     pub fn reseed(&mut self, seed: u64) {
         self.rng = StdRng::seed_from_u64(seed);
+        self.seed = seed;
     }
 
     /// Integrate with exactly `steps` Euler steps instead of K(w) (`None`: back to K(w)).
@@ -109,5 +112,60 @@ impl ChunkPolicy for MarsPolicy {
 impl MarsPolicy {
     pub fn normalizer(&self) -> &Normalizer {
         &self.normalizer
+    }
+}
+
+/// Many rollouts' calls in one pass: each row normalised, its noise drawn from its key, its own K(w). A forced
+/// step count ([`MarsPolicy::force_steps`]) applies to every row.
+impl BatchPolicy for MarsPolicy {
+    fn action_dim(&self) -> usize {
+        self.model.cfg.action_dim
+    }
+
+    fn chunk_len(&self) -> usize {
+        self.model.cfg.chunk_len
+    }
+
+    fn history_len(&self) -> usize {
+        self.model.cfg.history_len
+    }
+
+    fn predict_batch(
+        &mut self,
+        observations: &[f32],
+        histories: &[f32],
+        keys: &[u64],
+    ) -> anyhow::Result<Vec<Prediction>> {
+        let cfg = &self.model.cfg;
+        let (b, c, d, h) = (keys.len(), cfg.chunk_len, cfg.action_dim, cfg.history_len);
+        if b == 0 {
+            return Ok(Vec::new());
+        }
+        check("observations", observations, b * cfg.obs_dim)?;
+        check("histories", histories, b * h * d)?;
+        let (mut obs, mut hist) = (observations.to_vec(), histories.to_vec());
+        self.normalizer.obs.normalize(&mut obs);
+        self.normalizer.action.normalize(&mut hist);
+        let dev = self.model.device().clone();
+        let noise: Vec<Tensor> = keys
+            .iter()
+            .map(|&key| randn(&mut StdRng::seed_from_u64(noise_key(self.seed, key)), &[1, c, d], &dev))
+            .collect::<candle_core::Result<_>>()?;
+        let eps = Tensor::cat(&noise, 0)?.affine(f64::from(cfg.source_std), 0.0)?;
+        let obs = Tensor::from_vec(obs, (b, cfg.obs_dim), &dev)?;
+        let hist = Tensor::from_vec(hist, (b, h, d), &dev)?;
+        let (chunks, w, ks) = match self.steps {
+            Some(k) => {
+                let (chunk, w, _) = self.model.sample_with_steps(&obs, &hist, &eps, Some(k))?;
+                (chunk, w, vec![k.max(1); b])
+            }
+            None => self.model.sample_each(&obs, &hist, &eps)?,
+        };
+        let mut chunks = chunks.flatten_all()?.to_vec1::<f32>()?;
+        self.normalizer.action.denormalize(&mut chunks);
+        let w = w.flatten_all()?.to_vec1::<f32>()?;
+        Ok((0..b)
+            .map(|i| Prediction { chunk: chunks[i * c * d..][..c * d].to_vec(), w: w[i * d..][..d].to_vec(), k: ks[i] })
+            .collect())
     }
 }

@@ -3,7 +3,8 @@
 //! Data flow: a task (crate `mars_tasks`: nav2d, Push-T) produces `mars_tasks::demo::Demo`s → [`dataset`] turns
 //! them into normalised training samples with their nearest neighbours → [`train`] fits a [`model::MarsModel`]
 //! with the three [`losses`] → [`checkpoint`] writes safetensors + config → a task's evaluation calls the model
-//! through `mars_tasks::rollout::ChunkPolicy` ([`inference::MarsPolicy`]). The `mars` command ([`cli`]) runs
+//! through `mars_tasks::rollout::ChunkPolicy` or, many rollouts at once, `BatchPolicy` ([`inference::MarsPolicy`];
+//! [`evaluation`] scores a checkpoint with intervals). The `mars` command ([`cli`]) runs
 //! the nav2d benchmark, its layout family, curves, ablations and diagnosis on top.
 
 pub mod ablation;
@@ -15,6 +16,7 @@ pub mod curve;
 pub mod dataset;
 pub mod diagnose;
 pub mod encoder;
+pub mod evaluation;
 pub mod family;
 pub mod from_dataset;
 pub mod inference;

@@ -90,6 +90,44 @@ impl MarsModel {
         Ok(a)
     }
 
+    /// Euler integration where row i takes `ks[i]` equal steps, each row on the τ and dt sequence a batch of
+    /// one with its K would take. Rows are sorted by K (descending), so the rows still integrating at step j
+    /// are a prefix: the batch costs Σ K_i rows of the field, as many as one row at a time.
+    pub fn integrate_each(&self, a0: &Tensor, obs_emb: &Tensor, ks: &[usize]) -> Result<Tensor> {
+        let (b, dev) = (ks.len(), a0.device());
+        let mut order: Vec<usize> = (0..b).collect();
+        order.sort_by_key(|&i| std::cmp::Reverse(ks[i]));
+        let sorted: Vec<usize> = order.iter().map(|&i| ks[i]).collect();
+        let rows = |v: &[usize]| Tensor::from_vec(v.iter().map(|&i| i as u32).collect::<Vec<_>>(), v.len(), dev);
+        let (mut a, emb) = (a0.index_select(&rows(&order)?, 0)?, obs_emb.index_select(&rows(&order)?, 0)?);
+        for step in 0..sorted.first().copied().unwrap_or(0) {
+            let active = sorted.partition_point(|&k| k > step);
+            let dt: Vec<f64> = sorted[..active].iter().map(|&k| 1.0 / k as f64).collect();
+            let tau: Vec<f32> = dt.iter().map(|dt| (step as f64 * dt) as f32).collect();
+            let dt: Vec<f32> = dt.iter().map(|&dt| dt as f32).collect();
+            let head = a.narrow(0, 0, active)?;
+            let v = self.velocity(&head, &Tensor::from_vec(tau, active, dev)?, &emb.narrow(0, 0, active)?)?;
+            let head = (&head + v.broadcast_mul(&Tensor::from_vec(dt, (active, 1, 1), dev)?)?)?;
+            a = if active == b { head } else { Tensor::cat(&[&head, &a.narrow(0, active, b - active)?], 0)? };
+        }
+        let mut inverse = vec![0; b];
+        for (at, &i) in order.iter().enumerate() {
+            inverse[i] = at;
+        }
+        a.index_select(&rows(&inverse)?, 0)
+    }
+
+    /// One inference for a batch of independent rollouts on normalised inputs: (chunk [B, C, D], w [B, D],
+    /// K per row), each row with its own K(w) — what [`Self::sample`] gives each row as a batch of one.
+    pub fn sample_each(&self, obs: &Tensor, history: &Tensor, eps: &Tensor) -> Result<(Tensor, Tensor, Vec<usize>)> {
+        let emb = self.encode(obs)?;
+        let w = self.weights(&emb, history)?;
+        let w_inf = w.max(1)?.to_vec1::<f32>()?;
+        let ks: Vec<usize> = w_inf.iter().map(|&w| self.cfg.steps_for(w).max(1)).collect();
+        let a0 = Self::source(history, &w, eps)?;
+        Ok((self.integrate_each(&a0, &emb, &ks)?, w, ks))
+    }
+
     /// One inference on normalised inputs: returns (chunk [B, C, D], w [B, D], K). `eps`: [B, C, D] ~ N(0, I).
     /// K follows the most multimodal sample in the batch (batch 1 at run time).
     pub fn sample(&self, obs: &Tensor, history: &Tensor, eps: &Tensor) -> Result<(Tensor, Tensor, usize)> {

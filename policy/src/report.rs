@@ -2,6 +2,7 @@
 
 use crate::cli::BenchmarkOptions;
 use crate::config::PolicyKind;
+use mars_tasks::nav2d::EvalIntervals;
 use mars_tasks::nav2d::eval::EvalReport;
 use mars_tasks::nav2d::layout::Layout;
 use std::fmt::Write;
@@ -12,6 +13,8 @@ pub struct Row {
     /// Training wall time; `None` for a checkpoint kept by `--resume` from a run that did not record it.
     pub train_s: Option<f32>,
     pub report: EvalReport,
+    /// The report's figures with their 95 % bootstrap intervals over its rollouts.
+    pub intervals: EvalIntervals,
     /// Mean ‖w‖∞ over demo samples in each named region.
     pub w_regions: Vec<(String, Option<f32>)>,
 }
@@ -46,6 +49,26 @@ pub fn render(rows: &[Row], o: &BenchmarkOptions, layout: &Layout) -> String {
     let _ = writeln!(s, "{}", EvalReport::table_header());
     for r in rows {
         let _ = writeln!(s, "{}", r.report.to_table_row(r.kind.name()));
+    }
+    let _ = writeln!(
+        s,
+        "\n95 % intervals (percentile bootstrap over this run's rollouts; training seed {} only, so they do not \
+         hold the spread between seeds):\n",
+        o.seed
+    );
+    let _ = writeln!(s, "| policy | success % | passage shares % | γ | TV to the demos |\n|---|---|---|---|---|");
+    for r in rows {
+        let i = &r.intervals;
+        let shares: Vec<String> = i.shares.iter().map(|e| format!("{:.0}", e.scaled(100.0))).collect();
+        let _ = writeln!(
+            s,
+            "| {} | {:.1} | {} | {} | {} |",
+            r.kind,
+            i.success.scaled(100.0),
+            shares.join(" / "),
+            i.gamma,
+            i.tv
+        );
     }
     let _ = writeln!(s, "\n| policy | epochs | train s | mean ‖w‖∞ entry gate | junction | exit gate |");
     let _ = writeln!(s, "|---|---|---|---|---|---|");

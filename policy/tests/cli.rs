@@ -50,6 +50,7 @@ fn benchmark_writes_results_checkpoints_and_plots() {
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let md = std::fs::read_to_string(dir.join("results.md")).unwrap();
     assert!(md.contains("| mars |") && md.contains("| fm |"), "{md}");
+    assert!(md.contains("95 % intervals (percentile bootstrap over this run's rollouts"), "{md}");
     for f in [
         "demos.png",
         "losses.png",
@@ -64,7 +65,11 @@ fn benchmark_writes_results_checkpoints_and_plots() {
     // `eval` on the written checkpoint works on its own too.
     let out = mars(&["eval", "--checkpoint", dir.join("mars").to_str().unwrap(), "--rollouts", "2"]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    assert!(String::from_utf8_lossy(&out.stdout).contains("| mars |"));
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(stdout.contains("| mars |") && stdout.contains("2 rollouts: success "), "{stdout}");
+    let intervals: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("mars/eval_intervals.json")).unwrap()).unwrap();
+    assert_eq!(intervals["rollouts"].as_u64(), Some(2));
 }
 
 /// The layout family on a tiny setting (two layouts of the shipped family, two seeds), then `diagnose` and the
@@ -129,7 +134,7 @@ fn family_writes_a_table_per_layout_and_the_verdicts() {
     assert!(weights(2).is_ok(), "the new seed is trained");
     let json: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(dir.join("family.json")).unwrap()).unwrap();
-    assert_eq!(json[0]["policies"][0]["passage_counts"].as_array().map(Vec::len), Some(3), "three seeds aggregated");
+    assert_eq!(json[0]["policies"][0]["per_seed"].as_array().map(Vec::len), Some(3), "three seeds aggregated");
     let demos0 = std::fs::read(dir.join("three_passages/seed0/demos.json")).unwrap();
     let out = family("3", "7");
     assert!(!out.status.success(), "other demos under --resume must be refused");

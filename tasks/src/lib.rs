@@ -2,7 +2,8 @@
 //! One home for the policy's training and evaluation (crate `mars_policy` depends on this one) and for the HIL
 //! scene (crate `mars_runtime`).
 //!
-//! - [`demo`]: what any task hands to training; [`rollout`]: what a task's evaluation needs of a policy.
+//! - [`demo`]: what any task hands to training; [`rollout`]: what a task's evaluation needs of a policy;
+//!   [`stats`]: the intervals and verdicts an evaluation's figures come with.
 //! - [`nav2d`]: the benchmark task — a point agent through one of several passages between two gates.
 //! - [`push_t`]: the paper's FR3 Push-T — a T block pushed across a table by the end effector, seen from above;
 //!   the expert goes around the block by the upper or the lower route.
@@ -18,6 +19,7 @@ pub mod nav2d;
 pub mod pick;
 pub mod push_t;
 pub mod rollout;
+pub mod stats;
 
 /// What every task tells the policy and the runtime about itself.
 pub trait Task {

@@ -92,6 +92,9 @@ enum Command {
         /// Ablation: K(w) with this ‖w‖∞ getting K_max steps instead of the checkpoint's `model.k_full_w`.
         #[arg(long)]
         k_full_w: Option<f32>,
+        /// Rollouts run side by side through the model per call (the scores do not depend on it).
+        #[arg(long, default_value_t = mars_policy::evaluation::DEFAULT_BATCH)]
+        batch: usize,
     },
     /// Where the diversity loss acts on a checkpoint: per layout region, S_next vs S_curr, how often
     /// ReLU(S_next − S_curr) is active, w, and which demos the neighbours come from.
@@ -267,9 +270,9 @@ fn main() -> std::process::ExitCode {
             let trainer = mars_policy::curve::Trainer::InProcess;
             mars_policy::curve::run(&out, &config, &args.options(), &task, &trainer, &command).map(|_| ())
         }
-        Command::Eval { checkpoint, layout, rollouts, seed, exec_horizon, steps, k_full_w } => {
+        Command::Eval { checkpoint, layout, rollouts, seed, exec_horizon, steps, k_full_w, batch } => {
             let ablation = cli::StepsAblation { steps, k_full_w };
-            cli::eval_with_steps(&checkpoint, &layout, rollouts, seed, exec_horizon, ablation).map(|_| ())
+            cli::eval_with_steps(&checkpoint, &layout, rollouts, seed, exec_horizon, batch, ablation).map(|_| ())
         }
         Command::Diagnose { checkpoint, demos, layout, seed } => cli::diagnose(&checkpoint, &demos, &layout, seed),
         Command::Plot { run, layout } => cli::plot(&run, &layout),

@@ -12,7 +12,7 @@ use serde::{Deserialize, Serialize};
 
 use super::env::{Nav2dEnv, StepOutcome};
 use super::layout::Layout;
-use crate::rollout::ChunkPolicy;
+use crate::rollout::{ChunkPolicy, Prediction};
 
 /// Policy calls at the start of an evaluation excluded from latency statistics (allocator, kernel caches).
 pub const WARMUP_CALLS: usize = 5;
@@ -81,62 +81,103 @@ pub fn run_episode(
     seed: u64,
     exec_horizon: usize,
 ) -> anyhow::Result<Episode> {
-    check_setup(policy, exec_horizon)?;
-    let start = layout.sample_start(&mut StdRng::seed_from_u64(seed));
-    let mut env = Nav2dEnv::new(layout);
-    env.reset(start);
-    // The history starts as "stayed at the start", the same padding the demos' rest_action gives training.
-    let mut history: VecDeque<[f32; 2]> = std::iter::repeat_n(start, policy.history_len()).collect();
-    let (mut steps, mut calls) = (Vec::new(), Vec::new());
-    let expected = policy.chunk_len() * 2;
-    let termination = 'episode: loop {
-        let pos = env.position();
-        let flat: Vec<f32> = history.iter().flatten().copied().collect();
+    check_setup(policy.action_dim(), policy.chunk_len(), exec_horizon)?;
+    let mut run = EpisodeRun::start(layout, seed, policy.history_len(), policy.chunk_len());
+    let mut history = Vec::new();
+    let termination = loop {
+        history.clear();
+        run.history_into(&mut history);
         let t0 = Instant::now();
-        let prediction = policy.predict(&pos, &flat);
-        let latency = t0.elapsed();
-        let p = match prediction {
-            Ok(p) => p,
-            Err(e) => break Termination::PolicyError(format!("{e:#}")),
-        };
-        if p.chunk.len() != expected {
-            break Termination::PolicyError(format!(
-                "chunk has {} values, expected chunk_len × action_dim = {expected}",
-                p.chunk.len()
-            ));
-        }
-        let w_inf = p.w.iter().fold(0.0f32, |m, w| m.max(w.abs()));
-        calls.push(CallRecord { latency, k: p.k, w_inf });
-        for a in p.chunk.chunks_exact(2).take(exec_horizon) {
-            let target = [a[0], a[1]];
-            let outcome = env.step(target);
-            if !history.is_empty() {
-                history.pop_front();
-                history.push_back(target);
-            }
-            if outcome != StepOutcome::InvalidTarget {
-                steps.push(StepRecord { position: env.position(), w_inf, k: p.k });
-            }
-            match outcome {
-                StepOutcome::Running => {}
-                StepOutcome::ReachedGoal => break 'episode Termination::Success,
-                StepOutcome::Collided => break 'episode Termination::Collision,
-                StepOutcome::TimedOut => break 'episode Termination::Timeout,
-                StepOutcome::InvalidTarget => break 'episode Termination::InvalidAction,
-            }
+        let prediction = policy.predict(&run.observation(), &history);
+        if let Some(end) = run.apply(prediction, t0.elapsed(), exec_horizon) {
+            break end;
         }
     };
-    Ok(Episode { seed, start, steps, calls, termination, mode: env.mode() })
+    Ok(run.finish(termination))
 }
 
-fn check_setup(policy: &dyn ChunkPolicy, exec_horizon: usize) -> anyhow::Result<()> {
-    ensure!(
-        policy.action_dim() == 2,
-        "nav2d actions are 2-D target positions; policy action_dim = {}",
-        policy.action_dim()
-    );
-    if exec_horizon == 0 || exec_horizon > policy.chunk_len() {
-        bail!("exec_horizon must be in 1..={} (the policy's chunk_len), got {exec_horizon}", policy.chunk_len());
+/// One episode between policy calls: its env, the action history the policy sees, and what happened so far.
+/// The sequential and the batched evaluations both drive episodes through it, so they score alike.
+pub struct EpisodeRun<'a> {
+    seed: u64,
+    start: [f32; 2],
+    env: Nav2dEnv<'a>,
+    history: VecDeque<[f32; 2]>,
+    steps: Vec<StepRecord>,
+    calls: Vec<CallRecord>,
+    /// chunk_len × action_dim: the values a prediction must hold.
+    expected: usize,
+}
+
+impl<'a> EpisodeRun<'a> {
+    /// An episode from the start `seed` draws, its history padded as "stayed at the start" (the same padding
+    /// the demos' rest_action gives training).
+    pub fn start(layout: &'a Layout, seed: u64, history_len: usize, chunk_len: usize) -> Self {
+        let start = layout.sample_start(&mut StdRng::seed_from_u64(seed));
+        let mut env = Nav2dEnv::new(layout);
+        env.reset(start);
+        let history = std::iter::repeat_n(start, history_len).collect();
+        Self { seed, start, env, history, steps: Vec::new(), calls: Vec::new(), expected: chunk_len * 2 }
+    }
+
+    pub fn observation(&self) -> [f32; 2] {
+        self.env.position()
+    }
+
+    /// Appends the history, oldest first, as the policy takes it (`history_len × 2`).
+    pub fn history_into(&self, out: &mut Vec<f32>) {
+        out.extend(self.history.iter().flatten());
+    }
+
+    /// Executes the first `exec_horizon` actions of `prediction`; the episode's end if it ended.
+    pub fn apply(
+        &mut self,
+        prediction: anyhow::Result<Prediction>,
+        latency: Duration,
+        exec_horizon: usize,
+    ) -> Option<Termination> {
+        let p = match prediction {
+            Ok(p) => p,
+            Err(e) => return Some(Termination::PolicyError(format!("{e:#}"))),
+        };
+        if p.chunk.len() != self.expected {
+            let msg =
+                format!("chunk has {} values, expected chunk_len × action_dim = {}", p.chunk.len(), self.expected);
+            return Some(Termination::PolicyError(msg));
+        }
+        let w_inf = p.w.iter().fold(0.0f32, |m, w| m.max(w.abs()));
+        self.calls.push(CallRecord { latency, k: p.k, w_inf });
+        p.chunk.chunks_exact(2).take(exec_horizon).find_map(|a| self.step([a[0], a[1]], w_inf, p.k))
+    }
+
+    fn step(&mut self, target: [f32; 2], w_inf: f32, k: usize) -> Option<Termination> {
+        let outcome = self.env.step(target);
+        if !self.history.is_empty() {
+            self.history.pop_front();
+            self.history.push_back(target);
+        }
+        if outcome != StepOutcome::InvalidTarget {
+            self.steps.push(StepRecord { position: self.env.position(), w_inf, k });
+        }
+        match outcome {
+            StepOutcome::Running => None,
+            StepOutcome::ReachedGoal => Some(Termination::Success),
+            StepOutcome::Collided => Some(Termination::Collision),
+            StepOutcome::TimedOut => Some(Termination::Timeout),
+            StepOutcome::InvalidTarget => Some(Termination::InvalidAction),
+        }
+    }
+
+    pub fn finish(self, termination: Termination) -> Episode {
+        let Self { seed, start, steps, calls, env, .. } = self;
+        Episode { seed, start, steps, calls, termination, mode: env.mode() }
+    }
+}
+
+pub(super) fn check_setup(action_dim: usize, chunk_len: usize, exec_horizon: usize) -> anyhow::Result<()> {
+    ensure!(action_dim == 2, "nav2d actions are 2-D target positions; policy action_dim = {action_dim}");
+    if exec_horizon == 0 || exec_horizon > chunk_len {
+        bail!("exec_horizon must be in 1..={chunk_len} (the policy's chunk_len), got {exec_horizon}");
     }
     Ok(())
 }
