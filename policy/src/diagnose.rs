@@ -159,7 +159,7 @@ pub fn fork_choices(
     draws: usize,
     seed: u64,
 ) -> anyhow::Result<ForkChoices> {
-    use mars_tasks::rollout::ChunkPolicy;
+    use mars_tasks::rollout::{ChunkPolicy, PolicyShape};
     let gate = layout.named_rect("entry_gate").ok_or_else(|| anyhow::anyhow!("layout has no `entry_gate` region"))?;
     let n = layout.n_passages();
     let (h, c) = (policy.history_len(), policy.chunk_len());

@@ -7,8 +7,9 @@ use crate::checkpoint::{self, CheckpointMeta};
 use crate::model::MarsModel;
 use crate::normalize::Normalizer;
 use crate::train::{Trained, randn};
+use anyhow::Context;
 use candle_core::{Device, Tensor};
-use mars_tasks::rollout::{BatchPolicy, ChunkPolicy, Prediction, noise_key};
+use mars_tasks::rollout::{BatchPolicy, ChunkPolicy, PolicyShape, Prediction, noise_key};
 use rand::SeedableRng;
 use rand::rngs::StdRng;
 use std::path::Path;
@@ -77,7 +78,7 @@ fn check(what: &'static str, x: &[f32], want: usize) -> Result<(), InputError> {
     }
 }
 
-impl ChunkPolicy for MarsPolicy {
+impl PolicyShape for MarsPolicy {
     fn action_dim(&self) -> usize {
         self.model.cfg.action_dim
     }
@@ -89,23 +90,17 @@ impl ChunkPolicy for MarsPolicy {
     fn history_len(&self) -> usize {
         self.model.cfg.history_len
     }
+}
 
+impl ChunkPolicy for MarsPolicy {
     fn predict(&mut self, observation: &[f32], history: &[f32]) -> anyhow::Result<Prediction> {
+        let (obs, hist) = self.inputs(["observation", "history"], observation, history, 1)?;
         let cfg = &self.model.cfg;
-        let (c, d, h) = (cfg.chunk_len, cfg.action_dim, cfg.history_len);
-        check("observation", observation, cfg.obs_dim)?;
-        check("history", history, h * d)?;
-        let (mut obs, mut hist) = (observation.to_vec(), history.to_vec());
-        self.normalizer.obs.normalize(&mut obs);
-        self.normalizer.action.normalize(&mut hist);
         let dev = self.model.device().clone();
-        let obs = Tensor::from_vec(obs, (1, cfg.obs_dim), &dev)?;
-        let hist = Tensor::from_vec(hist, (1, h, d), &dev)?;
-        let eps = randn(&mut self.rng, &[1, c, d], &dev)?.affine(f64::from(cfg.source_std), 0.0)?;
+        let eps =
+            randn(&mut self.rng, &[1, cfg.chunk_len, cfg.action_dim], &dev)?.affine(f64::from(cfg.source_std), 0.0)?;
         let (chunk, w, k) = self.model.sample_with_steps(&obs, &hist, &eps, self.steps)?;
-        let mut chunk = chunk.flatten_all()?.to_vec1::<f32>()?;
-        self.normalizer.action.denormalize(&mut chunk);
-        Ok(Prediction { chunk, w: w.flatten_all()?.to_vec1::<f32>()?, k })
+        self.outputs(&chunk, &w, &[k])?.pop().context("the model answered no row")
     }
 }
 
@@ -113,47 +108,64 @@ impl MarsPolicy {
     pub fn normalizer(&self) -> &Normalizer {
         &self.normalizer
     }
+
+    /// `rows` rows of observations and histories, checked (named `what` in errors), normalised, as tensors.
+    fn inputs(
+        &self,
+        what: [&'static str; 2],
+        obs: &[f32],
+        hist: &[f32],
+        rows: usize,
+    ) -> anyhow::Result<(Tensor, Tensor)> {
+        let cfg = &self.model.cfg;
+        let (d, h) = (cfg.action_dim, cfg.history_len);
+        check(what[0], obs, rows * cfg.obs_dim)?;
+        check(what[1], hist, rows * h * d)?;
+        let (mut obs, mut hist) = (obs.to_vec(), hist.to_vec());
+        self.normalizer.obs.normalize(&mut obs);
+        self.normalizer.action.normalize(&mut hist);
+        let dev = self.model.device();
+        Ok((Tensor::from_vec(obs, (rows, cfg.obs_dim), dev)?, Tensor::from_vec(hist, (rows, h, d), dev)?))
+    }
+
+    /// One prediction per row of `chunks` [B, C, D] and `w` [B, D], in the task's units.
+    fn outputs(&self, chunks: &Tensor, w: &Tensor, ks: &[usize]) -> anyhow::Result<Vec<Prediction>> {
+        let (c, d) = (self.model.cfg.chunk_len, self.model.cfg.action_dim);
+        let mut chunks = chunks.flatten_all()?.to_vec1::<f32>()?;
+        self.normalizer.action.denormalize(&mut chunks);
+        let w = w.flatten_all()?.to_vec1::<f32>()?;
+        Ok(ks
+            .iter()
+            .enumerate()
+            .map(|(i, &k)| Prediction { chunk: chunks[i * c * d..][..c * d].to_vec(), w: w[i * d..][..d].to_vec(), k })
+            .collect())
+    }
 }
 
 /// Many rollouts' calls in one pass: each row normalised, its noise drawn from its key, its own K(w). A forced
 /// step count ([`MarsPolicy::force_steps`]) applies to every row.
 impl BatchPolicy for MarsPolicy {
-    fn action_dim(&self) -> usize {
-        self.model.cfg.action_dim
-    }
-
-    fn chunk_len(&self) -> usize {
-        self.model.cfg.chunk_len
-    }
-
-    fn history_len(&self) -> usize {
-        self.model.cfg.history_len
-    }
-
     fn predict_batch(
         &mut self,
         observations: &[f32],
         histories: &[f32],
         keys: &[u64],
     ) -> anyhow::Result<Vec<Prediction>> {
-        let cfg = &self.model.cfg;
-        let (b, c, d, h) = (keys.len(), cfg.chunk_len, cfg.action_dim, cfg.history_len);
+        let b = keys.len();
         if b == 0 {
             return Ok(Vec::new());
         }
-        check("observations", observations, b * cfg.obs_dim)?;
-        check("histories", histories, b * h * d)?;
-        let (mut obs, mut hist) = (observations.to_vec(), histories.to_vec());
-        self.normalizer.obs.normalize(&mut obs);
-        self.normalizer.action.normalize(&mut hist);
+        let (obs, hist) = self.inputs(["observations", "histories"], observations, histories, b)?;
+        let cfg = &self.model.cfg;
         let dev = self.model.device().clone();
         let noise: Vec<Tensor> = keys
             .iter()
-            .map(|&key| randn(&mut StdRng::seed_from_u64(noise_key(self.seed, key)), &[1, c, d], &dev))
+            .map(|&key| {
+                let mut rng = StdRng::seed_from_u64(noise_key(self.seed, key));
+                randn(&mut rng, &[1, cfg.chunk_len, cfg.action_dim], &dev)
+            })
             .collect::<candle_core::Result<_>>()?;
         let eps = Tensor::cat(&noise, 0)?.affine(f64::from(cfg.source_std), 0.0)?;
-        let obs = Tensor::from_vec(obs, (b, cfg.obs_dim), &dev)?;
-        let hist = Tensor::from_vec(hist, (b, h, d), &dev)?;
         let (chunks, w, ks) = match self.steps {
             Some(k) => {
                 let (chunk, w, _) = self.model.sample_with_steps(&obs, &hist, &eps, Some(k))?;
@@ -161,11 +173,6 @@ impl BatchPolicy for MarsPolicy {
             }
             None => self.model.sample_each(&obs, &hist, &eps)?,
         };
-        let mut chunks = chunks.flatten_all()?.to_vec1::<f32>()?;
-        self.normalizer.action.denormalize(&mut chunks);
-        let w = w.flatten_all()?.to_vec1::<f32>()?;
-        Ok((0..b)
-            .map(|i| Prediction { chunk: chunks[i * c * d..][..c * d].to_vec(), w: w[i * d..][..d].to_vec(), k: ks[i] })
-            .collect())
+        self.outputs(&chunks, &w, &ks)
     }
 }

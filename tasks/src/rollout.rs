@@ -11,11 +11,15 @@ pub struct Prediction {
     pub k: usize,
 }
 
-/// A policy that maps (observation, history of executed actions) to a chunk of future actions.
-pub trait ChunkPolicy {
+/// The sizes an evaluation needs of a policy, whether it is called one rollout or many at a time.
+pub trait PolicyShape {
     fn action_dim(&self) -> usize;
     fn chunk_len(&self) -> usize;
     fn history_len(&self) -> usize;
+}
+
+/// A policy that maps (observation, history of executed actions) to a chunk of future actions.
+pub trait ChunkPolicy: PolicyShape {
     /// `history` is `history_len × action_dim`, row-major, oldest first; seeds any noise from its own state.
     fn predict(&mut self, observation: &[f32], history: &[f32]) -> anyhow::Result<Prediction>;
 }
@@ -24,10 +28,7 @@ pub trait ChunkPolicy {
 ///
 /// Each call's noise comes from its `noise_key` alone (with the policy's own seed), never from the order or the
 /// company of the calls in a batch: a rollout then samples the same chunks whatever batch it runs in.
-pub trait BatchPolicy {
-    fn action_dim(&self) -> usize;
-    fn chunk_len(&self) -> usize;
-    fn history_len(&self) -> usize;
+pub trait BatchPolicy: PolicyShape {
     /// `observations`: B × obs_dim, `histories`: B × history_len × action_dim (row-major, oldest first),
     /// `noise_keys`: B; one [`Prediction`] per row, in order.
     fn predict_batch(

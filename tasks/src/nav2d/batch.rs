@@ -86,6 +86,7 @@ fn split(result: anyhow::Result<Vec<Prediction>>, rows: usize) -> Vec<anyhow::Re
 mod tests {
     use super::*;
     use crate::nav2d::Termination;
+    use crate::rollout::PolicyShape;
     use rand::{Rng, SeedableRng, rngs::StdRng};
 
     /// Heads right and up from where it is, by a step its noise key jitters: stateless, so any batching of
@@ -95,7 +96,7 @@ mod tests {
         rows: usize,
     }
 
-    impl BatchPolicy for Drift {
+    impl PolicyShape for Drift {
         fn action_dim(&self) -> usize {
             2
         }
@@ -105,6 +106,9 @@ mod tests {
         fn history_len(&self) -> usize {
             2
         }
+    }
+
+    impl BatchPolicy for Drift {
         fn predict_batch(&mut self, obs: &[f32], hist: &[f32], keys: &[u64]) -> anyhow::Result<Vec<Prediction>> {
             assert_eq!((obs.len(), hist.len()), (2 * keys.len(), 4 * keys.len()));
             self.calls += 1;
@@ -144,7 +148,7 @@ mod tests {
 
     struct Failing(Option<usize>);
 
-    impl BatchPolicy for Failing {
+    impl PolicyShape for Failing {
         fn action_dim(&self) -> usize {
             2
         }
@@ -154,6 +158,9 @@ mod tests {
         fn history_len(&self) -> usize {
             0
         }
+    }
+
+    impl BatchPolicy for Failing {
         fn predict_batch(&mut self, _: &[f32], _: &[f32], keys: &[u64]) -> anyhow::Result<Vec<Prediction>> {
             match self.0 {
                 None => anyhow::bail!("boom"),

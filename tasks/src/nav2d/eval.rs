@@ -326,7 +326,7 @@ impl fmt::Display for EvalReport {
 mod tests {
     use super::*;
     use crate::nav2d::expert::Polyline;
-    use crate::rollout::Prediction;
+    use crate::rollout::PolicyShape;
 
     /// Replays the nominal expert route, choosing the passage per episode from `plan` (cycling). It spots a
     /// new episode by the history being all rest actions equal to the observation, which also checks how
@@ -345,7 +345,7 @@ mod tests {
         }
     }
 
-    impl ChunkPolicy for RoutePolicy {
+    impl PolicyShape for RoutePolicy {
         fn action_dim(&self) -> usize {
             2
         }
@@ -355,6 +355,9 @@ mod tests {
         fn history_len(&self) -> usize {
             3
         }
+    }
+
+    impl ChunkPolicy for RoutePolicy {
         fn predict(&mut self, obs: &[f32], history: &[f32]) -> anyhow::Result<Prediction> {
             assert_eq!(history.len(), 6);
             if history.chunks(2).all(|h| h == obs) {
@@ -427,7 +430,7 @@ mod tests {
 
     struct FixedPolicy(Result<Vec<f32>, String>);
 
-    impl ChunkPolicy for FixedPolicy {
+    impl PolicyShape for FixedPolicy {
         fn action_dim(&self) -> usize {
             2
         }
@@ -437,6 +440,9 @@ mod tests {
         fn history_len(&self) -> usize {
             0
         }
+    }
+
+    impl ChunkPolicy for FixedPolicy {
         fn predict(&mut self, _: &[f32], history: &[f32]) -> anyhow::Result<Prediction> {
             assert!(history.is_empty());
             match &self.0 {
