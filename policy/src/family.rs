@@ -116,7 +116,8 @@ pub struct LayoutResult {
     pub verdicts: Vec<(String, Verdict)>,
 }
 
-/// The mean over seeds with its interval; no value (no seed, or a non-finite figure) gives NaN throughout.
+/// The mean over seeds with its interval; no value (no seed, or a non-finite figure) gives NaN throughout,
+/// which every [`Verdict`] reads as undecided (NaN compares false both ways) and the tables print as NaN.
 fn over_seeds(values: &[f64]) -> Estimate {
     mean_over_seeds(values).unwrap_or(Estimate::new(f64::NAN, f64::NAN, f64::NAN))
 }

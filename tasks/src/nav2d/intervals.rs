@@ -12,7 +12,8 @@ pub struct EvalIntervals {
     pub rollouts: usize,
     /// Successful rollouts over all rollouts.
     pub success: Estimate,
-    /// Each passage's share of the successful rollouts, in mode order.
+    /// Each passage's share of the successful rollouts, in mode order. A resample without a success counts
+    /// every share as 0 (no passage was reproduced), which widens these intervals downward when successes are few.
     pub shares: Vec<Estimate>,
     /// γ = k·min/Σ over the passages' success counts.
     pub gamma: Estimate,
