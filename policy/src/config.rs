@@ -264,7 +264,20 @@ pub struct TrainConfig {
     /// --knob fm-lambda-rec`), which shows L_rec pulling FM toward the central passages. Absent: plain FM.
     #[serde(default)]
     pub fm_lambda_rec: Option<f64>,
+    /// How the gradients are computed: by hand (`crate::grad`, state policies) or through candle's autograd
+    /// (always for a vision encoder). The two agree to float rounding (policy/tests/hand_gradients.rs).
+    #[serde(default)]
+    pub gradients: Gradients,
     pub seed: u64,
+}
+
+/// See [`TrainConfig::gradients`].
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Gradients {
+    #[default]
+    Hand,
+    Autograd,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

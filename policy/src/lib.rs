@@ -9,6 +9,7 @@
 
 pub mod ablation;
 pub mod augment;
+pub mod bench_train;
 pub mod checkpoint;
 pub mod cli;
 pub mod config;
@@ -19,6 +20,7 @@ pub mod encoder;
 pub mod evaluation;
 pub mod family;
 pub mod from_dataset;
+pub mod grad;
 pub mod inference;
 pub mod jobs;
 pub mod knn;

@@ -1,7 +1,8 @@
 //! Training: seeded batches, the losses each policy kind uses, AdamW, a progress bar and a per-epoch log.
 
-use crate::config::{PolicyConfig, PolicyKind};
+use crate::config::{Gradients, PolicyConfig, PolicyKind};
 use crate::dataset::{Dataset, DatasetTensors};
+use crate::grad::{HandStep, HostData, StepTerms};
 use crate::losses;
 use crate::model::MarsModel;
 use crate::nn::seeded_init::SeededInit;
@@ -33,6 +34,8 @@ pub struct Trained {
     pub varmap: VarMap,
     pub normalizer: Normalizer,
     pub log: Vec<EpochLog>,
+    /// Wall-clock seconds of each epoch's batches (not the dataset's set-up nor snapshots): `mars bench-train`.
+    pub epoch_seconds: Vec<f64>,
 }
 
 /// One batch, gathered from the dataset tensors.
@@ -161,6 +164,64 @@ fn scalar(t: &Tensor) -> candle_core::Result<f32> {
     t.to_scalar::<f32>()
 }
 
+/// How a batch's gradients and update are made: by hand (`crate::grad`: state policies, unless the config asks
+/// for autograd) or through candle's autograd and AdamW. Same draws from the generator either way.
+enum Stepper {
+    Hand(Box<HandStep>, HostData),
+    Autograd(Vec<AdamW>),
+}
+
+impl Stepper {
+    fn new(cfg: &PolicyConfig, varmap: &VarMap, tensors: &DatasetTensors) -> anyhow::Result<Self> {
+        if cfg.train.gradients == Gradients::Hand && crate::grad::supports(cfg) {
+            let mut hand = HandStep::new(cfg, varmap)?;
+            // The training's share of the cores (`cli::init_runtime_env`: cores / parallel jobs).
+            hand.set_threads(candle_core::utils::get_num_threads());
+            Ok(Stepper::Hand(Box::new(hand), HostData::new(tensors)?))
+        } else {
+            Ok(Stepper::Autograd(optimizers(varmap, cfg)?))
+        }
+    }
+
+    /// One batch (samples `idx`): its loss terms, and the update unless the loss is not finite.
+    fn step(
+        &mut self,
+        model: &MarsModel,
+        tensors: &DatasetTensors,
+        cfg: &PolicyConfig,
+        idx: &[u32],
+        rng: &mut StdRng,
+    ) -> anyhow::Result<StepTerms> {
+        let opts = match self {
+            Stepper::Hand(hand, host) => return Ok(hand.step(host, idx, rng)),
+            Stepper::Autograd(opts) => opts,
+        };
+        let terms = batch_losses(model, &Batch::gather(tensors, idx)?, cfg, rng)?;
+        let total = scalar(&terms.total)?;
+        if total.is_finite() {
+            let grads = terms.total.backward()?;
+            for opt in opts {
+                opt.step(&grads)?;
+            }
+        }
+        Ok(StepTerms {
+            total,
+            fm: scalar(&terms.fm)?,
+            rec: terms.rec.as_ref().map(scalar).transpose()?,
+            div: terms.div.as_ref().map(scalar).transpose()?,
+            w_inf: scalar(&terms.w.max(1)?.mean_all()?)?,
+        })
+    }
+
+    /// The weights trained by hand into the model's variables (autograd trains them in place).
+    fn store(&self, varmap: &VarMap) -> anyhow::Result<()> {
+        match self {
+            Stepper::Hand(hand, _) => hand.store(varmap),
+            Stepper::Autograd(_) => Ok(()),
+        }
+    }
+}
+
 /// A fresh model with seeded initial weights.
 pub fn init_model(cfg: &PolicyConfig, device: &Device) -> candle_core::Result<(MarsModel, VarMap)> {
     let (varmap, vb) = SeededInit::var_builder(cfg.train.seed, device);
@@ -223,37 +284,34 @@ pub fn train_normalised_by(
     }
     let tensors = data.tensors(&cfg.model, &device)?;
     let (mut model, varmap) = init_model(cfg, &device)?;
-    let mut opts = optimizers(&varmap, cfg)?;
+    let mut stepper = Stepper::new(cfg, &varmap, &tensors)?;
     let mut rng = StdRng::seed_from_u64(cfg.train.seed ^ 0x4d41_5253); // "MARS": batches ≠ init stream
     let mut order: Vec<u32> = (0..data.len as u32).collect();
     let batches_per_epoch = data.len.div_ceil(cfg.train.batch_size);
 
     bar.set_length((cfg.train.epochs * batches_per_epoch) as u64);
     let mut log = Vec::with_capacity(cfg.train.epochs);
+    let mut epoch_seconds = Vec::with_capacity(cfg.train.epochs);
     for epoch in 0..cfg.train.epochs {
+        let started = std::time::Instant::now();
         order.shuffle(&mut rng);
         let mut sums = EpochLog { epoch, ..Default::default() };
         for idx in order.chunks(cfg.train.batch_size) {
             if idx.len() < 2 {
                 continue; // a batch of one has no spread to learn from
             }
-            let batch = Batch::gather(&tensors, idx)?;
-            let terms = batch_losses(&model, &batch, cfg, &mut rng)?;
-            let total = scalar(&terms.total)?;
-            if !total.is_finite() {
-                anyhow::bail!("{} training diverged at epoch {epoch}: loss is {total}", cfg.kind);
+            let terms = stepper.step(&model, &tensors, cfg, idx, &mut rng)?;
+            if !terms.total.is_finite() {
+                anyhow::bail!("{} training diverged at epoch {epoch}: loss is {}", cfg.kind, terms.total);
             }
-            let grads = terms.total.backward()?;
-            for opt in &mut opts {
-                opt.step(&grads)?;
-            }
-            sums.total += total;
-            sums.fm += scalar(&terms.fm)?;
-            sums.rec += terms.rec.as_ref().map(scalar).transpose()?.unwrap_or(0.0);
-            sums.div += terms.div.as_ref().map(scalar).transpose()?.unwrap_or(0.0);
-            sums.w_inf += scalar(&terms.w.max(1)?.mean_all()?)?;
+            sums.total += terms.total;
+            sums.fm += terms.fm;
+            sums.rec += terms.rec.unwrap_or(0.0);
+            sums.div += terms.div.unwrap_or(0.0);
+            sums.w_inf += terms.w_inf;
             bar.inc(1);
         }
+        epoch_seconds.push(started.elapsed().as_secs_f64());
         let n = batches_per_epoch as f32;
         let e = EpochLog {
             epoch,
@@ -270,6 +328,7 @@ pub fn train_normalised_by(
         }
         log.push(e);
         if let Some(s) = snapshots.filter(|s| (epoch + 1) % s.every == 0 || epoch + 1 == cfg.train.epochs) {
+            stepper.store(&varmap)?;
             let mut snap_cfg = cfg.clone();
             snap_cfg.train.epochs = epoch + 1;
             calibrate_k(&mut snap_cfg, &mut model, &tensors, false)?;
@@ -277,9 +336,10 @@ pub fn train_normalised_by(
         }
     }
     bar.finish_and_clear();
+    stepper.store(&varmap)?;
     let mut cfg = cfg.clone();
     calibrate_k(&mut cfg, &mut model, &tensors, true)?;
-    Ok(Trained { cfg, model, varmap, normalizer: data.normalizer, log })
+    Ok(Trained { cfg, model, varmap, normalizer: data.normalizer, log, epoch_seconds })
 }
 
 /// MARS with `train.k_full_quantile`: `model.k_full_w` ← that quantile of ‖w‖∞ over the training samples (in

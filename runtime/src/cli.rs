@@ -223,7 +223,7 @@ pub fn demo(mut args: DemoArgs) -> anyhow::Result<u8> {
     // franka-sim first: the HAL reads the robot before anything else.
     let _sim = match args.backend {
         DemoRobot::Mock | DemoRobot::R1LiteStandin => None,
-        DemoRobot::FrankaSim => Some(start_franka_sim(&args.franka_sim_venv, &out)?),
+        DemoRobot::FrankaSim => Some(start_franka_sim(&args.franka_sim_venv, &out, args.hal_core)?),
     };
     let standin = match args.backend {
         DemoRobot::R1LiteStandin => {
@@ -355,8 +355,13 @@ pub fn hal_command(
 }
 
 /// franka-sim for the demo, with the robot's reflexes on (20 lost cycles, motion limits) and a 3 cm object
-/// between the hand's fingers (the task's mug, as far as the gripper can tell), installed first if it is not.
-pub(crate) fn start_franka_sim(venv: &Path, out: &Path) -> anyhow::Result<mars_hal::fci::franka_sim::FrankaSim> {
+/// between the hand's fingers (the task's mug, as far as the gripper can tell), installed first if it is not; on
+/// the HAL's core (`FrankaSim::start` says why).
+pub(crate) fn start_franka_sim(
+    venv: &Path,
+    out: &Path,
+    hal_core: usize,
+) -> anyhow::Result<mars_hal::fci::franka_sim::FrankaSim> {
     let installer = Path::new(".ci/franka-sim-venv");
     if !venv.join("bin/run-franka-sim-server").exists() && installer.exists() {
         eprintln!("installing franka-sim into {} ({})", venv.display(), installer.display());
@@ -366,7 +371,7 @@ pub(crate) fn start_franka_sim(venv: &Path, out: &Path) -> anyhow::Result<mars_h
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     let log = out.join("franka-sim.log");
     let args = ["--enforce-comm-constraints", "--enforce-motion-limits", "--gripper-object-width", "0.03"];
-    let sim = mars_hal::fci::franka_sim::FrankaSim::start(venv, &args, &log, Duration::from_secs(60))?;
+    let sim = mars_hal::fci::franka_sim::FrankaSim::start(venv, &args, &log, Duration::from_secs(60), Some(hal_core))?;
     eprintln!("franka-sim listening on 127.0.0.1:{} (log {})", mars_hal::fci::franka_sim::ROBOT_PORT, log.display());
     Ok(sim)
 }

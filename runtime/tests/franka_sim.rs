@@ -64,7 +64,8 @@ fn start_on_franka_sim(name: &str, episodes: usize) -> (OnFrankaSim, Proc, Recor
     let rt = rt_rig_lock();
     let logs = TempDir::new(name);
     let args = ["--enforce-comm-constraints", "--enforce-motion-limits", "--gripper-object-width", "0.03"];
-    let sim = FrankaSim::start(&venv, &args, &logs.join("franka-sim.log"), Duration::from_secs(60)).unwrap();
+    let sim = FrankaSim::start(&venv, &args, &logs.join("franka-sim.log"), Duration::from_secs(60), Some(servo_core()));
+    let sim = sim.unwrap();
     let robot = robot(name);
     let (hal, rec) = hal_with_recorder(&robot, &FCI_HAL, &logs);
     let marsd = spawn_marsd(&robot, &shipped_config(), episodes, &MARSD_ON_FRANKA_SIM, &logs);
@@ -99,6 +100,15 @@ fn assert_robot_line_clean(hal_stdout: &str, hal_stderr: &str, sim_log: &str) ->
     let excuse =
         excuse.or_else(|| stall_witness::peer::franka_sim_excuse(failure.clone(), sim_log, from, at, missing - 5.0));
     excuse.map_or_else(|| panic!("{failure}; {}", seen_at(from, at, sim_log)), Err)
+}
+
+/// The HAL's own CPU work never outlasted the robot's cycle ("… later than the 1000 µs period: 0 computing"). The
+/// simulator shares the HAL's core (`FrankaSim::start`) below the HAL's real-time priority, so a HAL that computed
+/// past its cycle would hold the simulator up with it, and the robot's success rate could not show it; the HAL's
+/// account of its ticks' CPU time must then. (This evidence convicts; it never excuses.)
+fn assert_hal_never_computed_past_its_cycle(hal_stdout: &str) {
+    let line = find_line(hal_stdout, &["others answering later than the"]).unwrap_or_else(|| panic!("{hal_stdout}"));
+    assert_eq!(number_after(line, "period:"), 0.0, "the HAL computed past the robot's cycle: {line}");
 }
 
 /// What the stall witness and franka-sim's log said of `[from, to]`, for a failure they do not excuse.
@@ -220,6 +230,7 @@ fn pick_cup_attempt(attempt: u32) -> Attempt {
     assert_eq!(u64_at(&s, "/limit_violations/hal_clamped"), 0, "the HAL clamped a command of marsd's");
     // The HAL's report (the demo's stdout): the robot's side.
     let sim_log = std::fs::read_to_string(logs.join("out/franka-sim.log")).unwrap_or_default();
+    assert_hal_never_computed_past_its_cycle(&out);
     assert_robot_line_clean(&out, &demo.stderr_text(), &sim_log)?;
     assert!(find_line(&out, &["loop allocations after warm-up: 0 system-allocator calls"]).is_some(), "{out}");
     assert_eq!(u64_at(&s, "/servo_allocations/system"), 0, "the servo tick allocated on the fci backend: {s}");
@@ -280,6 +291,7 @@ fn sigkill_attempt(attempt: u32) -> Attempt {
     // The HAL, stopped the way systemd would, reports the robot's side.
     hal.signal(libc::SIGTERM);
     assert_eq!(hal.exit_code(Duration::from_secs(10)), 0, "{}", hal.logs());
+    assert_hal_never_computed_past_its_cycle(&hal.stdout_text());
     assert_robot_line_clean(&hal.stdout_text(), &hal.stderr_text(), &rig.sim.log_text())
 }
 
@@ -309,6 +321,7 @@ fn stalled_hal_attempt(attempt: u32) -> Attempt {
         return Err(e);
     }
     assert_no_reflex(&hal_out, &hal.stderr_text(), &rig.sim.log_text());
+    assert_hal_never_computed_past_its_cycle(&hal_out);
     let r = rec.finish();
     let s = summary(&rig.logs, "marsd");
     if code == 3

@@ -58,7 +58,14 @@ pub fn trained_checkpoint(kind: PolicyKind, name: &str, tweak: impl FnOnce(&mut 
 pub fn perturbed_checkpoint(cfg: &PolicyConfig, name: &str) -> PathBuf {
     let (model, varmap) = init_model(cfg, &Device::Cpu).unwrap();
     let data = Dataset::from_demos(&forked_demos(8, 16), &cfg.model, 2).unwrap();
-    let trained = Trained { cfg: cfg.clone(), model, varmap, normalizer: data.normalizer, log: Vec::new() };
+    let trained = Trained {
+        cfg: cfg.clone(),
+        model,
+        varmap,
+        normalizer: data.normalizer,
+        log: Vec::new(),
+        epoch_seconds: Vec::new(),
+    };
     perturb(&trained, 0.05, 12);
     let dir = temp_dir(name);
     checkpoint::save(&dir, &trained).unwrap();
@@ -69,7 +76,14 @@ pub fn perturbed_checkpoint(cfg: &PolicyConfig, name: &str) -> PathBuf {
 pub fn perturbed_vision_checkpoint(cfg: &PolicyConfig, side: usize, name: &str) -> PathBuf {
     let (model, varmap) = init_model(cfg, &Device::Cpu).unwrap();
     let data = Dataset::from_demos(&forked_image_demos(8, 16, side), &cfg.model, 2).unwrap();
-    let trained = Trained { cfg: cfg.clone(), model, varmap, normalizer: data.normalizer, log: Vec::new() };
+    let trained = Trained {
+        cfg: cfg.clone(),
+        model,
+        varmap,
+        normalizer: data.normalizer,
+        log: Vec::new(),
+        epoch_seconds: Vec::new(),
+    };
     perturb(&trained, 0.05, 12);
     let dir = temp_dir(name);
     checkpoint::save(&dir, &trained).unwrap();

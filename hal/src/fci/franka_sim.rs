@@ -34,7 +34,20 @@ impl FrankaSim {
     /// Starts `run-franka-sim-server args…` from the environment `venv`, its output into `log`, and waits (at
     /// most `timeout`) until port 1337 accepts. Refuses when something else listens there already (a simulator
     /// or robot some other program started, which this one could not bind past).
-    pub fn start(venv: &Path, args: &[&str], log: &Path, timeout: Duration) -> anyhow::Result<Self> {
+    ///
+    /// `core`: the one core the simulator (all its threads) may run on; give it the HAL's. A real FR3 is a
+    /// machine of its own, whose clock does not stop when ours does; on one virtual machine the host can take a
+    /// core away for ~10 ms (steal), and a robot running on the other core would then count the frozen HAL's
+    /// cycles as lost commands. Sharing the HAL's core, the simulator stops with it. It runs as an ordinary
+    /// process below the HAL's real-time loop, so a HAL that overruns its cycle still delays its answer past
+    /// the simulator's next state — but only when the HAL yields the core to it: see README, "franka-sim".
+    pub fn start(
+        venv: &Path,
+        args: &[&str],
+        log: &Path,
+        timeout: Duration,
+        core: Option<usize>,
+    ) -> anyhow::Result<Self> {
         let server = venv.join("bin/run-franka-sim-server");
         anyhow::ensure!(
             server.exists() && venv.join("fr3.xml").exists(),
@@ -46,7 +59,13 @@ impl FrankaSim {
             "something already listens on 127.0.0.1:{ROBOT_PORT} (another franka-sim?): stop it first"
         );
         let out = File::create(log).with_context(|| format!("creating {}", log.display()))?;
-        let child = Command::new(&server)
+        let mut command = Command::new(&server);
+        if let Some(core) = core {
+            // SAFETY: runs in the forked child before exec; sched_setaffinity(2) is async-signal-safe and the
+            // closure touches only its own stack.
+            unsafe { command.pre_exec(move || only_on_core(core)) };
+        }
+        let child = command
             .args(args)
             .env("FR3_MJCF", venv.join("fr3.xml"))
             // Its log's times in UTC, like ours, so a line of its lines up with ours (its overload warnings are
@@ -93,6 +112,21 @@ impl FrankaSim {
         // SAFETY: kill(2) with a negative pid signals that process group; no memory is involved.
         unsafe { libc::kill(-(self.child.id() as i32), libc::SIGKILL) };
         let _ = self.child.wait();
+    }
+}
+
+/// Restricts the calling process (and the threads it will start) to `core`.
+fn only_on_core(core: usize) -> std::io::Result<()> {
+    // SAFETY: a zeroed cpu_set_t is the empty set; CPU_SET writes within it (core is checked against its size).
+    let mut set: libc::cpu_set_t = unsafe { std::mem::zeroed() };
+    if core >= 8 * std::mem::size_of::<libc::cpu_set_t>() {
+        return Err(std::io::Error::from_raw_os_error(libc::EINVAL));
+    }
+    unsafe { libc::CPU_SET(core, &mut set) };
+    // SAFETY: pid 0 is this process; the set is a valid cpu_set_t of the size passed.
+    match unsafe { libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &set) } {
+        0 => Ok(()),
+        _ => Err(std::io::Error::last_os_error()),
     }
 }
 

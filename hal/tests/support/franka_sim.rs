@@ -125,7 +125,8 @@ impl FrankaSim {
             N.fetch_add(1, Ordering::Relaxed)
         ));
         let start = Instant::now();
-        let sim = Sim::start(&venv, args, &log, START_TIMEOUT).unwrap_or_else(|e| panic!("{e:#}"));
+        // On no core of its own: these tests leave the HAL unpinned too (`Sim::start` says when to pin both).
+        let sim = Sim::start(&venv, args, &log, START_TIMEOUT, None).unwrap_or_else(|e| panic!("{e:#}"));
         eprintln!("franka-sim listening after {:.1} s (log {})", start.elapsed().as_secs_f64(), log.display());
         FrankaSim { sim: Some(sim), _lock: lock }
     }

@@ -30,6 +30,28 @@ enum Command {
         #[arg(long, default_value = "runs/nav2d/demos.json")]
         out: PathBuf,
     },
+    /// Training speed: seconds per epoch by hand, through candle's autograd and (with --python) in the PyTorch
+    /// peer (policy/benches/torch_trainer.py) on the same samples, in turns; medians and ratios.
+    BenchTrain {
+        #[arg(long, value_enum, default_value_t = PolicyKind::Mars)]
+        policy: PolicyKind,
+        #[arg(long, default_value = "configs/policy.toml")]
+        config: PathBuf,
+        #[arg(long, default_value = "runs/nav2d/demos.json")]
+        demos: PathBuf,
+        #[arg(long, default_value_t = 2)]
+        epochs: usize,
+        #[arg(long, default_value_t = 3)]
+        rounds: usize,
+        /// A Python with torch and safetensors (e.g. a venv's bin/python) to run the PyTorch peer.
+        #[arg(long)]
+        python: Option<PathBuf>,
+        /// Threads for each trainer.
+        #[arg(long, default_value_t = 1)]
+        threads: usize,
+        #[arg(long, default_value = "runs/bench_train")]
+        out: PathBuf,
+    },
     /// Train one policy on a demo file and write a checkpoint directory.
     Train {
         #[arg(long, value_enum, default_value_t = PolicyKind::Mars)]
@@ -223,11 +245,26 @@ fn main() -> std::process::ExitCode {
         Command::Benchmark { jobs, .. } | Command::Family { jobs, .. } => jobs.unwrap_or(cores).max(1),
         Command::Curve { args, .. } => args.jobs.unwrap_or(cores).max(1),
         Command::Ablate { jobs, .. } => jobs.unwrap_or(cores).max(1),
+        // RAYON_NUM_THREADS = cores / jobs: the threads asked for.
+        Command::BenchTrain { threads, .. } => (cores / threads.max(&1)).max(1),
         _ => 1,
     };
     cli::init_runtime_env(jobs);
     let result = match args.command {
         Command::Demos { layout, n, seed, out } => cli::demos(&layout, n, seed, &out),
+        Command::BenchTrain { policy, config, demos, epochs, rounds, python, threads, out } => {
+            let opts = mars_policy::bench_train::BenchTrainOptions {
+                kind: policy,
+                config,
+                demos,
+                epochs,
+                rounds,
+                python,
+                threads,
+                out,
+            };
+            mars_policy::bench_train::run(&opts)
+        }
         Command::Train {
             policy,
             config,

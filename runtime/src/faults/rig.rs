@@ -38,12 +38,12 @@ impl Rig {
         let lock = mars_rt::rig_lock::rt_rig_lock().context("taking the real-time rig lock")?;
         let robot =
             format!("faults-{}-{}", std::process::id(), if backend == DemoRobot::Mock { "mock" } else { "sim" });
+        let core = crate::bench::demo_hal_core();
         let sim = match backend {
-            DemoRobot::FrankaSim => Some(start_franka_sim(venv, dir)?),
+            DemoRobot::FrankaSim => Some(start_franka_sim(venv, dir, core)?),
             DemoRobot::Mock => None,
             DemoRobot::R1LiteStandin => anyhow::bail!("the fault runs are on the FR3: --backend mock or franka-sim"),
         };
-        let core = crate::bench::demo_hal_core();
         let mut hal = hal_command(exe, &cfg.profile, &robot, core, backend, &dir.join("hal.json"));
         hal.stdout(log_file(dir, "hal.out")?).stderr(log_file(dir, "hal.log")?);
         let hal = hal.spawn().context("starting the HAL")?;
