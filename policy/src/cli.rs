@@ -333,6 +333,9 @@ pub struct BenchmarkOptions {
     /// Keep each policy already trained under `out` with this very configuration (and the same demos) instead of
     /// training it again; it is still evaluated. Long runs (`mars family`) then continue where they stopped.
     pub resume: bool,
+    /// Other benchmarks run at the same time (`mars family` runs its layouts × seeds side by side), so this one's
+    /// evaluation is not alone on the machine: its latencies say so.
+    pub side_by_side: bool,
 }
 
 /// Where `benchmark` records a policy's training wall time next to its checkpoint.

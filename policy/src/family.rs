@@ -202,23 +202,25 @@ pub fn layout_files(dir: &Path) -> anyhow::Result<Vec<PathBuf>> {
 pub fn run(out: &Path, config: &Path, layouts_dir: &Path, o: &FamilyOptions) -> anyhow::Result<Vec<LayoutResult>> {
     anyhow::ensure!(o.seeds >= 1, "--seeds must be at least 1");
     let files = layout_files(layouts_dir)?;
+    let layouts = files.iter().map(|f| mars_tasks::nav2d::layout::Layout::load(f)).collect::<Result<Vec<_>, _>>()?;
+    // Every layout × seed is one benchmark, its policies trained one after the other; the benchmarks run `jobs`
+    // at a time, so no core idles while a long MARS training finishes beside a short FM one.
+    let items: Vec<(usize, u64)> = (0..files.len()).flat_map(|l| (0..o.seeds).map(move |s| (l, s))).collect();
+    let runs = crate::jobs::parallel(&items, o.bench.jobs, &|&(l, seed)| {
+        let dir = out.join(&layouts[l].name).join(format!("seed{seed}"));
+        println!("\n=== {} (seed {seed}) → {}", layouts[l].name, dir.display());
+        let bench = BenchmarkOptions { seed, jobs: 1, side_by_side: o.bench.jobs > 1, ..o.bench.clone() };
+        benchmark(&dir, config, &files[l], &bench)
+    })?;
+    let mut runs = runs.into_iter();
     let mut results = Vec::new();
-    for file in &files {
-        let layout = mars_tasks::nav2d::layout::Layout::load(file)?;
-        let mut runs = Vec::new();
+    for layout in &layouts {
+        let runs: Vec<_> = runs.by_ref().take(o.seeds as usize).collect();
+        let set = crate::cli::load_demos(&out.join(&layout.name).join("seed0").join("demos.json"))?;
         let mut demo_counts = vec![0usize; layout.n_passages()];
-        for seed in 0..o.seeds {
-            let dir = out.join(&layout.name).join(format!("seed{seed}"));
-            println!("\n=== {} (seed {seed}) → {}", layout.name, dir.display());
-            let bench = BenchmarkOptions { seed, ..o.bench.clone() };
-            runs.push(benchmark(&dir, config, file, &bench)?);
-            if seed == 0 {
-                let set = crate::cli::load_demos(&dir.join("demos.json"))?;
-                for m in set.demos.iter().filter_map(|d| d.mode) {
-                    if let Some(c) = demo_counts.get_mut(m) {
-                        *c += 1;
-                    }
-                }
+        for m in set.demos.iter().filter_map(|d| d.mode) {
+            if let Some(c) = demo_counts.get_mut(m) {
+                *c += 1;
             }
         }
         results.push(aggregate(&layout.name, &demo_counts, &runs, &o.targets));

@@ -34,7 +34,7 @@ pub fn render(rows: &[Row], o: &BenchmarkOptions, layout: &Layout) -> String {
     let _ = writeln!(
         s,
         "Command: `mars benchmark --demos {} --rollouts {} --seed {} --exec-horizon {}{} --policies {} --jobs {}` \
-         (layout `{}`, {} passages; {} CPU thread(s) per job; evaluation runs alone after training).\n",
+         (layout `{}`, {} passages; {} CPU thread(s) per job; {}).\n",
         o.demos,
         o.rollouts,
         o.seed,
@@ -45,6 +45,11 @@ pub fn render(rows: &[Row], o: &BenchmarkOptions, layout: &Layout) -> String {
         layout.name,
         layout.n_passages(),
         std::env::var("RAYON_NUM_THREADS").unwrap_or_else(|_| "?".into()),
+        if o.side_by_side {
+            "trained and evaluated beside other layouts or seeds of `mars family`, so the latencies are not alone"
+        } else {
+            "evaluation runs alone after training"
+        },
     );
     let _ = writeln!(s, "{}", EvalReport::table_header());
     for r in rows {

@@ -112,6 +112,9 @@ fn family_writes_a_table_per_layout_and_the_verdicts() {
         serde_json::from_str(&std::fs::read_to_string(dir.join("family.json")).unwrap()).unwrap();
     assert_eq!(json.as_array().map(Vec::len), Some(2), "one result per layout");
     let run = dir.join("three_passages/seed1");
+    // The layouts × seeds ran two at a time, and each benchmark says its latencies were not measured alone.
+    let results = std::fs::read_to_string(run.join("results.md")).unwrap();
+    assert!(results.contains("beside other layouts or seeds"), "{results}");
     let meta: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(run.join("mars/policy.json")).unwrap()).unwrap();
     let k_full_w = meta["model"]["k_full_w"].as_f64().unwrap();

@@ -327,7 +327,17 @@ fn main() -> std::process::ExitCode {
             ..
         } => {
             let policies = if policies.is_empty() { PolicyKind::ALL.to_vec() } else { policies };
-            let opts = cli::BenchmarkOptions { demos, epochs, rollouts, seed, exec_horizon, policies, jobs, resume };
+            let opts = cli::BenchmarkOptions {
+                demos,
+                epochs,
+                rollouts,
+                seed,
+                exec_horizon,
+                policies,
+                jobs,
+                resume,
+                side_by_side: false,
+            };
             cli::benchmark(&out, &config, &layout, &opts).map(|_| ())
         }
         Command::Ablate {
@@ -371,8 +381,17 @@ fn main() -> std::process::ExitCode {
             ..
         } => {
             let policies = if policies.is_empty() { vec![PolicyKind::Mars, PolicyKind::Fm] } else { policies };
-            let bench =
-                cli::BenchmarkOptions { demos, epochs, rollouts, seed: 0, exec_horizon, policies, jobs, resume };
+            let bench = cli::BenchmarkOptions {
+                demos,
+                epochs,
+                rollouts,
+                seed: 0,
+                exec_horizon,
+                policies,
+                jobs,
+                resume,
+                side_by_side: false,
+            };
             let opts = family::FamilyOptions { bench, seeds, targets: family::Targets::default() };
             family::run(&out, &config, &layouts, &opts).map(|_| ())
         }

@@ -274,12 +274,13 @@ impl HandStep {
     /// random draws come from `rng` in `batch_losses`' order.
     pub fn gradients(&mut self, data: &HostData, idx: &[u32], rng: &mut StdRng) -> StepTerms {
         let b = idx.len();
+        assert!(b <= self.rows.tau.len(), "a batch of {b}; this step was sized for {}", self.rows.tau.len());
         self.gather(data, idx);
         self.forward_source(b, rng);
         let (fm, rec) = self.velocity_losses(b, rng);
         let div = self.div_weight.map(|_| self.diversity(b, data.m, rng));
         self.params.grad.fill(0.0);
-        self.backward(b, data.m);
+        self.backward(b);
         let total =
             fm + self.rec.map_or(0.0, |r| rec * r.weight) + self.div_weight.map_or(0.0, |l| div.unwrap_or(0.0) * l);
         let w_inf = self.rows.w[..b * self.d]
@@ -401,7 +402,7 @@ impl HandStep {
     }
 
     /// L_div = mean ReLU(S_next − S), S the spread of the sample's source and its neighbours' (fresh noise, the
-    /// sample's w); adds its dL/dw (λ_div included) to `rows.dw`, which it initialises.
+    /// sample's w); its dL/dw (λ_div included) into `rows.dw`, which it initialises.
     fn diversity(&mut self, b: usize, m: usize, rng: &mut StdRng) -> f32 {
         let (t, d) = (self.t, self.d);
         let chunk = t * d;
@@ -409,101 +410,91 @@ impl HandStep {
         let r = &mut self.rows;
         fill_randn(rng, &mut r.eps_own[..b * chunk]);
         fill_randn(rng, &mut r.eps_nb[..b * m * chunk]);
-        r.dw[..b * d].fill(0.0);
         let mut loss = 0.0;
         for row in 0..b {
             for k in 0..d {
                 let w = r.w[row * d + k];
-                let mut spread = 0.0;
+                // Per (neighbour, step): the difference of the two sources and its derivative in w.
+                let (mut spread, mut slope) = (0.0, 0.0);
                 for j in 0..m {
                     for s in 0..t {
-                        let (i, nb) = (row * chunk + s * d + k, (row * m + j) * chunk + s * d);
+                        let (i, nb) = (row * chunk + s * d + k, (row * m + j) * chunk + s * d + k);
                         let own = r.hist[i] * (-w + 1.0) + r.eps_own[i] * w;
-                        let other = r.nh[nb + k] * (-w + 1.0) + r.eps_nb[nb + k] * w;
-                        spread += (other - own).abs();
+                        let other = r.nh[nb] * (-w + 1.0) + r.eps_nb[nb] * w;
+                        let diff = other - own;
+                        spread += diff.abs();
+                        // d|diff|/dw, with candle's sign(0) = +1.
+                        let sign = if diff >= 0.0 { 1.0 } else { -1.0 };
+                        slope += sign * ((r.eps_nb[nb] - r.nh[nb]) - (r.eps_own[i] - r.hist[i]));
                     }
                 }
-                let s_mean = spread / m as f32 / t as f32;
-                let gap = r.s_next[row * d + k] - s_mean;
+                let gap = r.s_next[row * d + k] - spread / m as f32 / t as f32;
                 loss += gap.max(0.0);
-                if gap >= 0.0 {
-                    // d/dw of −S, scaled by λ_div / (B·D).
-                    let ds = -lambda / (b * d) as f32 / (m * t) as f32;
-                    let mut dw = 0.0;
-                    for j in 0..m {
-                        for s in 0..t {
-                            let (i, nb) = (row * chunk + s * d + k, (row * m + j) * chunk + s * d);
-                            let own = r.hist[i] * (-w + 1.0) + r.eps_own[i] * w;
-                            let other = r.nh[nb + k] * (-w + 1.0) + r.eps_nb[nb + k] * w;
-                            let sign = if other - own >= 0.0 { 1.0 } else { -1.0 };
-                            dw += sign * ((r.eps_nb[nb + k] - r.nh[nb + k]) - (r.eps_own[i] - r.hist[i]));
-                        }
-                    }
-                    r.dw[row * d + k] += ds * dw;
-                }
+                // ReLU's derivative is 1 at 0 too (candle's); S = spread / (m·T); L = mean over B·D.
+                let active = if gap >= 0.0 { 1.0 } else { 0.0 };
+                r.dw[row * d + k] = -lambda * active * slope / (m * t) as f32 / (b * d) as f32;
             }
         }
         loss / (b * d) as f32
     }
 
-    fn backward(&mut self, b: usize, m: usize) {
-        let _ = m;
-        let (t, d, e) = (self.t, self.d, self.e);
-        let (n, chunk) = (b * t * d, t * d);
+    /// Every gradient from dL/dv (`rows.dv`) and dL/dw from L_div (`rows.dw`).
+    fn backward(&mut self, b: usize) {
         let samples = if self.rec.is_some() { 2 * b } else { b };
-        let want_da = if self.sched.is_some() { b } else { 0 };
         if self.div_weight.is_none() {
-            self.rows.dw[..b * d].fill(0.0);
+            self.rows.dw[..b * self.d].fill(0.0);
         }
-        self.dit_backward(samples, want_da);
-        let r = &mut self.rows;
-        // dL/demb: both DiT halves see the same embedding.
+        self.dit_backward(samples, if self.sched.is_some() { b } else { 0 });
+        // dL/demb: the DiT's halves see the same embedding.
+        let (r, e) = (&mut self.rows, self.e);
         r.demb[..b * e].copy_from_slice(&r.ddit_emb[..b * e]);
         if samples == 2 * b {
             for (a, x) in r.demb[..b * e].iter_mut().zip(&r.ddit_emb[b * e..2 * b * e]) {
                 *a += x;
             }
         }
-        let p = &self.params.value;
-        let g = &mut self.params.grad;
-        if let Some((fc1, fc2)) = self.sched {
-            // a0 reaches the loss directly (L_fm) and through a_τ = (1 − τ)a0 + τa1; a0 = hist + w(ε − hist).
-            for row in 0..b {
-                let keep = -r.tau[row] + 1.0;
-                for i in row * chunk..(row + 1) * chunk {
-                    r.da0[i] = r.dv[i] + r.da[i] * keep;
-                }
+        if self.sched.is_some() {
+            self.scheduler_backward(b);
+        }
+        let (p, g, r) = (&self.params.value, &mut self.params.grad, &mut self.rows);
+        let none = Parallelism::None;
+        self.enc2.backward_params(g, &r.enc_act, &r.demb, b, none);
+        self.enc2.backward_input(p, &r.demb, b, &mut r.denc, false, none);
+        layers::silu_backward(&r.enc_pre[..b * self.enc1.out], &mut r.denc[..b * self.enc1.out]);
+        self.enc1.backward_params(g, &r.obs, &r.denc, b, none);
+    }
+
+    /// w's gradient from a0 (L_fm directly, and through a_τ = (1 − τ)a0 + τa1; a0 = hist + w(ε − hist)) added to
+    /// `rows.dw`, then through the scheduler into its weights and `rows.demb`.
+    fn scheduler_backward(&mut self, b: usize) {
+        let Some((fc1, fc2)) = self.sched else { return };
+        let (t, d, e, chunk) = (self.t, self.d, self.e, self.t * self.d);
+        let (p, g, r) = (&self.params.value, &mut self.params.grad, &mut self.rows);
+        for row in 0..b {
+            let keep = -r.tau[row] + 1.0;
+            for i in row * chunk..(row + 1) * chunk {
+                r.da0[i] = r.dv[i] + r.da[i] * keep;
             }
-            for row in 0..b {
-                for k in 0..d {
-                    let mut s = 0.0;
-                    for step in 0..t {
-                        let i = row * chunk + step * d + k;
-                        s += r.da0[i] * (r.eps[i] - r.hist[i]);
-                    }
-                    r.dw[row * d + k] += s;
-                }
-            }
-            // w = σ(z).
-            for (dw, w) in r.dw[..b * d].iter_mut().zip(&r.w) {
-                *dw *= w * (1.0 - w);
-            }
-            fc2.backward_params(g, &r.sched_act, &r.dw, b, Parallelism::None);
-            fc2.backward_input(p, &r.dw, b, &mut r.dsched, false, Parallelism::None);
-            layers::silu_backward(&r.sched_pre[..b * fc1.out], &mut r.dsched[..b * fc1.out]);
-            fc1.backward_params(g, &r.sched_in, &r.dsched, b, Parallelism::None);
-            fc1.backward_input(p, &r.dsched, b, &mut r.dsched_in, false, Parallelism::None);
-            for row in 0..b {
-                for (a, x) in r.demb[row * e..][..e].iter_mut().zip(&r.dsched_in[row * fc1.inp..][..e]) {
-                    *a += x;
-                }
+            for k in 0..d {
+                let steps = (0..t).map(|s| row * chunk + s * d + k);
+                r.dw[row * d + k] += steps.map(|i| r.da0[i] * (r.eps[i] - r.hist[i])).sum::<f32>();
             }
         }
-        let _ = n;
-        self.enc2.backward_params(g, &r.enc_act, &r.demb, b, Parallelism::None);
-        self.enc2.backward_input(p, &r.demb, b, &mut r.denc, false, Parallelism::None);
-        layers::silu_backward(&r.enc_pre[..b * self.enc1.out], &mut r.denc[..b * self.enc1.out]);
-        self.enc1.backward_params(g, &r.obs, &r.denc, b, Parallelism::None);
+        // w = σ(z).
+        for (dw, w) in r.dw[..b * d].iter_mut().zip(&r.w) {
+            *dw *= w * (1.0 - w);
+        }
+        let none = Parallelism::None;
+        fc2.backward_params(g, &r.sched_act, &r.dw, b, none);
+        fc2.backward_input(p, &r.dw, b, &mut r.dsched, false, none);
+        layers::silu_backward(&r.sched_pre[..b * fc1.out], &mut r.dsched[..b * fc1.out]);
+        fc1.backward_params(g, &r.sched_in, &r.dsched, b, none);
+        fc1.backward_input(p, &r.dsched, b, &mut r.dsched_in, false, none);
+        for row in 0..b {
+            for (a, x) in r.demb[row * e..][..e].iter_mut().zip(&r.dsched_in[row * fc1.inp..][..e]) {
+                *a += x;
+            }
+        }
     }
 }
 
