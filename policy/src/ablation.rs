@@ -8,6 +8,8 @@ use crate::config::{PolicyConfig, PolicyKind};
 use crate::family::MeanStd;
 use crate::train::train_with_progress;
 use anyhow::Context;
+use mars_tasks::nav2d::layout::Layout;
+use mars_tasks::stats::{Estimate, mean_over_seeds};
 use serde::Serialize;
 use std::fmt::Write;
 use std::path::Path;
@@ -67,6 +69,8 @@ pub struct AblationRun {
     pub success_pct: f32,
     pub passage_counts: Vec<usize>,
     pub gamma: f32,
+    /// Total-variation distance between the successful rollouts' passage shares and the layout's demo shares.
+    pub tv: f32,
 }
 
 /// A value of the knob over the seeds.
@@ -78,8 +82,10 @@ pub struct AblationRow {
     pub final_loss: MeanStd,
     /// Mean over seeds, epoch by epoch.
     pub losses: Vec<f32>,
-    pub success_pct: MeanStd,
-    pub gamma: MeanStd,
+    /// Mean over seeds with its 95 % t interval (unbounded with one seed).
+    pub success_pct: Estimate,
+    pub gamma: Estimate,
+    pub tv: Estimate,
     /// Summed over seeds.
     pub passage_counts: Vec<usize>,
     pub runs: Vec<AblationRun>,
@@ -118,6 +124,7 @@ pub fn run(out: &Path, config: &Path, layout: &Path, o: &AblateOptions) -> anyho
             t.log.iter().map(|e| e.total).collect()
         };
         let r = eval(&dir, layout, o.rollouts, seed + 1000, o.exec_horizon)?.report;
+        let demo_shares: Vec<f64> = Layout::load(layout)?.demo_shares().iter().map(|&p| f64::from(p)).collect();
         Ok(AblationRun {
             value: *value,
             seed: *seed,
@@ -126,6 +133,7 @@ pub fn run(out: &Path, config: &Path, layout: &Path, o: &AblateOptions) -> anyho
             success_pct: 100.0 * r.success_rate(),
             passage_counts: r.passage_counts.clone(),
             gamma: r.modal_balance,
+            tv: mars_tasks::stats::modes::tv_to(&r.passage_counts, &demo_shares) as f32,
         })
     })?;
     let rows: Vec<AblationRow> = o.values.iter().map(|&v| aggregate(o, base.train.epochs, v, &runs)).collect();
@@ -142,6 +150,10 @@ pub fn run(out: &Path, config: &Path, layout: &Path, o: &AblateOptions) -> anyho
 fn aggregate(o: &AblateOptions, epochs: usize, value: f64, runs: &[AblationRun]) -> AblationRow {
     let runs: Vec<AblationRun> = runs.iter().filter(|r| r.value == value).cloned().collect();
     let of = |f: &dyn Fn(&AblationRun) -> f32| MeanStd::of(&runs.iter().map(f).collect::<Vec<_>>());
+    let over_seeds = |f: &dyn Fn(&AblationRun) -> f32| {
+        let v: Vec<f64> = runs.iter().map(|r| f64::from(f(r))).collect();
+        mean_over_seeds(&v).unwrap_or(Estimate::new(f64::NAN, f64::NAN, f64::NAN))
+    };
     let n = runs.len().max(1) as f32;
     let losses = (0..runs.iter().map(|r| r.losses.len()).min().unwrap_or(0))
         .map(|e| runs.iter().map(|r| r.losses[e]).sum::<f32>() / n)
@@ -153,8 +165,9 @@ fn aggregate(o: &AblateOptions, epochs: usize, value: f64, runs: &[AblationRun])
         epochs,
         final_loss: of(&|r| r.final_loss),
         losses,
-        success_pct: of(&|r| r.success_pct),
-        gamma: of(&|r| r.gamma),
+        success_pct: over_seeds(&|r| r.success_pct),
+        gamma: over_seeds(&|r| r.gamma),
+        tv: over_seeds(&|r| r.tv),
         passage_counts: (0..passages).map(|k| runs.iter().map(|r| r.passage_counts[k]).sum()).collect(),
         runs,
     }
@@ -166,8 +179,9 @@ pub fn render(rows: &[AblationRow], o: &AblateOptions, config: &Path, layout: &P
     let _ = writeln!(
         s,
         "Command: `mars ablate --knob {} --values {} --config {} --layout {} --demos {}{} --rollouts {} --seeds {}`; \
-         FM, mean ± std over training seeds 0..{} (each seeds its demos, shared by every value, and its rollouts); \
-         passages summed over the seeds.\n",
+         FM over training seeds 0..{} (each seeds its demos, shared by every value, and its rollouts): the final \
+         loss as mean ± std, success, γ and the TV distance to the layout's demo shares as the mean with its 95 % t \
+         interval over seeds; passages summed over the seeds.\n",
         o.knob.flag(),
         values.join(","),
         config.display(),
@@ -178,20 +192,24 @@ pub fn render(rows: &[AblationRow], o: &AblateOptions, config: &Path, layout: &P
         o.seeds,
         o.seeds
     );
-    let _ = writeln!(s, "| setting | epochs | final loss | success % | passages | γ | success % per seed |");
-    let _ = writeln!(s, "|---|---:|---:|---:|---|---:|---|");
+    let _ = writeln!(
+        s,
+        "| setting | epochs | final loss | success % | passages | γ | TV to the demos | success % per seed |"
+    );
+    let _ = writeln!(s, "|---|---:|---:|---:|---|---:|---:|---|");
     for r in rows {
         let counts: Vec<String> = r.passage_counts.iter().map(|c| c.to_string()).collect();
         let per_seed: Vec<String> = r.runs.iter().map(|x| format!("{:.0}", x.success_pct)).collect();
         let _ = writeln!(
             s,
-            "| {} | {} | {:.4} | {:.1} | {} | {:.2} | {} |",
+            "| {} | {} | {:.4} | {:.1} | {} | {:.2} | {:.2} | {} |",
             r.label,
             r.epochs,
             r.final_loss,
             r.success_pct,
             counts.join("/"),
             r.gamma,
+            r.tv,
             per_seed.join(", ")
         );
     }

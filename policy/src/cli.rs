@@ -470,6 +470,13 @@ impl crate::curve::CurveTask for Nav2dCurve {
         let layout = Layout::load(&self.layout)?;
         let (mut policy, _) = MarsPolicy::load(dir, seed)?;
         let r = evaluate_batched(&layout, &mut policy, self.rollouts, seed, self.exec_horizon, DEFAULT_BATCH)?;
-        Ok(crate::curve::Score { success_pct: 100.0 * r.success_rate(), gamma: r.modal_balance, mean_k: r.mean_k })
+        let demo_shares: Vec<f64> = layout.demo_shares().iter().map(|&p| f64::from(p)).collect();
+        let tv = mars_tasks::stats::modes::tv_to(&r.passage_counts, &demo_shares) as f32;
+        Ok(crate::curve::Score {
+            success_pct: 100.0 * r.success_rate(),
+            gamma: r.modal_balance,
+            mean_k: r.mean_k,
+            tv: Some(tv),
+        })
     }
 }

@@ -7,6 +7,7 @@ use crate::config::{PolicyConfig, PolicyKind};
 use crate::family::MeanStd;
 use crate::train::{Snapshots, train_with_snapshots};
 use anyhow::Context;
+use mars_tasks::stats::{Estimate, mean_over_seeds};
 use serde::{Deserialize, Serialize};
 use std::fmt::Write;
 use std::path::{Path, PathBuf};
@@ -18,6 +19,10 @@ pub struct Score {
     pub success_pct: f32,
     pub gamma: f32,
     pub mean_k: f32,
+    /// Total-variation distance between the successful rollouts' mode shares and the demos', where the task
+    /// knows the demos' shares (nav2d's passages).
+    #[serde(default)]
+    pub tv: Option<f32>,
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -60,10 +65,13 @@ pub struct PolicyCurve {
     pub kind: PolicyKind,
     pub points: Vec<CurvePoint>,
     pub epochs_to: Vec<EpochsTo>,
-    /// Over the last quarter of the snapshots (epoch > ¾ of the last): each seed's mean, then mean ± std over
-    /// seeds. One snapshot's γ swings with the seed; this is the stable summary of where training ends up.
-    pub late_success_pct: MeanStd,
-    pub late_gamma: MeanStd,
+    /// Over the last quarter of the snapshots (epoch > ¾ of the last): each seed's mean, then the mean over seeds
+    /// with its 95 % t interval (unbounded with one seed). One snapshot's γ swings with the seed; this is the
+    /// stable summary of where training ends up.
+    pub late_success_pct: Estimate,
+    pub late_gamma: Estimate,
+    /// The same for the TV distance to the demos' shares, when the task gives it.
+    pub late_tv: Option<Estimate>,
 }
 
 /// The command-line arguments every `curve` subcommand shares (`mars curve`, `mars-hil curve`).
@@ -202,18 +210,23 @@ pub fn aggregate(scores: &[SnapshotScore], policies: &[PolicyKind], thresholds: 
                 })
                 .collect();
             let last = mine.iter().map(|s| s.epoch).max().unwrap_or(0);
-            let late = |seed: u64, f: fn(&Score) -> f32| {
-                let v: Vec<f32> =
-                    mine.iter().filter(|s| s.seed == seed && 4 * s.epoch > 3 * last).map(|s| f(&s.score)).collect();
-                MeanStd::of(&v).mean
+            let late = |seed: u64, f: &dyn Fn(&Score) -> Option<f32>| {
+                let late = mine.iter().filter(|s| s.seed == seed && 4 * s.epoch > 3 * last);
+                let v: Option<Vec<f32>> = late.map(|s| f(&s.score)).collect();
+                v.map(|v| f64::from(MeanStd::of(&v).mean))
             };
-            let over_seeds = |f: fn(&Score) -> f32| MeanStd::of(&seeds.iter().map(|&s| late(s, f)).collect::<Vec<_>>());
+            let over_seeds = |f: &dyn Fn(&Score) -> Option<f32>| {
+                let v: Option<Vec<f64>> = seeds.iter().map(|&s| late(s, f)).collect();
+                v.and_then(|v| mean_over_seeds(&v))
+            };
+            let nan = Estimate::new(f64::NAN, f64::NAN, f64::NAN);
             PolicyCurve {
                 kind,
                 points,
                 epochs_to,
-                late_success_pct: over_seeds(|s| s.success_pct),
-                late_gamma: over_seeds(|s| s.gamma),
+                late_success_pct: over_seeds(&|s| Some(s.success_pct)).unwrap_or(nan),
+                late_gamma: over_seeds(&|s| Some(s.gamma)).unwrap_or(nan),
+                late_tv: over_seeds(&|s| s.tv),
             }
         })
         .collect()
@@ -382,7 +395,8 @@ pub fn render(curves: &[PolicyCurve], title: &str, command: &str, o: &CurveOptio
     let mut s = format!("# Training efficiency: {title}\n\n");
     let _ = writeln!(
         s,
-        "Command: `{command}`; mean ± std over training seeds 0..{} (each seed also seeds its demos); every \
+        "Command: `{command}`; per epoch the mean ± std over training seeds 0..{} (each seed also seeds its \
+         demos); over the last quarter each seed's mean, then the mean over seeds with its 95 % t interval. Every \
          snapshot evaluated on the same episode seeds from {}.\n",
         o.seeds, o.eval_seed
     );
@@ -414,15 +428,17 @@ pub fn render(curves: &[PolicyCurve], title: &str, command: &str, o: &CurveOptio
         curves.first().map(|c| c.epochs_to.iter().map(|e| e.threshold_pct).collect()).unwrap_or_default();
     let _ = writeln!(
         s,
-        "| policy | {} | success % over the last quarter | γ over the last quarter | mean K at the last epoch |",
+        "| policy | {} | success % over the last quarter | γ over the last quarter | TV to the demos over the last \
+         quarter | mean K at the last epoch |",
         thresholds.iter().map(|t| format!("epochs to {t:.0} % success")).collect::<Vec<_>>().join(" | ")
     );
-    let _ = writeln!(s, "|---|{}---:|---:|---:|", "---:|".repeat(thresholds.len()));
+    let _ = writeln!(s, "|---|{}---:|---:|---:|---:|", "---:|".repeat(thresholds.len()));
     for c in curves {
         let to: Vec<String> = c.epochs_to.iter().map(EpochsTo::summary).collect();
         let k = c.points.last().map(|p| format!("{:.2}", p.mean_k)).unwrap_or_else(|| "–".into());
-        let _ =
-            writeln!(s, "| {} | {} | {:.1} | {:.2} | {k} |", c.kind, to.join(" | "), c.late_success_pct, c.late_gamma);
+        let tv = c.late_tv.map_or_else(|| "–".into(), |e| format!("{e:.2}"));
+        let (success, gamma) = (c.late_success_pct, c.late_gamma);
+        let _ = writeln!(s, "| {} | {} | {success:.1} | {gamma:.2} | {tv} | {k} |", c.kind, to.join(" | "));
     }
     s
 }
@@ -432,7 +448,7 @@ mod tests {
     use super::*;
 
     fn score(kind: PolicyKind, seed: u64, epoch: usize, success_pct: f32, gamma: f32) -> SnapshotScore {
-        SnapshotScore { kind, seed, epoch, score: Score { success_pct, gamma, mean_k: 2.0 } }
+        SnapshotScore { kind, seed, epoch, score: Score { success_pct, gamma, mean_k: 2.0, tv: Some(gamma / 2.0) } }
     }
 
     #[test]
@@ -457,9 +473,14 @@ mod tests {
         assert_eq!(mars.epochs_to[1].summary(), "12.5 ± 3.5 (2/2 seeds)");
         assert_eq!(c[1].epochs_to[0].per_seed, [None]);
         assert_eq!(c[1].epochs_to[0].summary(), "not reached (0/1 seeds)");
-        // Last quarter = epoch > 11.25, i.e. epoch 15 only: seeds 85 and 95.
-        assert_eq!(mars.late_success_pct.mean, 90.0);
-        assert!((mars.late_gamma.mean - 0.8).abs() < 1e-6 && mars.late_gamma.std.abs() < 1e-6);
+        // Last quarter = epoch > 11.25, i.e. epoch 15 only: seeds 85 and 95, so 90 ± t₀.₉₇₅(1)·5 ≈ 90 ± 63.53.
+        let late = mars.late_success_pct;
+        assert_eq!(late.value, 90.0);
+        assert!((late.hi - 90.0 - 12.706 * 5.0).abs() < 1e-2 && (late.lo + late.hi - 180.0).abs() < 1e-9);
+        assert!((mars.late_gamma.value - 0.8).abs() < 1e-6 && (mars.late_gamma.hi - 0.8).abs() < 1e-5);
+        assert!((mars.late_tv.unwrap().value - 0.4).abs() < 1e-6);
+        // One seed: the interval is unbounded (undecided), never a spread of zero.
+        assert!(c[1].late_success_pct.hi.is_infinite());
     }
 
     #[test]

@@ -206,6 +206,10 @@ fn curve_scores_every_snapshot_and_writes_the_tables_and_plot() {
     {
         assert!(md.contains(want), "curves.md lacks {want:?}:\n{md}");
     }
+    // The last quarter's success, γ and TV to the demos each as a mean with its interval over the two seeds.
+    let mars_row = md.lines().find(|l| l.starts_with("| mars |")).unwrap();
+    assert_eq!(mars_row.matches(" (").count(), 2 + 3, "{mars_row}");
+    assert!(md.contains("TV to the demos over the last quarter"), "{md}");
     for seed in ["seed0", "seed1"] {
         for kind in ["mars", "fm"] {
             for epoch in ["epoch_0001", "epoch_0002"] {
@@ -301,6 +305,8 @@ fn ablate_trains_fm_per_value_and_seed_and_writes_the_table() {
                 .all(|r| r.contains(" ± ") && r.trim_end_matches(" |").rsplit(" | ").next().unwrap().contains(", ")),
             "mean ± std and one success per seed:\n{md}"
         );
+        // Success, γ and TV to the demos: each a mean with its 95 % interval over seeds.
+        assert!(rows.iter().all(|r| r.matches('–').count() == 3), "intervals over seeds:\n{md}");
         assert!(out_dir.join("losses.png").exists());
         let last = values.split(',').next_back().unwrap();
         let meta: serde_json::Value = serde_json::from_str(

@@ -349,8 +349,15 @@ impl HandStep {
 
     /// τ, the DiT on (a_τ, τ) [and (a0, 0)], L_fm and L_rec (0 without the pass), and their dL/dv.
     fn velocity_losses(&mut self, b: usize, rng: &mut StdRng) -> (f32, f32) {
-        let (t, d, e) = (self.t, self.d, self.e);
-        let (n, chunk) = (b * t * d, t * d);
+        let samples = self.dit_inputs(b, rng);
+        self.dit_forward(samples);
+        let fm = self.flow_matching(b);
+        (fm, self.rec.map_or(0.0, |rec| self.reconstruction(b, rec)))
+    }
+
+    /// The DiT's rows: (a_τ = (1 − τ)a0 + τa1, τ, emb), then with L_rec (a0, 0, emb); returns how many.
+    fn dit_inputs(&mut self, b: usize, rng: &mut StdRng) -> usize {
+        let (n, chunk, e) = (b * self.t * self.d, self.t * self.d, self.e);
         let r = &mut self.rows;
         for tau in &mut r.tau[..b] {
             *tau = rng.random::<f32>();
@@ -363,26 +370,34 @@ impl HandStep {
         }
         r.dit_tau[..b].copy_from_slice(&r.tau[..b]);
         r.dit_emb[..b * e].copy_from_slice(&r.emb[..b * e]);
-        let samples = if self.rec.is_some() {
-            r.dit_a[n..2 * n].copy_from_slice(&r.a0[..n]);
-            r.dit_tau[b..2 * b].fill(0.0);
-            r.dit_emb.copy_within(..b * e, b * e);
-            2 * b
-        } else {
-            b
-        };
-        self.dit_forward(samples);
+        if self.rec.is_none() {
+            return b;
+        }
+        r.dit_a[n..2 * n].copy_from_slice(&r.a0[..n]);
+        r.dit_tau[b..2 * b].fill(0.0);
+        r.dit_emb.copy_within(..b * e, b * e);
+        2 * b
+    }
+
+    /// L_fm = mean (v − (a1 − a0))² over the a_τ rows; its dL/dv into `rows.dv`.
+    fn flow_matching(&mut self, b: usize) -> f32 {
+        let n = b * self.t * self.d;
         let r = &mut self.rows;
-        let v = &r.v;
-        // L_fm = mean (v − (a1 − a0))².
         let mut fm = 0.0;
         for i in 0..n {
-            let diff = v[i] - (r.next[i] - r.a0[i]);
+            let diff = r.v[i] - (r.next[i] - r.a0[i]);
             fm += diff * diff;
             r.dv[i] = 2.0 * diff / n as f32;
         }
-        let Some(rec) = self.rec else { return (fm / n as f32, 0.0) };
-        // L_rec = mean_(b, d) [(1 − gate) · mean_t |a0 + v(a0, 0) − a1|].
+        fm / n as f32
+    }
+
+    /// L_rec = mean_(b, d) [(1 − gate) · mean_t |a0 + v(a0, 0) − a1|] over the a0 rows (gate detached); its
+    /// dL/dv, λ_rec included, into `rows.dv`.
+    fn reconstruction(&mut self, b: usize, rec: Rec) -> f32 {
+        let (t, d) = (self.t, self.d);
+        let (n, chunk) = (b * t * d, t * d);
+        let r = &mut self.rows;
         let mut total = 0.0;
         for row in 0..b {
             for k in 0..d {
@@ -390,15 +405,16 @@ impl HandStep {
                 let mut sum = 0.0;
                 for s in 0..t {
                     let i = row * chunk + s * d + k;
-                    let x = r.a0[i] + v[n + i] - r.next[i];
+                    let x = r.a0[i] + r.v[n + i] - r.next[i];
                     sum += x.abs();
+                    // |x|'s derivative with candle's sign(0) = +1.
                     let sign = if x >= 0.0 { 1.0 } else { -1.0 };
                     r.dv[n + i] = rec.weight * sign * keep / (t * b * d) as f32;
                 }
                 total += sum / t as f32 * keep;
             }
         }
-        (fm / n as f32, total / (b * d) as f32)
+        total / (b * d) as f32
     }
 
     /// L_div = mean ReLU(S_next − S), S the spread of the sample's source and its neighbours' (fresh noise, the

@@ -80,6 +80,8 @@ impl mars_policy::curve::CurveTask for PickCurve {
     fn evaluate(&self, dir: &Path, seed: u64) -> anyhow::Result<mars_policy::curve::Score> {
         let (task, profile) = load_task(&self.task, &self.profile)?;
         let r = evaluate(dir, &task, &profile, self.episodes, seed)?;
-        Ok(mars_policy::curve::Score { success_pct: 100.0 * r.success_rate(), gamma: r.gamma, mean_k: r.mean_k })
+        // No TV yet: the pick task does not carry its demos' mode shares to the evaluation (issue 34's note).
+        let success_pct = 100.0 * r.success_rate();
+        Ok(mars_policy::curve::Score { success_pct, gamma: r.gamma, mean_k: r.mean_k, tv: None })
     }
 }
