@@ -6,7 +6,6 @@ use super::attention::Attention;
 use super::layers::{self, Modulation};
 use super::linear::Lin;
 use super::params::Params;
-use gemm::Parallelism;
 
 const LN_EPS: f32 = 1e-6;
 
@@ -79,7 +78,6 @@ pub struct DitGrad {
     final_ada: Lin,
     action_out: Lin,
     attention: Attention,
-    pub par: Parallelism,
     // Forward values.
     a: Vec<f32>,
     emb: Vec<f32>,
@@ -165,7 +163,6 @@ impl DitGrad {
             final_ada,
             action_out,
             attention: Attention::new(s.tokens, w, s.heads),
-            par: Parallelism::None,
             a: z(rt * s.action_dim),
             emb: z(r * s.cond_dim),
             tfeat: z(r * freq),
@@ -192,22 +189,22 @@ impl DitGrad {
     /// v for `r` samples: `a` [r·T, D], `tau` [r], `emb` [r, E]; into `self.v`.
     pub fn forward(&mut self, p: &[f32], a: &[f32], tau: &[f32], emb: &[f32], r: usize) {
         let (t, w, d, e) = (self.s.tokens, self.s.width, self.s.action_dim, self.s.cond_dim);
-        let (rt, par) = (r * t, self.par);
+        let rt = r * t;
         self.a[..rt * d].copy_from_slice(&a[..rt * d]);
         self.emb[..r * e].copy_from_slice(&emb[..r * e]);
         // c = SiLU(time MLP(features(τ)) + cond_in(emb)).
         layers::time_features(&tau[..r], self.freq, &mut self.tfeat);
-        self.time1.forward(p, &self.tfeat, r, &mut self.t_pre, par);
+        self.time1.forward(p, &self.tfeat, r, &mut self.t_pre);
         layers::silu(&self.t_pre[..r * w], &mut self.t_act);
-        self.time2.forward(p, &self.t_act, r, &mut self.c_pre, par);
-        self.cond_in.forward(p, &self.emb, r, &mut self.sc.dt, par);
+        self.time2.forward(p, &self.t_act, r, &mut self.c_pre);
+        self.cond_in.forward(p, &self.emb, r, &mut self.sc.dt);
         for (c, o) in self.c_pre[..r * w].iter_mut().zip(&self.sc.dt) {
             *c += o;
         }
         layers::silu(&self.c_pre[..r * w], &mut self.c);
         // Tokens: action_in(a) + pos.
         let mut x = std::mem::take(&mut self.x_last);
-        self.action_in.forward(p, &self.a, rt, &mut x, par);
+        self.action_in.forward(p, &self.a, rt, &mut x);
         for (i, row) in x[..rt * w].chunks_exact_mut(w).enumerate() {
             for (v, q) in row.iter_mut().zip(&p[self.pos + (i % t) * w..]) {
                 *v += q;
@@ -218,30 +215,30 @@ impl DitGrad {
         }
         self.x_last = x;
         // Final: action_out(modulate(LN(x), shift, scale)).
-        self.final_ada.forward(p, &self.c, r, &mut self.mf, par);
+        self.final_ada.forward(p, &self.c, r, &mut self.mf);
         layers::layer_norm(&self.x_last[..rt * w], w, LN_EPS, &mut self.nf, &mut self.invf);
         self.modulation(2 * w, 0).forward(&self.nf[..rt * w], &self.mf, &mut self.hf);
-        self.action_out.forward(p, &self.hf, rt, &mut self.v, par);
+        self.action_out.forward(p, &self.hf, rt, &mut self.v);
     }
 
     /// One block on `x` [r·T, W] in place.
     fn block_forward(&mut self, i: usize, p: &[f32], x: &mut [f32], r: usize) {
         let (t, w) = (self.s.tokens, self.s.width);
-        let (rt, par, f) = (r * t, self.par, w * self.s.mlp_ratio);
+        let (rt, f) = (r * t, w * self.s.mlp_ratio);
         let (mod1, mod2) = (self.modulation(6 * w, 0), self.modulation(6 * w, 3 * w));
         let (b, k) = (&self.blocks[i], &mut self.caches[i]);
-        b.ada.forward(p, &self.c, r, &mut k.m, par);
+        b.ada.forward(p, &self.c, r, &mut k.m);
         layers::layer_norm(&x[..rt * w], w, LN_EPS, &mut k.n1, &mut k.inv1);
         mod1.forward(&k.n1[..rt * w], &k.m, &mut k.h1);
-        b.qkv.forward(p, &k.h1, rt, &mut k.qkv, par);
+        b.qkv.forward(p, &k.h1, rt, &mut k.qkv);
         self.attention.forward(&k.qkv, r, &mut k.probs, &mut k.att);
-        b.out.forward(p, &k.att, rt, &mut k.att_out, par);
+        b.out.forward(p, &k.att, rt, &mut k.att_out);
         layers::gated_add(&mut x[..rt * w], &k.att_out, &k.m, &mod1, 2 * w);
         layers::layer_norm(&x[..rt * w], w, LN_EPS, &mut k.n2, &mut k.inv2);
         mod2.forward(&k.n2[..rt * w], &k.m, &mut k.h2);
-        b.fc1.forward(p, &k.h2, rt, &mut k.f_pre, par);
+        b.fc1.forward(p, &k.h2, rt, &mut k.f_pre);
         layers::silu(&k.f_pre[..rt * f], &mut k.f_act);
-        b.fc2.forward(p, &k.f_act, rt, &mut k.mlp_out, par);
+        b.fc2.forward(p, &k.f_act, rt, &mut k.mlp_out);
         layers::gated_add(&mut x[..rt * w], &k.mlp_out, &k.m, &mod2, 5 * w);
     }
 
@@ -260,18 +257,18 @@ impl DitGrad {
         da: &mut [f32],
     ) {
         let (t, w) = (self.s.tokens, self.s.width);
-        let (rt, par) = (r * t, self.par);
+        let rt = r * t;
         let sc = &mut self.sc;
         // Final layer.
-        self.action_out.backward_input(p, dv, rt, &mut sc.dh, false, par);
-        self.action_out.backward_params(g, &self.hf, dv, rt, par);
+        self.action_out.backward_input(p, dv, rt, &mut sc.dh, false);
+        self.action_out.backward_params(g, &self.hf, dv, rt);
         let fin = Modulation { tokens: t, width: w, m_width: 2 * w, shift_at: 0, scale_at: w };
         sc.dm[..r * 2 * w].fill(0.0);
         fin.backward(&sc.dh[..rt * w], &self.nf, &self.mf, &mut sc.dn, &mut sc.dm);
         sc.dx[..rt * w].fill(0.0);
         layers::layer_norm_backward(&sc.dn[..rt * w], &self.nf, &self.invf, w, &mut sc.dx);
-        self.final_ada.backward_params(g, &self.c, &sc.dm, r, par);
-        self.final_ada.backward_input(p, &sc.dm, r, &mut sc.dc, false, par);
+        self.final_ada.backward_params(g, &self.c, &sc.dm, r);
+        self.final_ada.backward_input(p, &sc.dm, r, &mut sc.dc, false);
         for i in (0..self.blocks.len()).rev() {
             Self::block_backward(
                 &self.blocks[i],
@@ -285,27 +282,26 @@ impl DitGrad {
                 w,
                 self.s.mlp_ratio,
                 r,
-                par,
             );
         }
         // Tokens.
-        self.action_in.backward_params(g, &self.a, &sc.dx, rt, par);
+        self.action_in.backward_params(g, &self.a, &sc.dx, rt);
         for (i, row) in sc.dx[..rt * w].chunks_exact(w).enumerate() {
             for (q, v) in g[self.pos + (i % t) * w..][..w].iter_mut().zip(row) {
                 *q += v;
             }
         }
         if da_samples > 0 {
-            self.action_in.backward_input(p, &sc.dx, da_samples * t, da, false, par);
+            self.action_in.backward_input(p, &sc.dx, da_samples * t, da, false);
         }
         // Conditioning: c = SiLU(c_pre).
         layers::silu_backward(&self.c_pre[..r * w], &mut sc.dc[..r * w]);
-        self.cond_in.backward_params(g, &self.emb, &sc.dc, r, par);
-        self.cond_in.backward_input(p, &sc.dc, r, demb, false, par);
-        self.time2.backward_params(g, &self.t_act, &sc.dc, r, par);
-        self.time2.backward_input(p, &sc.dc, r, &mut sc.dt, false, par);
+        self.cond_in.backward_params(g, &self.emb, &sc.dc, r);
+        self.cond_in.backward_input(p, &sc.dc, r, demb, false);
+        self.time2.backward_params(g, &self.t_act, &sc.dc, r);
+        self.time2.backward_input(p, &sc.dc, r, &mut sc.dt, false);
         layers::silu_backward(&self.t_pre[..r * w], &mut sc.dt[..r * w]);
-        self.time1.backward_params(g, &self.tfeat, &sc.dt, r, par);
+        self.time1.backward_params(g, &self.tfeat, &sc.dt, r);
     }
 
     /// One block's backward: `sc.dx` holds dL/d(block output) and leaves holding dL/d(block input); dL/dc is
@@ -323,7 +319,6 @@ impl DitGrad {
         w: usize,
         mlp_ratio: usize,
         r: usize,
-        par: Parallelism,
     ) {
         let (rt, f) = (r * t, w * mlp_ratio);
         let mod1 = Modulation { tokens: t, width: w, m_width: 6 * w, shift_at: 0, scale_at: w };
@@ -331,24 +326,24 @@ impl DitGrad {
         sc.dm[..r * 6 * w].fill(0.0);
         // x_out = x_mid + MLP(h2)·gate2.
         layers::gated_add_backward(&sc.dx[..rt * w], &k.mlp_out, &k.m, &mod2, 5 * w, &mut sc.dbranch, &mut sc.dm);
-        b.fc2.backward_input(p, &sc.dbranch, rt, &mut sc.df, false, par);
-        b.fc2.backward_params(g, &k.f_act, &sc.dbranch, rt, par);
+        b.fc2.backward_input(p, &sc.dbranch, rt, &mut sc.df, false);
+        b.fc2.backward_params(g, &k.f_act, &sc.dbranch, rt);
         layers::silu_backward(&k.f_pre[..rt * f], &mut sc.df[..rt * f]);
-        b.fc1.backward_input(p, &sc.df, rt, &mut sc.dh, false, par);
-        b.fc1.backward_params(g, &k.h2, &sc.df, rt, par);
+        b.fc1.backward_input(p, &sc.df, rt, &mut sc.dh, false);
+        b.fc1.backward_params(g, &k.h2, &sc.df, rt);
         mod2.backward(&sc.dh[..rt * w], &k.n2, &k.m, &mut sc.dn, &mut sc.dm);
         layers::layer_norm_backward(&sc.dn[..rt * w], &k.n2, &k.inv2, w, &mut sc.dx);
         // x_mid = x_in + Attn(h1)·gate1.
         layers::gated_add_backward(&sc.dx[..rt * w], &k.att_out, &k.m, &mod1, 2 * w, &mut sc.dbranch, &mut sc.dm);
-        b.out.backward_input(p, &sc.dbranch, rt, &mut sc.datt, false, par);
-        b.out.backward_params(g, &k.att, &sc.dbranch, rt, par);
+        b.out.backward_input(p, &sc.dbranch, rt, &mut sc.datt, false);
+        b.out.backward_params(g, &k.att, &sc.dbranch, rt);
         attention.backward(&k.qkv, &k.probs, &sc.datt, r, &mut sc.dqkv);
-        b.qkv.backward_input(p, &sc.dqkv, rt, &mut sc.dh, false, par);
-        b.qkv.backward_params(g, &k.h1, &sc.dqkv, rt, par);
+        b.qkv.backward_input(p, &sc.dqkv, rt, &mut sc.dh, false);
+        b.qkv.backward_params(g, &k.h1, &sc.dqkv, rt);
         mod1.backward(&sc.dh[..rt * w], &k.n1, &k.m, &mut sc.dn, &mut sc.dm);
         layers::layer_norm_backward(&sc.dn[..rt * w], &k.n1, &k.inv1, w, &mut sc.dx);
         // m = ada(c).
-        b.ada.backward_params(g, c, &sc.dm, r, par);
-        b.ada.backward_input(p, &sc.dm, r, &mut sc.dc, true, par);
+        b.ada.backward_params(g, c, &sc.dm, r);
+        b.ada.backward_input(p, &sc.dm, r, &mut sc.dc, true);
     }
 }

@@ -10,7 +10,6 @@ use super::params::{AdamW, Params};
 use crate::config::{EncoderConfig, PolicyConfig, PolicyKind};
 use crate::dataset::DatasetTensors;
 use candle_nn::VarMap;
-use gemm::Parallelism;
 use rand::Rng;
 use rand::rngs::StdRng;
 use rand_distr::StandardNormal;
@@ -317,12 +316,12 @@ impl HandStep {
 
     /// Encoder, w, ε and a0 = (1 − w)⊙history + w⊙ε.
     fn forward_source(&mut self, b: usize, rng: &mut StdRng) {
-        let (t, d, e, par) = (self.t, self.d, self.e, Parallelism::None);
+        let (t, d, e) = (self.t, self.d, self.e);
         let p = &self.params.value;
         let r = &mut self.rows;
-        self.enc1.forward(p, &r.obs, b, &mut r.enc_pre, par);
+        self.enc1.forward(p, &r.obs, b, &mut r.enc_pre);
         layers::silu(&r.enc_pre[..b * self.enc1.out], &mut r.enc_act);
-        self.enc2.forward(p, &r.enc_act, b, &mut r.emb, par);
+        self.enc2.forward(p, &r.enc_act, b, &mut r.emb);
         match (self.sched, self.fixed_w) {
             (Some((fc1, fc2)), _) => {
                 let width = fc1.inp;
@@ -333,9 +332,9 @@ impl HandStep {
                         dst[e..].copy_from_slice(&r.hist[row * t * d..][..t * d]);
                     }
                 }
-                fc1.forward(p, &r.sched_in, b, &mut r.sched_pre, par);
+                fc1.forward(p, &r.sched_in, b, &mut r.sched_pre);
                 layers::silu(&r.sched_pre[..b * fc1.out], &mut r.sched_act);
-                fc2.forward(p, &r.sched_act, b, &mut r.w, par);
+                fc2.forward(p, &r.sched_act, b, &mut r.w);
                 layers::sigmoid_in_place(&mut r.w[..b * d]);
             }
             (None, w) => r.w[..b * d].fill(w.unwrap_or(1.0)),
@@ -473,11 +472,10 @@ impl HandStep {
             self.scheduler_backward(b);
         }
         let (p, g, r) = (&self.params.value, &mut self.params.grad, &mut self.rows);
-        let none = Parallelism::None;
-        self.enc2.backward_params(g, &r.enc_act, &r.demb, b, none);
-        self.enc2.backward_input(p, &r.demb, b, &mut r.denc, false, none);
+        self.enc2.backward_params(g, &r.enc_act, &r.demb, b);
+        self.enc2.backward_input(p, &r.demb, b, &mut r.denc, false);
         layers::silu_backward(&r.enc_pre[..b * self.enc1.out], &mut r.denc[..b * self.enc1.out]);
-        self.enc1.backward_params(g, &r.obs, &r.denc, b, none);
+        self.enc1.backward_params(g, &r.obs, &r.denc, b);
     }
 
     /// w's gradient from a0 (L_fm directly, and through a_τ = (1 − τ)a0 + τa1; a0 = hist + w(ε − hist)) added to
@@ -500,12 +498,11 @@ impl HandStep {
         for (dw, w) in r.dw[..b * d].iter_mut().zip(&r.w) {
             *dw *= w * (1.0 - w);
         }
-        let none = Parallelism::None;
-        fc2.backward_params(g, &r.sched_act, &r.dw, b, none);
-        fc2.backward_input(p, &r.dw, b, &mut r.dsched, false, none);
+        fc2.backward_params(g, &r.sched_act, &r.dw, b);
+        fc2.backward_input(p, &r.dw, b, &mut r.dsched, false);
         layers::silu_backward(&r.sched_pre[..b * fc1.out], &mut r.dsched[..b * fc1.out]);
-        fc1.backward_params(g, &r.sched_in, &r.dsched, b, none);
-        fc1.backward_input(p, &r.dsched, b, &mut r.dsched_in, false, none);
+        fc1.backward_params(g, &r.sched_in, &r.dsched, b);
+        fc1.backward_input(p, &r.dsched, b, &mut r.dsched_in, false);
         for row in 0..b {
             for (a, x) in r.demb[row * e..][..e].iter_mut().zip(&r.dsched_in[row * fc1.inp..][..e]) {
                 *a += x;
