@@ -52,7 +52,9 @@ pub struct Buffers {
     pub a: Box<[f32]>,
     /// The chunk in task units [C, D].
     pub chunk: Box<[f32]>,
-    /// cond_in(emb) [W]: the observation's share of the DiT conditioning, the same at every step.
+    /// [emb ‖ history] when the velocity field sees the history, else empty (cond_in reads `emb`).
+    pub cond_input: Box<[f32]>,
+    /// cond_in(emb [‖ history]) [W]: the observation's share of the DiT conditioning, the same at every step.
     pub cond: Box<[f32]>,
     /// Sinusoid features of each step's τ [K_max, freq].
     pub freq: Box<[f32]>,
@@ -94,6 +96,7 @@ impl Buffers {
             eps: a.zeros("noise", &cd)?,
             a: a.zeros("ODE state", &cd)?,
             chunk: a.zeros("chunk", &cd)?,
+            cond_input: a.zeros("conditioning input", &[if d.cond_input > d.embed { d.cond_input } else { 0 }])?,
             cond: a.zeros("conditioning", &[w])?,
             freq: a.zeros("time features", &[d.k_max, d.freq])?,
             time_hidden: a.zeros("time hidden", &[d.k_max, w])?,

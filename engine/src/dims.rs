@@ -18,6 +18,8 @@ pub struct Dims {
     pub vision: Option<VisionDims>,
     /// E: observation embedding width.
     pub embed: usize,
+    /// The DiT conditioning's input: E, plus C·D when the velocity field also sees the history.
+    pub cond_input: usize,
     /// `None` for the baselines, whose w is a constant.
     pub scheduler: Option<SchedulerDims>,
     /// W: DiT width.
@@ -90,7 +92,7 @@ impl Dims {
             return Err(format!("dit_width {} is odd: the time embedding needs an even width", cfg.dit_width));
         }
         let scheduler = kind.fixed_w(cfg).is_none().then(|| SchedulerDims {
-            input: cfg.obs_embed_dim + if cfg.scheduler_uses_history { cfg.history_len * cfg.action_dim } else { 0 },
+            input: cfg.scheduler_input_dim(),
             hidden: cfg.scheduler_hidden,
             uses_history: cfg.scheduler_uses_history,
         });
@@ -102,6 +104,7 @@ impl Dims {
             enc_hidden,
             vision,
             embed: cfg.obs_embed_dim,
+            cond_input: cfg.velocity_cond_dim(),
             scheduler,
             width: cfg.dit_width,
             depth: cfg.dit_depth,
@@ -131,7 +134,7 @@ impl Dims {
         let mm = |m: usize, n: usize, kk: usize| 2 * (m * n * kk) as u64;
         let (c, w) = (self.chunk, self.width);
         let mut fixed =
-            mm(1, self.enc_hidden, self.enc_input) + mm(1, self.embed, self.enc_hidden) + mm(1, w, self.embed);
+            mm(1, self.enc_hidden, self.enc_input) + mm(1, self.embed, self.enc_hidden) + mm(1, w, self.cond_input);
         if let Some(s) = self.scheduler {
             fixed += mm(1, s.hidden, s.input) + mm(1, self.action, s.hidden);
         }

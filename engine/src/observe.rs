@@ -1,5 +1,6 @@
 //! Everything before the ODE: normalise the inputs, encode the observation, the modality weight w and K(w),
-//! the flow source a0 = (1 − w)⊙history + w⊙ε, and the observation's share of the DiT conditioning.
+//! the flow source a0 = (1 − w)⊙history + w⊙ε, and the observation's (and history's) share of the DiT
+//! conditioning.
 
 use crate::buffers::Buffers;
 use crate::cameras::Cameras;
@@ -20,7 +21,7 @@ fn normalize_into(stats: &Stats, src: &[f32], dst: &mut [f32]) {
 
 /// Normalises `obs` and `hist` (checked by the caller) into `b.obs`, `b.hist`; encodes the cameras' images,
 /// if any; computes the embedding `b.emb`, w into `b.w` (the scheduler's, or a baseline's constant) and `b.cond`
-/// = cond_in(emb). Returns K(w).
+/// = cond_in(emb), or cond_in(emb ‖ history) when the velocity field sees the history. Returns K(w).
 #[allow(clippy::too_many_arguments)] // the call's state, as the other stages take it
 pub fn observe(
     wt: &Weights,
@@ -63,7 +64,15 @@ pub fn observe(
         }
         Modality::Fixed(w) => b.w.fill(*w),
     }
-    mm.linear(&b.emb, 1, &wt.cond_in, &mut b.cond);
+    let cond_input: &[f32] = if b.cond_input.is_empty() {
+        &b.emb
+    } else {
+        let (e, h) = b.cond_input.split_at_mut(d.embed);
+        e.copy_from_slice(&b.emb);
+        h.copy_from_slice(&b.hist);
+        &b.cond_input
+    };
+    mm.linear(cond_input, 1, &wt.cond_in, &mut b.cond);
     steps_for(b.w.iter().copied().fold(f32::NEG_INFINITY, f32::max) / d.k_full_w, d.k_max)
 }
 

@@ -191,7 +191,7 @@ impl Weights {
             pos: r.tensor("velocity.pos_embed", &[d.chunk, w])?,
             time_fc1: r.token_linear("velocity.time.mlp.fc1", d.freq, w)?,
             time_fc2: r.token_linear("velocity.time.mlp.fc2", w, w)?,
-            cond_in: r.linear("velocity.cond_in", d.embed, w)?,
+            cond_in: r.linear("velocity.cond_in", d.cond_input, w)?,
             blocks,
             ada: r.panels(stack(&ada)),
             action_out: r.token_linear("velocity.action_out", w, d.action)?,

@@ -91,9 +91,10 @@ fn inference_never_allocates() {
     for kind in PolicyKind::ALL {
         dirs.push(trained_checkpoint(kind, &format!("alloc-{kind}"), |_| {}));
     }
-    // Scheduler on the history, more tokens than a gemm row tile.
+    // Scheduler and velocity field on the history, more tokens than a gemm row tile.
     dirs.push(trained_checkpoint(PolicyKind::Mars, "alloc-shapes", |cfg| {
         cfg.model.scheduler_uses_history = true;
+        cfg.model.velocity_uses_history = true;
         cfg.model.chunk_len = 20;
         cfg.model.history_len = 20;
         cfg.model.dit_width = 48;

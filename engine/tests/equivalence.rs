@@ -76,8 +76,9 @@ fn compare_on(dir: &Path, cfg: EngineConfig, draw: Draw) -> f32 {
         let k_want = m.steps_for(w.iter().copied().fold(f32::MIN, f32::max));
         ks_requested.push(k_want);
 
+        let cond = model.conditioning(&emb, &hist_t).unwrap();
         for k in 1..=m.k_max {
-            let want = to_vec(&model.integrate(&a0, &emb, k).unwrap());
+            let want = to_vec(&model.integrate(&a0, &cond, k).unwrap());
             let out = engine.infer_with(&obs, &hist, Some(&eps), Some(k)).unwrap();
             assert_eq!(out.k_used, k);
             assert_eq!(out.k_requested, k_want, "{}: K(w)", meta.kind);
@@ -120,6 +121,18 @@ fn calibrated_k_of_w_matches_candle() {
     assert!(meta.model.k_full_w > 0.0 && meta.model.k_full_w < 1.0, "k_full_w = {}", meta.model.k_full_w);
     compare(&dir, EngineConfig::default());
     std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// A velocity field that sees the history (its conditioning is [embedding ‖ history]), for MARS and FM (whose
+/// only view of the history it then is).
+#[test]
+fn a_velocity_field_that_sees_the_history_matches_candle() {
+    for kind in [PolicyKind::Mars, PolicyKind::Fm] {
+        let dir = trained_checkpoint(kind, &format!("eq-vhist-{kind}"), |cfg| cfg.model.velocity_uses_history = true);
+        compare(&dir, EngineConfig::default());
+        compare(&dir, EngineConfig { portable_kernels: true, ..EngineConfig::default() });
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 }
 
 /// A scheduler that sees the history, 20 tokens (several microkernel column groups), 3 heads of 16, other

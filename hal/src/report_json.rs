@@ -54,6 +54,7 @@ pub fn to_json(r: &Report) -> Value {
         "period_us": r.period.as_micros() as u64,
         "overlong_ticks": r.overlong,
         "longest_overlong_tick": r.longest,
+        "computing_ticks": r.computing_ticks,
         "rejected": r.rejected,
         "clamped": r.clamped,
         "late_commands": r.late_commands,

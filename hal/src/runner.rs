@@ -18,7 +18,7 @@ use mars_ipc::liveness::{PeerWatch, Side};
 use mars_ipc::node::create_node;
 use mars_ipc::{CommandReader, FrameReceiveError, HeartbeatThread, RobotNamespace, StateWriter};
 use mars_rt::alloc_count::{self, Counts, RtPoolScope};
-use mars_rt::overlong::{Longest, OverlongCounts, Stamp, TickAccount};
+use mars_rt::overlong::{ComputingTick, Longest, OverlongCounts, Stamp, TickAccount};
 use mars_rt::{RtStatus, Ticker, monotonic_ns, setup_realtime};
 use tracing::{info, warn};
 
@@ -85,6 +85,8 @@ pub struct Report {
     /// are not counted).
     pub overlong: OverlongCounts,
     pub longest: Option<Longest>,
+    /// The first computing ticks with their times (`mars_rt::overlong::COMPUTING_TICKS_KEPT` at most).
+    pub computing_ticks: Vec<ComputingTick>,
     pub rejected: u64,
     pub clamped: u64,
     /// Commands whose step from the setpoint was off by timing the HAL found itself (`SafetyFilter::timing_steps`).
@@ -155,13 +157,22 @@ impl std::fmt::Display for Report {
             o.computing,
             o.held_up
         )?;
-        match self.longest {
-            Some(l) => writeln!(
+        if let Some(l) = self.longest {
+            write!(
                 f,
                 "; the longest: tick {}, {} µs ({} µs of the tick's own CPU time)",
                 l.tick, l.wall_us, l.tick_cpu_us
-            )?,
-            None => writeln!(f)?,
+            )?;
+        }
+        writeln!(f)?;
+        if !self.computing_ticks.is_empty() {
+            // For a test to ask the kernel what else ran on the core then (CLOCK_MONOTONIC ns).
+            let ticks: Vec<String> = self
+                .computing_ticks
+                .iter()
+                .map(|c| format!("{}+{}/{}", c.start_ns, c.wall_us, c.tick_cpu_us))
+                .collect();
+            writeln!(f, "  computing ticks (monotonic start ns+µs taken/µs of CPU): {}", ticks.join(" "))?;
         }
         writeln!(
             f,
@@ -520,6 +531,7 @@ impl HalLoop {
             period: self.ticks_timed.period(),
             overlong: self.ticks_timed.counts(),
             longest: self.ticks_timed.longest(),
+            computing_ticks: self.ticks_timed.computing_ticks().to_vec(),
             rejected: f.rejected,
             clamped: f.clamped,
             timing_steps: f.timing_steps,

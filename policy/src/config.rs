@@ -214,6 +214,11 @@ pub struct ModelConfig {
     pub scheduler_hidden: usize,
     /// Also feed the (flattened) history to the modal scheduler.
     pub scheduler_uses_history: bool,
+    /// Also condition the velocity field on the (flattened) history: the DiT's conditioning input is
+    /// [obs_emb ‖ history] instead of obs_emb. The paper leaves this open; without it the history reaches MARS
+    /// only as its flow source and FM never sees it. Absent in older checkpoints: false.
+    #[serde(default)]
+    pub velocity_uses_history: bool,
     pub dit_width: usize,
     pub dit_depth: usize,
     pub dit_heads: usize,
@@ -330,6 +335,16 @@ impl ModelConfig {
     /// K(w) for this model: ⌈K_max · min(1, ‖w‖∞ / k_full_w)⌉, at least 1.
     pub fn steps_for(&self, w_inf: f32) -> usize {
         crate::model::steps_for(w_inf / self.k_full_w, self.k_max)
+    }
+
+    /// The velocity field's conditioning width: E, plus H·D when it sees the history.
+    pub fn velocity_cond_dim(&self) -> usize {
+        self.obs_embed_dim + if self.velocity_uses_history { self.history_len * self.action_dim } else { 0 }
+    }
+
+    /// The modal scheduler's input width: E, plus H·D when it sees the history.
+    pub fn scheduler_input_dim(&self) -> usize {
+        self.obs_embed_dim + if self.scheduler_uses_history { self.history_len * self.action_dim } else { 0 }
     }
 
     pub fn validate(&self) -> Result<(), ConfigError> {

@@ -1,5 +1,6 @@
 //! The MARS model: observation encoder → modal scheduler w → flow source a0 = (1−w)⊙a≤t + w⊙ε → DiT velocity
-//! field, integrated with K(w) Euler steps. The baselines are the same model with w fixed.
+//! field, conditioned on the observation embedding (and the history, with `velocity_uses_history`), integrated
+//! with K(w) Euler steps. The baselines are the same model with w fixed.
 
 use crate::config::{ModelConfig, PolicyKind};
 use crate::encoder::{self, ObsEncoder};
@@ -40,7 +41,7 @@ impl MarsModel {
         let dims = DitDims {
             action_dim: cfg.action_dim,
             chunk_len: cfg.chunk_len,
-            cond_dim: cfg.obs_embed_dim,
+            cond_dim: cfg.velocity_cond_dim(),
             width: cfg.dit_width,
             depth: cfg.dit_depth,
             heads: cfg.dit_heads,
@@ -74,18 +75,30 @@ impl MarsModel {
         history.broadcast_mul(&keep)? + eps.broadcast_mul(&w)?
     }
 
-    pub fn velocity(&self, a: &Tensor, tau: &Tensor, obs_emb: &Tensor) -> Result<Tensor> {
-        self.velocity.forward(a, tau, obs_emb)
+    /// The velocity field's conditioning input: `obs_emb` [B, E], or [obs_emb ‖ history] [B, E + H·D] when the
+    /// field sees the history (`history`: [B, H, D]).
+    pub fn conditioning(&self, obs_emb: &Tensor, history: &Tensor) -> Result<Tensor> {
+        if self.cfg.velocity_uses_history {
+            Tensor::cat(&[obs_emb, &history.flatten_from(1)?], 1)
+        } else {
+            Ok(obs_emb.clone())
+        }
     }
 
-    /// Euler integration of the learned ODE from τ = 0 to 1 in `k` equal steps. `a0`: [B, C, D].
-    pub fn integrate(&self, a0: &Tensor, obs_emb: &Tensor, k: usize) -> Result<Tensor> {
+    /// v(a, τ | cond), `cond` from [`Self::conditioning`].
+    pub fn velocity(&self, a: &Tensor, tau: &Tensor, cond: &Tensor) -> Result<Tensor> {
+        self.velocity.forward(a, tau, cond)
+    }
+
+    /// Euler integration of the learned ODE from τ = 0 to 1 in `k` equal steps. `a0`: [B, C, D]; `cond` from
+    /// [`Self::conditioning`].
+    pub fn integrate(&self, a0: &Tensor, cond: &Tensor, k: usize) -> Result<Tensor> {
         let b = a0.dim(0)?;
         let dt = 1.0 / k as f64;
         let mut a = a0.clone();
         for step in 0..k {
             let tau = Tensor::full((step as f64 * dt) as f32, b, a0.device())?;
-            a = (&a + (self.velocity(&a, &tau, obs_emb)? * dt)?)?;
+            a = (&a + (self.velocity(&a, &tau, cond)? * dt)?)?;
         }
         Ok(a)
     }
@@ -93,20 +106,20 @@ impl MarsModel {
     /// Euler integration where row i takes `ks[i]` equal steps, each row on the τ and dt sequence a batch of
     /// one with its K would take. Rows are sorted by K (descending), so the rows still integrating at step j
     /// are a prefix: the batch costs Σ K_i rows of the field, as many as one row at a time.
-    pub fn integrate_each(&self, a0: &Tensor, obs_emb: &Tensor, ks: &[usize]) -> Result<Tensor> {
+    pub fn integrate_each(&self, a0: &Tensor, cond: &Tensor, ks: &[usize]) -> Result<Tensor> {
         let (b, dev) = (ks.len(), a0.device());
         let mut order: Vec<usize> = (0..b).collect();
         order.sort_by_key(|&i| std::cmp::Reverse(ks[i]));
         let sorted: Vec<usize> = order.iter().map(|&i| ks[i]).collect();
         let rows = |v: &[usize]| Tensor::from_vec(v.iter().map(|&i| i as u32).collect::<Vec<_>>(), v.len(), dev);
-        let (mut a, emb) = (a0.index_select(&rows(&order)?, 0)?, obs_emb.index_select(&rows(&order)?, 0)?);
+        let (mut a, cond) = (a0.index_select(&rows(&order)?, 0)?, cond.index_select(&rows(&order)?, 0)?);
         for step in 0..sorted.first().copied().unwrap_or(0) {
             let active = sorted.partition_point(|&k| k > step);
             let dt: Vec<f64> = sorted[..active].iter().map(|&k| 1.0 / k as f64).collect();
             let tau: Vec<f32> = dt.iter().map(|dt| (step as f64 * dt) as f32).collect();
             let dt: Vec<f32> = dt.iter().map(|&dt| dt as f32).collect();
             let head = a.narrow(0, 0, active)?;
-            let v = self.velocity(&head, &Tensor::from_vec(tau, active, dev)?, &emb.narrow(0, 0, active)?)?;
+            let v = self.velocity(&head, &Tensor::from_vec(tau, active, dev)?, &cond.narrow(0, 0, active)?)?;
             let head = (&head + v.broadcast_mul(&Tensor::from_vec(dt, (active, 1, 1), dev)?)?)?;
             a = if active == b { head } else { Tensor::cat(&[&head, &a.narrow(0, active, b - active)?], 0)? };
         }
@@ -125,7 +138,7 @@ impl MarsModel {
         let w_inf = w.max(1)?.to_vec1::<f32>()?;
         let ks: Vec<usize> = w_inf.iter().map(|&w| self.cfg.steps_for(w).max(1)).collect();
         let a0 = Self::source(history, &w, eps)?;
-        Ok((self.integrate_each(&a0, &emb, &ks)?, w, ks))
+        Ok((self.integrate_each(&a0, &self.conditioning(&emb, history)?, &ks)?, w, ks))
     }
 
     /// One inference on normalised inputs: returns (chunk [B, C, D], w [B, D], K). `eps`: [B, C, D] ~ N(0, I).
@@ -148,7 +161,7 @@ impl MarsModel {
         let w_inf = w.flatten_all()?.max(0)?.to_scalar::<f32>()?;
         let k = steps.unwrap_or_else(|| self.cfg.steps_for(w_inf)).max(1);
         let a0 = Self::source(history, &w, eps)?;
-        Ok((self.integrate(&a0, &emb, k)?, w, k))
+        Ok((self.integrate(&a0, &self.conditioning(&emb, history)?, k)?, w, k))
     }
 
     pub fn device(&self) -> &Device {

@@ -92,6 +92,7 @@ pub fn batch_losses(
     let (b, c, d) = batch.next.dims3()?;
     let emb = model.encode_train(&batch.obs, rng)?;
     let w = model.weights(&emb, &batch.history)?;
+    let cond = model.conditioning(&emb, &batch.history)?;
     let eps = randn(rng, &[b, c, d], dev)?.affine(f64::from(cfg.model.source_std), 0.0)?;
     let a0 = MarsModel::source(&batch.history, &w, &eps)?;
     let a1 = &batch.next;
@@ -115,11 +116,11 @@ pub fn batch_losses(
         let v = model.velocity(
             &Tensor::cat(&[&a_tau, &a0_d], 0)?,
             &Tensor::cat(&[&tau, &zeros], 0)?,
-            &Tensor::cat(&[&emb, &emb], 0)?,
+            &Tensor::cat(&[&cond, &cond], 0)?,
         )?;
         (v.narrow(0, 0, b)?, Some((a0_d, v.narrow(0, b, b)?)))
     } else {
-        (model.velocity(&a_tau, &tau, &emb)?, None)
+        (model.velocity(&a_tau, &tau, &cond)?, None)
     };
     let fm = losses::flow_matching(&v_tau, &a0, a1)?;
     let mut total = fm.clone();

@@ -109,6 +109,18 @@ fn mars_with_the_history_in_the_scheduler_matches_autograd() {
 }
 
 #[test]
+fn a_velocity_field_that_sees_the_history_matches_autograd() {
+    for kind in [PolicyKind::Mars, PolicyKind::Fm] {
+        let mut cfg = config(kind);
+        cfg.model.velocity_uses_history = true;
+        check(&cfg, &format!("{kind}, velocity field sees the history"));
+    }
+    let mut cfg = config(PolicyKind::Mars);
+    (cfg.model.velocity_uses_history, cfg.model.scheduler_uses_history) = (true, true);
+    check(&cfg, "MARS, both see the history");
+}
+
+#[test]
 fn baseline_gradients_match_autograd() {
     check(&config(PolicyKind::Fm), "FM");
     check(&config(PolicyKind::A2a), "A2A");

@@ -96,6 +96,18 @@ pub struct Longest {
     pub tick_cpu_us: u64,
 }
 
+/// A tick whose own CPU time reached the period: when it started (CLOCK_MONOTONIC ns), how long its answer took
+/// and its CPU time. A test may ask the kernel's interrupt trace about that very window (see `stall-witness`).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize)]
+pub struct ComputingTick {
+    pub start_ns: u64,
+    pub wall_us: u64,
+    pub tick_cpu_us: u64,
+}
+
+/// Computing ticks recorded with their times, the first ones of a run (more are only counted).
+pub const COMPUTING_TICKS_KEPT: usize = 4;
+
 /// A tick that ended, waiting for the next one's start to be judged.
 #[derive(Debug, Clone, Copy)]
 struct Ended {
@@ -115,11 +127,37 @@ pub struct TickAccount {
     ended: Option<Ended>,
     counts: OverlongCounts,
     longest: Option<Longest>,
+    computing_ticks: [ComputingTick; COMPUTING_TICKS_KEPT],
+    /// An instant and CLOCK_MONOTONIC at it (`Instant` reads that clock on Linux), to date the computing ticks.
+    anchor: (Instant, u64),
 }
 
 impl TickAccount {
     pub fn new(period: Duration) -> Self {
-        Self { period, ticks: 0, current: None, ended: None, counts: OverlongCounts::default(), longest: None }
+        Self {
+            period,
+            ticks: 0,
+            current: None,
+            ended: None,
+            counts: OverlongCounts::default(),
+            longest: None,
+            computing_ticks: [ComputingTick::default(); COMPUTING_TICKS_KEPT],
+            anchor: (Instant::now(), crate::monotonic_ns()),
+        }
+    }
+
+    /// The first computing ticks (at most [`COMPUTING_TICKS_KEPT`]; `counts().computing` says how many there were).
+    pub fn computing_ticks(&self) -> &[ComputingTick] {
+        let kept = (self.counts.computing as usize).min(COMPUTING_TICKS_KEPT);
+        &self.computing_ticks[..kept]
+    }
+
+    fn monotonic_ns_of(&self, at: Instant) -> u64 {
+        let (instant, ns) = self.anchor;
+        match at.checked_duration_since(instant) {
+            Some(after) => ns + after.as_nanos() as u64,
+            None => ns.saturating_sub((instant - at).as_nanos() as u64),
+        }
     }
 
     pub fn period(&self) -> Duration {
@@ -172,11 +210,17 @@ impl TickAccount {
         let wall = until - t.start.at;
         let tick_cpu = Duration::from_nanos(t.end.times.cpu_ns.saturating_sub(t.start.times.cpu_ns));
         let Some(o) = overlong(wall, self.period, tick_cpu) else { return };
+        let wall_us = wall.as_micros() as u64;
         match o {
-            Overlong::Computing => self.counts.computing += 1,
+            Overlong::Computing => {
+                let start_ns = self.monotonic_ns_of(t.start.at);
+                if let Some(slot) = self.computing_ticks.get_mut(self.counts.computing as usize) {
+                    *slot = ComputingTick { start_ns, wall_us, tick_cpu_us: tick_cpu.as_micros() as u64 };
+                }
+                self.counts.computing += 1;
+            }
             Overlong::HeldUp => self.counts.held_up += 1,
         }
-        let wall_us = wall.as_micros() as u64;
         if self.longest.is_none_or(|l| wall_us > l.wall_us) {
             self.longest = Some(Longest { tick: t.number, wall_us, tick_cpu_us: tick_cpu.as_micros() as u64 });
         }
@@ -232,6 +276,11 @@ mod tests {
         a.finish();
         assert_eq!(a.counts(), OverlongCounts { held_up: 1, computing: 1, blocked: 1 });
         assert_eq!(a.longest(), Some(Longest { tick: 2, wall_us: 1600, tick_cpu_us: 100 }));
+        // Tick 3 is dated on CLOCK_MONOTONIC, 2.6 ms after t0.
+        let [c] = a.computing_ticks() else { panic!("{:?}", a.computing_ticks()) };
+        assert_eq!((c.wall_us, c.tick_cpu_us), (1200, 1200));
+        let t0_ns = crate::monotonic_ns() - t0.elapsed().as_nanos() as u64;
+        assert!(c.start_ns.abs_diff(t0_ns + 2_600_000) < 100_000, "{} vs {}", c.start_ns, t0_ns + 2_600_000);
     }
 
     /// The kernel's counts behave as the account assumes, on this very machine: sleeping is a voluntary switch,

@@ -105,10 +105,40 @@ fn assert_robot_line_clean(hal_stdout: &str, hal_stderr: &str, sim_log: &str) ->
 /// The HAL's own CPU work never outlasted the robot's cycle ("… later than the 1000 µs period: 0 computing"). The
 /// simulator shares the HAL's core (`FrankaSim::start`) below the HAL's real-time priority, so a HAL that computed
 /// past its cycle would hold the simulator up with it, and the robot's success rate could not show it; the HAL's
-/// account of its ticks' CPU time must then. (This evidence convicts; it never excuses.)
-fn assert_hal_never_computed_past_its_cycle(hal_stdout: &str) {
+/// account of its ticks' CPU time must then. That account is the HAL's, so it convicts and never excuses; but this
+/// kernel (no IRQ time accounting) charges interrupts to the thread they interrupt, and this VM's thread clock does
+/// not always keep the hypervisor's steal out: a computing tick is excused (one rerun) only when the kernel's own
+/// interrupt trace and the stall witness show that much taken from the core in that tick's window that its CPU
+/// time less that stays under the cycle — for every computing tick the HAL listed, and only if it listed them all.
+fn assert_hal_never_computed_past_its_cycle(hal_stdout: &str) -> Attempt {
     let line = find_line(hal_stdout, &["others answering later than the"]).unwrap_or_else(|| panic!("{hal_stdout}"));
-    assert_eq!(number_after(line, "period:"), 0.0, "the HAL computed past the robot's cycle: {line}");
+    let computing = number_after(line, "period:") as usize;
+    if computing == 0 {
+        return Ok(());
+    }
+    let failure = format!("the HAL computed past the robot's cycle: {}", line.trim());
+    let period_ns = number_after(line, "later than the") as u64 * 1000;
+    let listed = find_line(hal_stdout, &["computing ticks (monotonic start ns"]).map_or_else(Vec::new, computing_ticks);
+    let core = servo_core();
+    let seen: Vec<String> = listed
+        .iter()
+        .map(|&(start, wall, _)| witness().taken_from_tick(core, start, start + wall).to_string())
+        .collect();
+    let excuse = (listed.len() == computing)
+        .then(|| witness().excuse_computing_ticks(failure.clone(), core, &listed, period_ns))
+        .flatten();
+    excuse.map_or_else(|| panic!("{failure}; {}", seen.join("; ")), Err)
+}
+
+/// The HAL report's computing ticks ("… CPU): 123+1061/1031 …"): (start ns, wall ns, CPU ns) each.
+fn computing_ticks(line: &str) -> Vec<(u64, u64, u64)> {
+    let list = line.rsplit("CPU):").next().unwrap_or("");
+    let tick = |t: &str| {
+        let (start, rest) = t.split_once('+')?;
+        let (wall, cpu) = rest.split_once('/')?;
+        Some((start.parse().ok()?, wall.parse::<u64>().ok()? * 1000, cpu.parse::<u64>().ok()? * 1000))
+    };
+    list.split_whitespace().map(|t| tick(t).unwrap_or_else(|| panic!("a computing tick {t:?} in {line:?}"))).collect()
 }
 
 /// What the stall witness and franka-sim's log said of `[from, to]`, for a failure they do not excuse.
@@ -230,7 +260,7 @@ fn pick_cup_attempt(attempt: u32) -> Attempt {
     assert_eq!(u64_at(&s, "/limit_violations/hal_clamped"), 0, "the HAL clamped a command of marsd's");
     // The HAL's report (the demo's stdout): the robot's side.
     let sim_log = std::fs::read_to_string(logs.join("out/franka-sim.log")).unwrap_or_default();
-    assert_hal_never_computed_past_its_cycle(&out);
+    assert_hal_never_computed_past_its_cycle(&out)?;
     assert_robot_line_clean(&out, &demo.stderr_text(), &sim_log)?;
     assert!(find_line(&out, &["loop allocations after warm-up: 0 system-allocator calls"]).is_some(), "{out}");
     assert_eq!(u64_at(&s, "/servo_allocations/system"), 0, "the servo tick allocated on the fci backend: {s}");
@@ -291,7 +321,7 @@ fn sigkill_attempt(attempt: u32) -> Attempt {
     // The HAL, stopped the way systemd would, reports the robot's side.
     hal.signal(libc::SIGTERM);
     assert_eq!(hal.exit_code(Duration::from_secs(10)), 0, "{}", hal.logs());
-    assert_hal_never_computed_past_its_cycle(&hal.stdout_text());
+    assert_hal_never_computed_past_its_cycle(&hal.stdout_text())?;
     assert_robot_line_clean(&hal.stdout_text(), &hal.stderr_text(), &rig.sim.log_text())
 }
 
@@ -321,7 +351,7 @@ fn stalled_hal_attempt(attempt: u32) -> Attempt {
         return Err(e);
     }
     assert_no_reflex(&hal_out, &hal.stderr_text(), &rig.sim.log_text());
-    assert_hal_never_computed_past_its_cycle(&hal_out);
+    assert_hal_never_computed_past_its_cycle(&hal_out)?;
     let r = rec.finish();
     let s = summary(&rig.logs, "marsd");
     if code == 3

@@ -10,6 +10,8 @@
 //!   nothing of the rig either.
 //! - [`steal`]: the kernel's per-CPU `steal` counter (/proc/stat), sampled every 10 ms: CPU time the hypervisor
 //!   took.
+//! - [`irq_trace`]: the kernel's trace of interrupt handlers per CPU (tracefs, CLOCK_MONOTONIC): what a loop's
+//!   own CPU clock cannot tell apart from its work on a kernel without IRQ time accounting.
 //! - [`outrank`]: whether any user-space thread on the machine ran above the witness. Once one did (it may be the
 //!   code under test: SVT-AV1's encoder threads at SCHED_FIFO 99 were), the witness excuses nothing more.
 //!
@@ -36,6 +38,7 @@
 pub mod core_watch;
 pub mod evidence;
 pub mod hog;
+pub mod irq_trace;
 pub mod log_time;
 pub mod outrank;
 pub mod peer;
@@ -48,6 +51,7 @@ pub use evidence::Evidence;
 pub use rerun::{Attempt, Excuse, at_most_one_rerun};
 
 use core_watch::CoreWatch;
+use irq_trace::{InterruptTime, IrqTrace};
 use outrank::OutrankWatch;
 use steal::StealWatch;
 
@@ -60,6 +64,7 @@ pub struct Witness {
     cores: Vec<CoreWatch>,
     steal: StealWatch,
     outrank: OutrankWatch,
+    irq: IrqTrace,
 }
 
 /// The process's witness, started on the first call. Call it when a timing test starts: it sees only what happens
@@ -72,7 +77,12 @@ pub fn witness() -> &'static Witness {
 impl Witness {
     fn start() -> Self {
         let cores = online_cores().into_iter().map(CoreWatch::start).collect();
-        Self { cores, steal: StealWatch::start(), outrank: OutrankWatch::start(PRIORITY as u32) }
+        Self {
+            cores,
+            steal: StealWatch::start(),
+            outrank: OutrankWatch::start(PRIORITY as u32),
+            irq: IrqTrace::start(),
+        }
     }
 
     /// Why this witness can give no evidence, if it cannot: some core's thread could not be pinned or made
@@ -152,6 +162,47 @@ impl Witness {
         excuses.into_iter().max_by(|a, b| a.stalled_ms().total_cmp(&b.stalled_ms()))
     }
 
+    /// An [`Excuse`] for a loop on `core` whose ticks `ticks` (each: CLOCK_MONOTONIC start ns, wall ns, the tick's CPU
+    /// time ns by the thread's own clock) reached its `period_ns` of CPU: if, for every one, what the machine took
+    /// in the tick's window leaves less than the period to the loop — the kernel's trace of interrupt handlers on
+    /// the core (a kernel without IRQ time accounting charges them to the thread's clock) plus the witness's stall
+    /// on it (its late wake-ups, or the hypervisor's steal, which this VM's clock does not always keep out of the
+    /// thread's). The evidence given is the tick the machine took most from. `None` if a tick is not so explained.
+    pub fn excuse_computing_ticks(
+        &self,
+        failure: impl Into<String>,
+        core: usize,
+        ticks: &[(u64, u64, u64)],
+        period_ns: u64,
+    ) -> Option<Excuse> {
+        let mut most: Option<(u64, TickTaken)> = None;
+        for &(start, wall, cpu) in ticks {
+            let taken = self.taken_from_tick(core, start, start + wall);
+            let ns = taken.ns();
+            if cpu.saturating_sub(ns) >= period_ns {
+                return None;
+            }
+            if most.as_ref().is_none_or(|(m, _)| ns > *m) {
+                most = Some((ns, taken));
+            }
+        }
+        most.map(|(_, taken)| Excuse::by_kernel(failure.into(), taken))
+    }
+
+    /// What the machine took from `core` within `[from_ns, to_ns]`: interrupts by the kernel's trace, and the
+    /// witness's stall (for a test's log, and [`Self::excuse_computing_ticks`]).
+    pub fn taken_from_tick(&self, core: usize, from_ns: u64, to_ns: u64) -> TickTaken {
+        TickTaken {
+            interrupts: self.irq.time_in(core, from_ns, to_ns),
+            stall: self.seen_on(Some(core), from_ns, to_ns),
+        }
+    }
+
+    /// Why the kernel's interrupt trace records nothing here (no tracefs, not root), if it does not.
+    pub fn interrupt_trace_problem(&self) -> Option<&str> {
+        self.irq.problem()
+    }
+
     /// What the witness saw within `[from_ns, to_ns]`, stalled or not (for a test's log); `None` when it cannot
     /// witness or did not watch the whole window.
     pub fn seen_in(&self, from_ns: u64, to_ns: u64) -> Option<Evidence> {
@@ -178,6 +229,34 @@ impl Witness {
         }
         let Some(c) = self.cores.iter().find(|c| c.core() == core) else { return 0 };
         c.lost_periods((from_ns, to_ns.max(from_ns)), period_ns)
+    }
+}
+
+/// What the machine took from a loop's core during one of its ticks (see [`Witness::taken_from_tick`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct TickTaken {
+    pub interrupts: Option<InterruptTime>,
+    pub stall: Option<Evidence>,
+}
+
+impl TickTaken {
+    /// Interrupt time plus the stall (ns); what neither account covers counts 0.
+    pub fn ns(&self) -> u64 {
+        let irq = self.interrupts.as_ref().map_or(0, |t| t.ns);
+        irq + self.stall.map_or(0.0, |e| e.stalled_ms() * 1e6) as u64
+    }
+}
+
+impl std::fmt::Display for TickTaken {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match &self.interrupts {
+            Some(t) => write!(f, "{t}; ")?,
+            None => write!(f, "no kernel interrupt trace of it; ")?,
+        }
+        match &self.stall {
+            Some(e) => write!(f, "{e}"),
+            None => write!(f, "the stall witness did not watch it"),
+        }
     }
 }
 

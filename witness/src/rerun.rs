@@ -10,6 +10,7 @@ use std::fmt;
 use std::io::Write;
 
 use crate::Evidence;
+use crate::TickTaken;
 use crate::peer::PeerAccount;
 
 /// A failure and the evidence that the machine stalled at its time.
@@ -24,6 +25,9 @@ pub struct Excuse {
 enum Grounds {
     Witness(Box<Evidence>),
     Peer(PeerAccount),
+    /// What the kernel's interrupt trace and the witness saw taken from a loop's core during a tick its CPU clock
+    /// blamed on the loop.
+    Kernel(Box<TickTaken>),
 }
 
 impl Excuse {
@@ -35,11 +39,16 @@ impl Excuse {
         Self { failure, grounds: Grounds::Peer(account) }
     }
 
+    pub(crate) fn by_kernel(failure: String, taken: TickTaken) -> Self {
+        Self { failure, grounds: Grounds::Kernel(Box::new(taken)) }
+    }
+
     /// How long the machine stalled by the evidence (ms).
     pub fn stalled_ms(&self) -> f64 {
         match &self.grounds {
             Grounds::Witness(e) => e.stalled_ms(),
             Grounds::Peer(a) => a.lost_ms(),
+            Grounds::Kernel(t) => t.ns() as f64 * 1e-6,
         }
     }
 }
@@ -49,6 +58,7 @@ impl fmt::Display for Excuse {
         match &self.grounds {
             Grounds::Witness(e) => write!(f, "{} — {e}", self.failure),
             Grounds::Peer(a) => write!(f, "{} — {a}", self.failure),
+            Grounds::Kernel(t) => write!(f, "{} — {t}", self.failure),
         }
     }
 }

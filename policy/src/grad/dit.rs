@@ -1,6 +1,6 @@
 //! The DiT velocity field (`crate::nn::dit`) forward, keeping what its backward needs, and the backward: from
-//! dL/dv to every DiT parameter's gradient, to the observation embedding's and (for the rows asked for) the
-//! input actions'. Rows are `samples × tokens`; a sample's conditioning c [W] modulates all its tokens.
+//! dL/dv to every DiT parameter's gradient, to the conditioning input's (the observation embedding, and the
+//! history if the model feeds it) and (for the rows asked for) the input actions'. Rows are `samples × tokens`; a sample's conditioning c [W] modulates all its tokens.
 
 use super::attention::Attention;
 use super::layers::{self, Modulation};
@@ -80,7 +80,8 @@ pub struct DitGrad {
     attention: Attention,
     // Forward values.
     a: Vec<f32>,
-    emb: Vec<f32>,
+    /// The conditioning input [r, cond_dim].
+    cond: Vec<f32>,
     tfeat: Vec<f32>,
     t_pre: Vec<f32>,
     t_act: Vec<f32>,
@@ -164,7 +165,7 @@ impl DitGrad {
             action_out,
             attention: Attention::new(s.tokens, w, s.heads),
             a: z(rt * s.action_dim),
-            emb: z(r * s.cond_dim),
+            cond: z(r * s.cond_dim),
             tfeat: z(r * freq),
             t_pre: z(r * w),
             t_act: z(r * w),
@@ -186,18 +187,18 @@ impl DitGrad {
         Modulation { tokens: self.s.tokens, width: w, m_width, shift_at, scale_at: shift_at + w }
     }
 
-    /// v for `r` samples: `a` [r·T, D], `tau` [r], `emb` [r, E]; into `self.v`.
-    pub fn forward(&mut self, p: &[f32], a: &[f32], tau: &[f32], emb: &[f32], r: usize) {
+    /// v for `r` samples: `a` [r·T, D], `tau` [r], `cond` [r, cond_dim]; into `self.v`.
+    pub fn forward(&mut self, p: &[f32], a: &[f32], tau: &[f32], cond: &[f32], r: usize) {
         let (t, w, d, e) = (self.s.tokens, self.s.width, self.s.action_dim, self.s.cond_dim);
         let rt = r * t;
         self.a[..rt * d].copy_from_slice(&a[..rt * d]);
-        self.emb[..r * e].copy_from_slice(&emb[..r * e]);
-        // c = SiLU(time MLP(features(τ)) + cond_in(emb)).
+        self.cond[..r * e].copy_from_slice(&cond[..r * e]);
+        // c = SiLU(time MLP(features(τ)) + cond_in(cond)).
         layers::time_features(&tau[..r], self.freq, &mut self.tfeat);
         self.time1.forward(p, &self.tfeat, r, &mut self.t_pre);
         layers::silu(&self.t_pre[..r * w], &mut self.t_act);
         self.time2.forward(p, &self.t_act, r, &mut self.c_pre);
-        self.cond_in.forward(p, &self.emb, r, &mut self.sc.dt);
+        self.cond_in.forward(p, &self.cond, r, &mut self.sc.dt);
         for (c, o) in self.c_pre[..r * w].iter_mut().zip(&self.sc.dt) {
             *c += o;
         }
@@ -243,8 +244,7 @@ impl DitGrad {
     }
 
     /// From `dv` [r·T, D] (dL/dv of the last forward): every DiT gradient added into `g` (the parameter vector's
-    /// layout; `p` the values), dL/demb [r, E] into
-    /// `demb`, and dL/da for the first `da_samples` samples into `da` [da_samples·T, D].
+    /// layout; `p` the values), dL/dcond [r, cond_dim] into `dcond`, and dL/da for the first `da_samples` samples into `da` [da_samples·T, D].
     #[allow(clippy::too_many_arguments)]
     pub fn backward(
         &mut self,
@@ -252,7 +252,7 @@ impl DitGrad {
         g: &mut [f32],
         dv: &[f32],
         r: usize,
-        demb: &mut [f32],
+        dcond: &mut [f32],
         da_samples: usize,
         da: &mut [f32],
     ) {
@@ -296,8 +296,8 @@ impl DitGrad {
         }
         // Conditioning: c = SiLU(c_pre).
         layers::silu_backward(&self.c_pre[..r * w], &mut sc.dc[..r * w]);
-        self.cond_in.backward_params(g, &self.emb, &sc.dc, r);
-        self.cond_in.backward_input(p, &sc.dc, r, demb, false);
+        self.cond_in.backward_params(g, &self.cond, &sc.dc, r);
+        self.cond_in.backward_input(p, &sc.dc, r, dcond, false);
         self.time2.backward_params(g, &self.t_act, &sc.dc, r);
         self.time2.backward_input(p, &sc.dc, r, &mut sc.dt, false);
         layers::silu_backward(&self.t_pre[..r * w], &mut sc.dt[..r * w]);

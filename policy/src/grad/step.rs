@@ -1,5 +1,6 @@
 //! One training step of a state policy by hand: the batch's rows → encoder → scheduler w → flow source a0 →
-//! the DiT on (a_τ, τ) and, for L_rec, on (a0, 0) as one batch → L_fm, L_rec, L_div → backward in reverse →
+//! the DiT on (a_τ, τ | cond) and, for L_rec, on (a0, 0 | cond) as one batch (cond: the embedding, and the
+//! history if the field sees it) → L_fm, L_rec, L_div → backward in reverse →
 //! AdamW. The same objective, random draws (in the same order, from the same generator) and update as
 //! `crate::train::batch_losses` + candle-nn's AdamW, without a graph or an allocation per step.
 
@@ -82,13 +83,14 @@ struct Rows {
     eps_nb: Vec<f32>,
     dit_a: Vec<f32>,
     dit_tau: Vec<f32>,
-    dit_emb: Vec<f32>,
+    /// The DiT's conditioning input per row: [emb ‖ history] or emb.
+    dit_cond: Vec<f32>,
     v: Vec<f32>,
     dv: Vec<f32>,
     da: Vec<f32>,
     da0: Vec<f32>,
     dw: Vec<f32>,
-    ddit_emb: Vec<f32>,
+    ddit_cond: Vec<f32>,
     demb: Vec<f32>,
     dsched: Vec<f32>,
     dsched_in: Vec<f32>,
@@ -116,6 +118,8 @@ pub struct HandStep {
     d: usize,
     o: usize,
     e: usize,
+    /// The DiT's conditioning width: `e`, plus t·d when it sees the history.
+    c: usize,
     rows: Rows,
 }
 
@@ -131,7 +135,7 @@ impl HandStep {
         let enc1 = params.linear("encoder.state_mlp.fc1", o, hidden);
         let enc2 = params.linear("encoder.state_mlp.fc2", hidden, e);
         let fixed_w = cfg.kind.fixed_w(m);
-        let sched_in = e + if m.scheduler_uses_history { m.history_len * d } else { 0 };
+        let (sched_in, c) = (m.scheduler_input_dim(), m.velocity_cond_dim());
         let sched = fixed_w.is_none().then(|| {
             let fc1 = params.linear("scheduler.mlp.fc1", sched_in, m.scheduler_hidden);
             (fc1, params.linear("scheduler.mlp.fc2", m.scheduler_hidden, d))
@@ -139,7 +143,7 @@ impl HandStep {
         let shape = DitShape {
             action_dim: d,
             tokens: t,
-            cond_dim: e,
+            cond_dim: c,
             width: m.dit_width,
             depth: m.dit_depth,
             heads: m.dit_heads,
@@ -175,13 +179,13 @@ impl HandStep {
             eps_nb: z(b * km * t * d),
             dit_a: z(2 * b * t * d),
             dit_tau: z(2 * b),
-            dit_emb: z(2 * b * e),
+            dit_cond: z(2 * b * c),
             v: z(2 * b * t * d),
             dv: z(2 * b * t * d),
             da: z(b * t * d),
             da0: z(b * t * d),
             dw: z(b * d),
-            ddit_emb: z(2 * b * e),
+            ddit_cond: z(2 * b * c),
             demb: z(b * e),
             dsched: z(b * m.scheduler_hidden),
             dsched_in: z(b * sched_in),
@@ -206,6 +210,7 @@ impl HandStep {
             d,
             o,
             e,
+            c,
             rows,
         })
     }
@@ -218,13 +223,13 @@ impl HandStep {
 
     /// The DiT on `samples` rows of `rows.dit_*`, split across the threads; v into `rows.v`.
     fn dit_forward(&mut self, samples: usize) {
-        let (chunk, e) = (self.t * self.d, self.e);
+        let (chunk, c) = (self.t * self.d, self.c);
         let parts = shares(samples, PARTS);
         let (p, r) = (&self.params.value, &self.rows);
         let jobs = self.dits.iter_mut().zip(parts.clone()).map(|(dit, range)| {
             let (a, tau) = (&r.dit_a[range.start * chunk..], &r.dit_tau[range.clone()]);
-            let emb = &r.dit_emb[range.start * e..];
-            move || dit.forward(p, a, tau, emb, range.len())
+            let cond = &r.dit_cond[range.start * c..];
+            move || dit.forward(p, a, tau, cond, range.len())
         });
         run_all(jobs.collect(), self.concurrent);
         for (dit, range) in self.dits.iter().zip(parts) {
@@ -234,13 +239,13 @@ impl HandStep {
     }
 
     /// The DiT's backward from `rows.dv`, each thread its share: parameter gradients summed into
-    /// `params.grad`, dL/demb into `rows.ddit_emb`, dL/da of the first `da_samples` samples into `rows.da`.
+    /// `params.grad`, dL/dcond into `rows.ddit_cond`, dL/da of the first `da_samples` samples into `rows.da`.
     fn dit_backward(&mut self, samples: usize, da_samples: usize) {
-        let (chunk, e) = (self.t * self.d, self.e);
+        let (chunk, c) = (self.t * self.d, self.c);
         let parts = shares(samples, PARTS);
         let p = &self.params.value;
         let r = &mut self.rows;
-        let (mut demb, mut da): (&mut [f32], &mut [f32]) = (&mut r.ddit_emb, &mut r.da);
+        let (mut dcond, mut da): (&mut [f32], &mut [f32]) = (&mut r.ddit_cond, &mut r.da);
         let mut grads: Vec<&mut [f32]> = vec![&mut self.params.grad];
         grads.extend(self.part_grads.iter_mut().map(|g| {
             g.fill(0.0);
@@ -248,13 +253,13 @@ impl HandStep {
         }));
         let mut jobs = Vec::with_capacity(parts.len());
         for ((dit, range), g) in self.dits.iter_mut().zip(parts).zip(grads) {
-            let (my_emb, rest_emb) = std::mem::take(&mut demb).split_at_mut(range.len() * e);
-            demb = rest_emb;
+            let (my_cond, rest_cond) = std::mem::take(&mut dcond).split_at_mut(range.len() * c);
+            dcond = rest_cond;
             let want = da_samples.clamp(range.start, range.end) - range.start;
             let (my_da, rest_da) = std::mem::take(&mut da).split_at_mut(want * chunk);
             da = rest_da;
             let dv = &r.dv[range.start * chunk..];
-            jobs.push(move || dit.backward(p, g, dv, range.len(), my_emb, want, my_da));
+            jobs.push(move || dit.backward(p, g, dv, range.len(), my_cond, want, my_da));
         }
         run_all(jobs, self.concurrent);
         for g in &self.part_grads {
@@ -354,9 +359,9 @@ impl HandStep {
         (fm, self.rec.map_or(0.0, |rec| self.reconstruction(b, rec)))
     }
 
-    /// The DiT's rows: (a_τ = (1 − τ)a0 + τa1, τ, emb), then with L_rec (a0, 0, emb); returns how many.
+    /// The DiT's rows: (a_τ = (1 − τ)a0 + τa1, τ, cond), then with L_rec (a0, 0, cond); returns how many.
     fn dit_inputs(&mut self, b: usize, rng: &mut StdRng) -> usize {
-        let (n, chunk, e) = (b * self.t * self.d, self.t * self.d, self.e);
+        let (n, chunk, e, c) = (b * self.t * self.d, self.t * self.d, self.e, self.c);
         let r = &mut self.rows;
         for tau in &mut r.tau[..b] {
             *tau = rng.random::<f32>();
@@ -368,13 +373,17 @@ impl HandStep {
             }
         }
         r.dit_tau[..b].copy_from_slice(&r.tau[..b]);
-        r.dit_emb[..b * e].copy_from_slice(&r.emb[..b * e]);
+        for row in 0..b {
+            let (emb, hist) = r.dit_cond[row * c..][..c].split_at_mut(e);
+            emb.copy_from_slice(&r.emb[row * e..][..e]);
+            hist.copy_from_slice(&r.hist[row * chunk..][..c - e]);
+        }
         if self.rec.is_none() {
             return b;
         }
         r.dit_a[n..2 * n].copy_from_slice(&r.a0[..n]);
         r.dit_tau[b..2 * b].fill(0.0);
-        r.dit_emb.copy_within(..b * e, b * e);
+        r.dit_cond.copy_within(..b * c, b * c);
         2 * b
     }
 
@@ -460,12 +469,15 @@ impl HandStep {
             self.rows.dw[..b * self.d].fill(0.0);
         }
         self.dit_backward(samples, if self.sched.is_some() { b } else { 0 });
-        // dL/demb: the DiT's halves see the same embedding.
-        let (r, e) = (&mut self.rows, self.e);
-        r.demb[..b * e].copy_from_slice(&r.ddit_emb[..b * e]);
-        if samples == 2 * b {
-            for (a, x) in r.demb[..b * e].iter_mut().zip(&r.ddit_emb[b * e..2 * b * e]) {
-                *a += x;
+        // dL/demb: the embedding's share of each row's dL/dcond (the history's is data's); the DiT's halves see
+        // the same embedding.
+        let (r, e, c) = (&mut self.rows, self.e, self.c);
+        for row in 0..b {
+            r.demb[row * e..][..e].copy_from_slice(&r.ddit_cond[row * c..][..e]);
+            if samples == 2 * b {
+                for (a, x) in r.demb[row * e..][..e].iter_mut().zip(&r.ddit_cond[(b + row) * c..][..e]) {
+                    *a += x;
+                }
             }
         }
         if self.sched.is_some() {

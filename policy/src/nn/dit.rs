@@ -80,14 +80,15 @@ impl Dit {
     }
 
     /// The conditioning vector for a batch: it depends on τ and the observation only, so an ODE solver can
-    /// compute the observation part once. `tau`: [B]; `obs_emb`: [B, E] → [B, W] after SiLU.
-    pub fn condition(&self, tau: &Tensor, obs_emb: &Tensor) -> Result<Tensor> {
-        (self.time.forward(tau)? + self.cond_in.forward(obs_emb)?)?.silu()
+    /// compute the observation part once. `tau`: [B]; `cond`: [B, cond_dim] (the observation embedding, and the
+    /// history if the model feeds it) → [B, W] after SiLU.
+    pub fn condition(&self, tau: &Tensor, cond: &Tensor) -> Result<Tensor> {
+        (self.time.forward(tau)? + self.cond_in.forward(cond)?)?.silu()
     }
 
     /// `a`: [B, C, D] (normalised actions at flow time τ) → velocity [B, C, D].
-    pub fn forward(&self, a: &Tensor, tau: &Tensor, obs_emb: &Tensor) -> Result<Tensor> {
-        let c = self.condition(tau, obs_emb)?;
+    pub fn forward(&self, a: &Tensor, tau: &Tensor, cond: &Tensor) -> Result<Tensor> {
+        let c = self.condition(tau, cond)?;
         let mut x = self.action_in.forward(a)?.broadcast_add(&self.pos)?;
         let (b, t, _) = x.dims3()?;
         let expand = token_expansion(b, t, &x)?;

@@ -41,6 +41,9 @@ pub fn start_witness() {
         if let Some(why) = w.unable() {
             eprintln!("the stall witness cannot witness here, so no test will be rerun: {why}");
         }
+        if let Some(why) = w.interrupt_trace_problem() {
+            eprintln!("the kernel's interrupt trace records nothing here, so it excuses nothing: {why}");
+        }
     });
 }
 
