@@ -3,9 +3,10 @@
 //!
 //! Data flow of one tick: the backend is read ([`backend`], [`sim`]) → commands arrive over iceoryx2 →
 //! [`control`] judges them ([`safety`], [`session`], [`gripper`]) → the setpoint goes to the backend → the state
-//! frame leaves ([`runner`] does the I/O). [`profile`] and [`velocity_limits`] hold the robot's limits. [`fci`] talks
-//! to a Franka robot over its Control Interface (so far: connect and read its state, `mars-hal fci-status`);
-//! [`ros2`] to a robot over ROS 2 topics (the Galaxea R1 Lite).
+//! frame leaves ([`runner`] does the I/O). [`profile`] and [`velocity_limits`] hold the robot's limits. [`fci`] drives
+//! a Franka robot over its Control Interface (the HAL's tick inside the robot's 1 kHz callback, the Franka Hand,
+//! reflex recovery; `mars-hal fci-status` reads a state and commands nothing); [`ros2`] a robot over ROS 2 topics
+//! (the Galaxea R1 Lite).
 
 pub mod backend;
 pub mod cli;

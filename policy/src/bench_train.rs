@@ -1,12 +1,15 @@
 //! `mars bench-train`: seconds per training epoch, ours by hand (`crate::grad`) and through candle's autograd,
 //! beside the PyTorch peer (`policy/benches/torch_trainer.py`) on the same samples and sizes, taken in turns
 //! (hand, autograd, PyTorch; again each round) so a slower minute of the machine falls on all three. Prints
-//! the median seconds per epoch of each and the ratios.
+//! the median seconds per epoch of each and PyTorch's speed-up ratio over it: the mean over rounds of each round's
+//! ratio of medians (the two measured side by side), with its 95 % t interval, and the verdict on the issue's
+//! target (ours by hand ≥ 2× PyTorch's speed) by that interval.
 
 use crate::config::{Gradients, PolicyConfig, PolicyKind};
 use crate::dataset::Dataset;
 use anyhow::Context;
 use candle_core::{DType, Device, Tensor};
+use mars_tasks::stats::{Estimate, Verdict, mean_over_seeds};
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -40,7 +43,8 @@ pub fn run(opts: &BenchTrainOptions) -> anyhow::Result<()> {
     if opts.python.is_some() {
         write_samples(&cfg, &demos, &opts.out)?;
     }
-    let mut seconds: HashMap<&str, Vec<f64>> = HashMap::new();
+    // Per trainer, per round: the seconds of each epoch.
+    let mut seconds: HashMap<&str, Vec<Vec<f64>>> = HashMap::new();
     for round in 0..opts.rounds {
         for gradients in [Gradients::Hand, Gradients::Autograd] {
             let mut c = cfg.clone();
@@ -48,15 +52,15 @@ pub fn run(opts: &BenchTrainOptions) -> anyhow::Result<()> {
             let trained = crate::train::train(&c, &demos, false)?;
             let name = if gradients == Gradients::Hand { "ours, by hand" } else { "ours, candle autograd" };
             eprintln!("round {}: {name}: {:?} s per epoch", round + 1, rounded(&trained.epoch_seconds));
-            seconds.entry(name).or_default().extend(&trained.epoch_seconds);
+            seconds.entry(name).or_default().push(trained.epoch_seconds.clone());
         }
         if let Some(python) = &opts.python {
             let s = torch_epochs(python, &opts.out, &cfg, opts.epochs, opts.threads)?;
             eprintln!("round {}: PyTorch: {:?} s per epoch", round + 1, rounded(&s));
-            seconds.entry("PyTorch").or_default().extend(s);
+            seconds.entry("PyTorch").or_default().push(s);
         }
     }
-    println!("{}", table(&cfg, opts, &mut seconds));
+    println!("{}", table(&cfg, opts, &seconds));
     Ok(())
 }
 
@@ -64,24 +68,46 @@ fn rounded(v: &[f64]) -> Vec<f64> {
     v.iter().map(|s| (s * 100.0).round() / 100.0).collect()
 }
 
-fn median(v: &mut [f64]) -> f64 {
+fn median(v: &[f64]) -> f64 {
+    let mut v = v.to_vec();
     v.sort_by(f64::total_cmp);
     let n = v.len();
-    if n % 2 == 1 { v[n / 2] } else { (v[n / 2 - 1] + v[n / 2]) / 2.0 }
+    if n == 0 {
+        f64::NAN
+    } else if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        (v[n / 2 - 1] + v[n / 2]) / 2.0
+    }
 }
 
-fn table(cfg: &PolicyConfig, opts: &BenchTrainOptions, seconds: &mut HashMap<&str, Vec<f64>>) -> String {
+/// PyTorch's seconds per epoch ÷ `ours`, round by round (each round's medians), as a mean over the rounds with
+/// its 95 % t interval (unbounded with one round).
+fn speed_up(torch: &[Vec<f64>], ours: &[Vec<f64>]) -> Estimate {
+    let ratios: Vec<f64> = torch.iter().zip(ours).map(|(t, o)| median(t) / median(o)).collect();
+    mean_over_seeds(&ratios).unwrap_or(Estimate::new(f64::NAN, f64::NAN, f64::NAN))
+}
+
+/// The issue's target: by hand on one thread, at least twice PyTorch's speed.
+const TARGET_SPEED_UP: f64 = 2.0;
+
+fn table(cfg: &PolicyConfig, opts: &BenchTrainOptions, seconds: &HashMap<&str, Vec<Vec<f64>>>) -> String {
     let mut out = format!(
-        "{} training, {} threads, {} epochs × {} rounds each (median seconds per epoch):\n\n| trainer | s/epoch | \
-         PyTorch ÷ it |\n|---|---:|---:|\n",
+        "{} training, {} threads, {} epochs × {} rounds each (median seconds per epoch; PyTorch's seconds ÷ ours \
+         per round, mean over rounds with its 95 % t interval):\n\n| trainer | s/epoch | PyTorch ÷ it |\n|---|---:|---:|\n",
         cfg.kind, opts.threads, opts.epochs, opts.rounds
     );
-    let torch = seconds.get_mut("PyTorch").map(|v| median(v));
+    let torch = seconds.get("PyTorch");
     for name in ["ours, by hand", "ours, candle autograd", "PyTorch"] {
-        let Some(v) = seconds.get_mut(name) else { continue };
-        let m = median(v);
-        let ratio = torch.map_or("–".to_string(), |t| format!("{:.2}×", t / m));
-        out += &format!("| {name} | {m:.2} | {ratio} |\n");
+        let Some(rounds) = seconds.get(name) else { continue };
+        let all: Vec<f64> = rounds.iter().flatten().copied().collect();
+        let ratio = torch.map_or("–".to_string(), |t| format!("{:.2}", speed_up(t, rounds)));
+        out += &format!("| {name} | {:.2} | {ratio} |\n", median(&all));
+    }
+    if let (Some(t), Some(hand)) = (torch, seconds.get("ours, by hand")) {
+        let e = speed_up(t, hand);
+        let verdict = Verdict::at_least(e, TARGET_SPEED_UP);
+        out += &format!("\nBy hand ≥ {TARGET_SPEED_UP}× PyTorch's speed: PyTorch ÷ ours = {e:.2} — {verdict}\n");
     }
     out
 }
@@ -140,4 +166,21 @@ fn torch_epochs(
         seconds.len()
     );
     Ok(seconds)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_speed_up_pairs_rounds_and_gives_an_interval() {
+        let torch = vec![vec![6.0, 6.2, 5.8], vec![6.5, 6.4, 6.6]];
+        let ours = vec![vec![3.0, 3.1, 2.9], vec![3.0, 3.2, 3.1]];
+        let e = speed_up(&torch, &ours);
+        // Rounds: 6.0 / 3.0 = 2.0 and 6.5 / 3.1.
+        assert!((e.value - (2.0 + 6.5 / 3.1) / 2.0).abs() < 1e-12, "{e:?}");
+        assert!(e.lo < e.value && e.value < e.hi);
+        assert_eq!(Verdict::at_least(e, TARGET_SPEED_UP), Verdict::Undecided);
+        assert!(speed_up(&torch[..1], &ours[..1]).hi.is_infinite());
+    }
 }

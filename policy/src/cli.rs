@@ -333,6 +333,9 @@ pub struct BenchmarkOptions {
     /// Keep each policy already trained under `out` with this very configuration (and the same demos) instead of
     /// training it again; it is still evaluated. Long runs (`mars family`) then continue where they stopped.
     pub resume: bool,
+    /// Condition the velocity field and the scheduler on the history (`model.velocity_uses_history`,
+    /// `model.scheduler_uses_history`) whatever the config says: one side of the comparison that settles it.
+    pub history_conditioning: bool,
     /// Other benchmarks run at the same time (`mars family` runs its layouts × seeds side by side), so this one's
     /// evaluation is not alone on the machine: its latencies say so.
     pub side_by_side: bool,
@@ -392,6 +395,9 @@ pub fn benchmark(
     let mut base = PolicyConfig::load(config)?;
     base.train.epochs = o.epochs.unwrap_or(base.train.epochs);
     base.train.seed = o.seed;
+    if o.history_conditioning {
+        (base.model.velocity_uses_history, base.model.scheduler_uses_history) = (true, true);
+    }
 
     let config_of = |kind| {
         let mut cfg = base.clone();
@@ -466,7 +472,7 @@ impl crate::curve::CurveTask for Nav2dCurve {
         demos(&self.layout, self.demos, seed, path)
     }
 
-    fn evaluate(&self, dir: &Path, seed: u64) -> anyhow::Result<crate::curve::Score> {
+    fn evaluate(&self, dir: &Path, _demos: &Path, seed: u64) -> anyhow::Result<crate::curve::Score> {
         let layout = Layout::load(&self.layout)?;
         let (mut policy, _) = MarsPolicy::load(dir, seed)?;
         let r = evaluate_batched(&layout, &mut policy, self.rollouts, seed, self.exec_horizon, DEFAULT_BATCH)?;

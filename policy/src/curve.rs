@@ -19,8 +19,9 @@ pub struct Score {
     pub success_pct: f32,
     pub gamma: f32,
     pub mean_k: f32,
-    /// Total-variation distance between the successful rollouts' mode shares and the demos', where the task
-    /// knows the demos' shares (nav2d's passages).
+    /// Total-variation distance between the successful rollouts' mode shares and the demos' (nav2d's passages
+    /// against the layout's shares; a pick task's grasps against its demo file's); `None` where the demos have
+    /// no mode.
     #[serde(default)]
     pub tv: Option<f32>,
 }
@@ -83,7 +84,7 @@ pub struct CurveArgs {
     #[arg(long)]
     pub out: Option<PathBuf>,
     /// Training seeds 0..N (each also seeds its demos).
-    #[arg(long, default_value_t = 3)]
+    #[arg(long, default_value_t = 5)]
     pub seeds: u64,
     #[arg(long, default_value_t = 100)]
     pub demos: usize,
@@ -252,8 +253,8 @@ pub trait CurveTask: Sync {
     fn title(&self) -> String;
     /// Writes the demos that training seed `seed` uses to `path`.
     fn demos(&self, seed: u64, path: &Path) -> anyhow::Result<()>;
-    /// Scores the checkpoint in `dir` on episodes seeded from `seed`.
-    fn evaluate(&self, dir: &Path, seed: u64) -> anyhow::Result<Score>;
+    /// Scores the checkpoint in `dir`, trained on the demos at `demos`, on episodes seeded from `seed`.
+    fn evaluate(&self, dir: &Path, demos: &Path, seed: u64) -> anyhow::Result<Score>;
 }
 
 /// How a policy is trained with snapshots.
@@ -345,7 +346,7 @@ pub fn run(
         bar.finish_and_clear();
     }
     let mut evals = Vec::new();
-    for (cfg, _, dir) in &jobs {
+    for (cfg, demos, dir) in &jobs {
         let snaps = snapshot_dirs(&dir.join("snapshots"))?;
         // A rescore must find the run the flags describe, not a shorter or sparser one.
         let expected: Vec<usize> = (1..=o.epochs).filter(|e| e % o.every == 0 || *e == o.epochs).collect();
@@ -358,12 +359,12 @@ pub fn run(
             o.every
         );
         for (epoch, snap) in snaps {
-            evals.push((cfg.kind, cfg.train.seed, epoch, snap));
+            evals.push((cfg.kind, cfg.train.seed, epoch, snap, demos.clone()));
         }
     }
     let bar = progress(evals.len(), "snapshots scored");
-    let scores = crate::jobs::parallel(&evals, o.jobs, &|(kind, seed, epoch, snap)| {
-        let score = task.evaluate(snap, o.eval_seed)?;
+    let scores = crate::jobs::parallel(&evals, o.jobs, &|(kind, seed, epoch, snap, demos)| {
+        let score = task.evaluate(snap, demos, o.eval_seed)?;
         std::fs::write(snap.join("score.json"), serde_json::to_string_pretty(&score)?)
             .with_context(|| format!("cannot write {}", snap.display()))?;
         bar.inc(1);

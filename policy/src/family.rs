@@ -7,7 +7,7 @@ use crate::config::PolicyKind;
 use crate::report::Row;
 use anyhow::Context;
 use mars_tasks::stats::{Estimate, Verdict, mean_over_seeds};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use std::fmt::Write;
 use std::path::{Path, PathBuf};
 
@@ -68,7 +68,7 @@ pub fn proportions(counts: &[usize]) -> Vec<f32> {
 }
 
 /// One seed's figures of one policy.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct SeedFigures {
     pub success_pct: f64,
     pub tv: f64,
@@ -89,7 +89,7 @@ impl SeedFigures {
     }
 }
 
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct PolicyStats {
     pub kind: PolicyKind,
     /// Means over seeds with their 95 % t intervals.
@@ -104,7 +104,7 @@ pub struct PolicyStats {
     pub per_seed: Vec<SeedFigures>,
 }
 
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct LayoutResult {
     pub layout: String,
     pub n_passages: usize,
@@ -243,7 +243,7 @@ pub fn render(results: &[LayoutResult], o: &FamilyOptions, layouts_dir: &Path) -
     let mut s = String::from("# nav2d layout family\n\n");
     let _ = writeln!(
         s,
-        "Command: `mars family --layouts {} --seeds {} --demos {} --rollouts {}{} --policies {} --jobs {}`; \
+        "Command: `mars family --layouts {} --seeds {} --demos {} --rollouts {}{}{} --policies {} --jobs {}`; \
          mean over training seeds 0..{} (each seed its own demos and rollouts) with its 95 % t interval; a \
          target is met or not met when the whole interval says so, undecided otherwise.\n",
         layouts_dir.display(),
@@ -251,6 +251,7 @@ pub fn render(results: &[LayoutResult], o: &FamilyOptions, layouts_dir: &Path) -
         b.demos,
         b.rollouts,
         b.epochs.map_or(String::new(), |e| format!(" --epochs {e}")),
+        if b.history_conditioning { " --history-conditioning" } else { "" },
         policies.join(","),
         b.jobs,
         o.seeds,

@@ -19,6 +19,7 @@ pub mod diagnose;
 pub mod encoder;
 pub mod evaluation;
 pub mod family;
+pub mod family_diff;
 pub mod from_dataset;
 pub mod grad;
 pub mod inference;

@@ -174,12 +174,17 @@ enum Stepper {
 
 impl Stepper {
     fn new(cfg: &PolicyConfig, varmap: &VarMap, tensors: &DatasetTensors) -> anyhow::Result<Self> {
-        if cfg.train.gradients == Gradients::Hand && crate::grad::supports(cfg) {
+        let by_hand = crate::grad::supports(cfg);
+        if cfg.train.gradients == Gradients::Hand && by_hand {
             let mut hand = HandStep::new(cfg, varmap)?;
             // The training's share of the cores (`cli::init_runtime_env`: cores / parallel jobs).
-            hand.set_threads(candle_core::utils::get_num_threads());
+            let threads = candle_core::utils::get_num_threads();
+            hand.set_threads(threads);
+            tracing::info!(policy = %cfg.kind, threads, "gradients by hand (mars_policy::grad)");
             Ok(Stepper::Hand(Box::new(hand), HostData::new(tensors)?))
         } else {
+            let why = if by_hand { "train.gradients = \"autograd\"" } else { "a vision encoder" };
+            tracing::info!(policy = %cfg.kind, why, "gradients through candle's autograd");
             Ok(Stepper::Autograd(optimizers(varmap, cfg)?))
         }
     }

@@ -38,6 +38,11 @@ fn pick_cup_curve_scores_every_snapshot() {
     let json: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(dir.join("curves.json")).unwrap()).unwrap();
     assert_eq!(json[1].as_array().map(Vec::len), Some(2 * 2 * 2), "seeds × policies × snapshots scored");
+    // Each snapshot's grasp shares against its seed's demos (the expert balances them).
+    for score in json[1].as_array().unwrap() {
+        let tv = score["score"]["tv"].as_f64().unwrap_or_else(|| panic!("no TV to the demos' grasps: {score}"));
+        assert!((0.0..=1.0).contains(&tv), "{score}");
+    }
     assert!(dir.join("curves.png").metadata().map(|m| m.len() > 0).unwrap_or(false));
     std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -101,7 +101,7 @@ enum Command {
         checkpoint: PathBuf,
         #[arg(long, default_value = "configs/nav2d.toml")]
         layout: PathBuf,
-        #[arg(long, default_value_t = 100)]
+        #[arg(long, default_value_t = 1000)]
         rollouts: usize,
         #[arg(long, default_value_t = 1000)]
         seed: u64,
@@ -149,7 +149,7 @@ enum Command {
         demos: usize,
         #[arg(long)]
         epochs: Option<usize>,
-        #[arg(long, default_value_t = 100)]
+        #[arg(long, default_value_t = 1000)]
         rollouts: usize,
         #[arg(long, default_value_t = 0)]
         seed: u64,
@@ -165,6 +165,10 @@ enum Command {
         /// evaluated): a stopped run continues where it stopped.
         #[arg(long)]
         resume: bool,
+        /// Condition the velocity field and the scheduler on the history (model.velocity_uses_history and
+        /// scheduler_uses_history), whatever --config says.
+        #[arg(long)]
+        history_conditioning: bool,
     },
     /// Training efficiency (paper Fig. 1(e)): train each policy × seed with a snapshot every N epochs, roll
     /// every snapshot out, and write success and γ per epoch (mean ± std), epochs-to-X % success and a plot.
@@ -193,10 +197,10 @@ enum Command {
         demos: usize,
         #[arg(long)]
         epochs: Option<usize>,
-        #[arg(long, default_value_t = 50)]
+        #[arg(long, default_value_t = 1000)]
         rollouts: usize,
-        /// Training seeds 0..N (each also seeds its demos and rollouts); the table gives mean ± std.
-        #[arg(long, default_value_t = 3)]
+        /// Training seeds 0..N (each also seeds its demos and rollouts); the table gives means with 95 % intervals.
+        #[arg(long, default_value_t = 5)]
         seeds: u64,
         #[arg(long, default_value_t = cli::DEFAULT_EXEC_HORIZON)]
         exec_horizon: usize,
@@ -205,6 +209,15 @@ enum Command {
         /// Keep each value × seed already trained under --out with this configuration (it is still evaluated).
         #[arg(long)]
         resume: bool,
+    },
+    /// Two `mars family` runs (their family.json: same layouts, seeds and demos, two configurations) compared seed
+    /// by seed: B − A per layout and policy with 95 % intervals.
+    FamilyDiff {
+        a: PathBuf,
+        b: PathBuf,
+        /// Also write the table here (markdown).
+        #[arg(long)]
+        out: Option<PathBuf>,
     },
     /// The benchmark on every layout of a folder over several training seeds; checks MARS's mode targets
     /// against FM on the means; writes family.md and family.json.
@@ -216,13 +229,13 @@ enum Command {
         #[arg(long, default_value = "configs/nav2d_family")]
         layouts: PathBuf,
         /// Training seeds 0..N.
-        #[arg(long, default_value_t = 3)]
+        #[arg(long, default_value_t = 5)]
         seeds: u64,
         #[arg(long, default_value_t = 200)]
         demos: usize,
         #[arg(long)]
         epochs: Option<usize>,
-        #[arg(long, default_value_t = 100)]
+        #[arg(long, default_value_t = 1000)]
         rollouts: usize,
         #[arg(long, default_value_t = cli::DEFAULT_EXEC_HORIZON)]
         exec_horizon: usize,
@@ -235,6 +248,10 @@ enum Command {
         /// evaluated): a stopped family run continues where it stopped, and more seeds add to fewer.
         #[arg(long)]
         resume: bool,
+        /// Condition the velocity field and the scheduler on the history (model.velocity_uses_history and
+        /// scheduler_uses_history), whatever --config says.
+        #[arg(long)]
+        history_conditioning: bool,
     },
 }
 
@@ -252,6 +269,7 @@ fn main() -> std::process::ExitCode {
     cli::init_runtime_env(jobs);
     let result = match args.command {
         Command::Demos { layout, n, seed, out } => cli::demos(&layout, n, seed, &out),
+        Command::FamilyDiff { a, b, out } => mars_policy::family_diff::run(&a, &b, out.as_deref()),
         Command::BenchTrain { policy, config, demos, epochs, rounds, python, threads, out } => {
             let opts = mars_policy::bench_train::BenchTrainOptions {
                 kind: policy,
@@ -324,6 +342,7 @@ fn main() -> std::process::ExitCode {
             exec_horizon,
             policies,
             resume,
+            history_conditioning,
             ..
         } => {
             let policies = if policies.is_empty() { PolicyKind::ALL.to_vec() } else { policies };
@@ -336,6 +355,7 @@ fn main() -> std::process::ExitCode {
                 policies,
                 jobs,
                 resume,
+                history_conditioning,
                 side_by_side: false,
             };
             cli::benchmark(&out, &config, &layout, &opts).map(|_| ())
@@ -378,6 +398,7 @@ fn main() -> std::process::ExitCode {
             exec_horizon,
             policies,
             resume,
+            history_conditioning,
             ..
         } => {
             let policies = if policies.is_empty() { vec![PolicyKind::Mars, PolicyKind::Fm] } else { policies };
@@ -390,6 +411,7 @@ fn main() -> std::process::ExitCode {
                 policies,
                 jobs,
                 resume,
+                history_conditioning,
                 side_by_side: false,
             };
             let opts = family::FamilyOptions { bench, seeds, targets: family::Targets::default() };

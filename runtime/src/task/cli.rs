@@ -77,11 +77,19 @@ impl mars_policy::curve::CurveTask for PickCurve {
         demos(&self.task, &self.profile, self.demos, seed, path)
     }
 
-    fn evaluate(&self, dir: &Path, seed: u64) -> anyhow::Result<mars_policy::curve::Score> {
+    fn evaluate(&self, dir: &Path, demos: &Path, seed: u64) -> anyhow::Result<mars_policy::curve::Score> {
         let (task, profile) = load_task(&self.task, &self.profile)?;
         let r = evaluate(dir, &task, &profile, self.episodes, seed)?;
-        // No TV yet: the pick task does not carry its demos' mode shares to the evaluation (issue 34's note).
+        // The grasps' shares in the demos this checkpoint was trained on (the expert balances them).
+        let mut demo_counts = vec![0usize; task.n_modes()];
+        for m in mars_policy::cli::load_demos(demos)?.demos.iter().filter_map(|d| d.mode) {
+            if let Some(c) = demo_counts.get_mut(m) {
+                *c += 1;
+            }
+        }
+        let tv =
+            mars_tasks::stats::shares(&demo_counts).map(|s| mars_tasks::stats::modes::tv_to(&r.mode_counts, &s) as f32);
         let success_pct = 100.0 * r.success_rate();
-        Ok(mars_policy::curve::Score { success_pct, gamma: r.gamma, mean_k: r.mean_k, tv: None })
+        Ok(mars_policy::curve::Score { success_pct, gamma: r.gamma, mean_k: r.mean_k, tv })
     }
 }
