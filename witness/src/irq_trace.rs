@@ -128,9 +128,9 @@ fn start_instance() -> Result<PathBuf, String> {
 
 /// Mounts tracefs at [`TRACEFS`] (what systemd does at boot; a machine started without it lacks the mount).
 fn mount_tracefs() -> Result<(), String> {
-    let (source, target, fstype) = (c"nodev", c"/sys/kernel/tracing", c"tracefs");
+    let target = std::ffi::CString::new(TRACEFS).expect("a path without NUL");
     // SAFETY: three NUL-terminated strings and no data; mount(2) reads them and returns.
-    let rc = unsafe { libc::mount(source.as_ptr(), target.as_ptr(), fstype.as_ptr(), 0, std::ptr::null()) };
+    let rc = unsafe { libc::mount(c"nodev".as_ptr(), target.as_ptr(), c"tracefs".as_ptr(), 0, std::ptr::null()) };
     if rc != 0 {
         let e = std::io::Error::last_os_error();
         return Err(format!("tracefs is not mounted at {TRACEFS} and mounting it failed: {e}"));
@@ -250,16 +250,10 @@ mod tests {
             eprintln!("not root: tracefs is root's, and the witness records nothing here (nothing to check)");
             return;
         }
-        // SAFETY: sched_getcpu has no preconditions; a zeroed cpu_set_t is a valid empty set.
+        // SAFETY: sched_getcpu has no preconditions.
         let cpu = unsafe { libc::sched_getcpu() }.max(0) as usize;
-        let mut set: libc::cpu_set_t = unsafe { std::mem::zeroed() };
-        unsafe { libc::CPU_SET(cpu, &mut set) };
-        // SAFETY: pins this test's thread to the CPU it is on; the set outlives the call.
-        assert_eq!(unsafe { libc::sched_setaffinity(0, std::mem::size_of_val(&set), &set) }, 0);
-        let spin = |ms: u64| {
-            let until = crate::monotonic_ns() + ms * 1_000_000;
-            while crate::monotonic_ns() < until {}
-        };
+        crate::core_watch::pin(cpu).unwrap();
+        let spin = crate::hog::spin_for;
         let trace = IrqTrace::start();
         assert_eq!(trace.problem(), None);
         // A window is answered only once the CPU's buffer reaches back before it (its first event).
