@@ -106,10 +106,11 @@ fn assert_robot_line_clean(hal_stdout: &str, hal_stderr: &str, sim_log: &str) ->
 /// simulator shares the HAL's core (`FrankaSim::start`) below the HAL's real-time priority, so a HAL that computed
 /// past its cycle would hold the simulator up with it, and the robot's success rate could not show it; the HAL's
 /// account of its ticks' CPU time must then. That account is the HAL's, so it convicts and never excuses; but this
-/// kernel (no IRQ time accounting) charges interrupts to the thread they interrupt, and this VM's thread clock does
-/// not always keep the hypervisor's steal out: a computing tick is excused (one rerun) only when the kernel's own
-/// interrupt trace and the stall witness show that much taken from the core in that tick's window that its CPU
-/// time less that stays under the cycle — for every computing tick the HAL listed, and only if it listed them all.
+/// kernel (no IRQ time accounting) charges interrupts to the thread they interrupt, and this VM's thread clock
+/// charges the hypervisor's absences to it too: a computing tick is excused (one rerun) only when the kernel's own
+/// interrupt trace and the stall witness's late wake-ups show that much taken from the core in that tick's window
+/// (each moment once, no steal: `Witness::excuse_computing_ticks`) that its CPU time less that stays under the
+/// cycle — for every computing tick the HAL listed, and only if it listed them all.
 fn assert_hal_never_computed_past_its_cycle(hal_stdout: &str) -> Attempt {
     let line = find_line(hal_stdout, &["others answering later than the"]).unwrap_or_else(|| panic!("{hal_stdout}"));
     let computing = number_after(line, "period:") as usize;

@@ -93,6 +93,13 @@ impl CoreWatch {
         Some(LatenessSeen { core: self.core, ms, longest_ms, count: late.len() })
     }
 
+    /// Its late stretches clipped to `window` (CLOCK_MONOTONIC ns from, to); `None` if it did not watch the window
+    /// from its start.
+    pub fn stretches_in(&self, window: (u64, u64)) -> Option<Vec<(u64, u64)>> {
+        let late = self.late_in(window)?;
+        Some(late.iter().map(|l| (l.due_ns.max(window.0), l.woke_ns.min(window.1))).filter(|(a, b)| b > a).collect())
+    }
+
     /// Periods of `period_ns` its late stretches inside `window` could have cost a loop on this core: each
     /// stretch rounded up to whole periods.
     pub fn lost_periods(&self, window: (u64, u64), period_ns: u64) -> u64 {

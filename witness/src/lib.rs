@@ -165,9 +165,10 @@ impl Witness {
     /// An [`Excuse`] for a loop on `core` whose ticks `ticks` (each: CLOCK_MONOTONIC start ns, wall ns, the tick's CPU
     /// time ns by the thread's own clock) reached its `period_ns` of CPU: if, for every one, what the machine took
     /// in the tick's window leaves less than the period to the loop — the kernel's trace of interrupt handlers on
-    /// the core (a kernel without IRQ time accounting charges them to the thread's clock) plus the witness's stall
-    /// on it (its late wake-ups, or the hypervisor's steal, which this VM's clock does not always keep out of the
-    /// thread's). The evidence given is the tick the machine took most from. `None` if a tick is not so explained.
+    /// the core (a kernel without IRQ time accounting charges them to the thread's clock) and the witness's late
+    /// wake-ups on it (the hypervisor's absences, which this VM's clock charges to the thread that was running),
+    /// each moment counted once ([`TickTaken::ns`]). The evidence given is the tick the machine took most from.
+    /// `None` if a tick is not so explained.
     pub fn excuse_computing_ticks(
         &self,
         failure: impl Into<String>,
@@ -192,9 +193,13 @@ impl Witness {
     /// What the machine took from `core` within `[from_ns, to_ns]`: interrupts by the kernel's trace, and the
     /// witness's stall (for a test's log, and [`Self::excuse_computing_ticks`]).
     pub fn taken_from_tick(&self, core: usize, from_ns: u64, to_ns: u64) -> TickTaken {
+        let stall = self.seen_on(Some(core), from_ns, to_ns);
+        let late = self.cores.iter().find(|c| c.core() == core).and_then(|c| c.stretches_in((from_ns, to_ns)));
+        let in_late = late.iter().flatten().filter_map(|&(from, to)| self.irq.time_in(core, from, to));
         TickTaken {
             interrupts: self.irq.time_in(core, from_ns, to_ns),
-            stall: self.seen_on(Some(core), from_ns, to_ns),
+            stall,
+            interrupts_while_late_ns: in_late.map(|t| t.ns).sum(),
         }
     }
 
@@ -237,13 +242,23 @@ impl Witness {
 pub struct TickTaken {
     pub interrupts: Option<InterruptTime>,
     pub stall: Option<Evidence>,
+    /// The part of `interrupts` inside the witness's late stretches: a handler that made the witness late is in
+    /// both accounts.
+    pub interrupts_while_late_ns: u64,
 }
 
 impl TickTaken {
-    /// Interrupt time plus the stall (ns); what neither account covers counts 0.
+    /// What the machine took from the tick (ns): its interrupt time and the witness's late stretches in it, the
+    /// interrupts inside those stretches once. Not the steal: /proc/stat counts it in 10 ms steps, sampled every
+    /// 10 ms, so it cannot be placed inside a tick of about a millisecond (steal elsewhere in the samples' span
+    /// would excuse a tick that really computed). Nothing when something outranked the witness.
     pub fn ns(&self) -> u64 {
+        if self.stall.is_some_and(|e| e.outranked.is_some()) {
+            return 0;
+        }
         let irq = self.interrupts.as_ref().map_or(0, |t| t.ns);
-        irq + self.stall.map_or(0.0, |e| e.stalled_ms() * 1e6) as u64
+        let late = self.stall.and_then(|e| e.lateness).map_or(0.0, |l| l.ms * 1e6) as u64;
+        (irq + late).saturating_sub(self.interrupts_while_late_ns.min(irq))
     }
 }
 
@@ -254,9 +269,17 @@ impl std::fmt::Display for TickTaken {
             None => write!(f, "no kernel interrupt trace of it; ")?,
         }
         match &self.stall {
-            Some(e) => write!(f, "{e}"),
-            None => write!(f, "the stall witness did not watch it"),
+            Some(e) => write!(f, "{e}")?,
+            None => write!(f, "the stall witness did not watch it")?,
         }
+        if self.interrupts_while_late_ns > 0 {
+            write!(
+                f,
+                " ({:.0} µs of the interrupts while the witness was late, counted once)",
+                self.interrupts_while_late_ns as f64 * 1e-3
+            )?;
+        }
+        write!(f, "; taken from the tick: {:.0} µs (steal not counted at this scale)", self.ns() as f64 * 1e-3)
     }
 }
 
@@ -276,4 +299,32 @@ fn online_cores() -> Vec<usize> {
         return vec![0];
     }
     (0..libc::CPU_SETSIZE as usize).filter(|&c| unsafe { libc::CPU_ISSET(c, &set) }).collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::core_watch::LatenessSeen;
+    use crate::steal::StealSeen;
+
+    fn taken(irq_us: u64, late_ms: f64, steal_ms: f64, irq_while_late_us: u64) -> TickTaken {
+        let window = (1_000_000, 2_300_000);
+        let interrupts = InterruptTime { cpu: 1, window, ns: irq_us * 1000, count: 2, top: String::new() };
+        let lateness = Some(LatenessSeen { core: 1, ms: late_ms, longest_ms: late_ms, count: 1 });
+        let steal = Some(StealSeen { cpu: 1, ms: steal_ms });
+        TickTaken {
+            interrupts: Some(interrupts),
+            stall: Some(Evidence { window, lateness, steal, outranked: None }),
+            interrupts_while_late_ns: irq_while_late_us * 1000,
+        }
+    }
+
+    /// A handler that made the witness late counts once, and the steal, counted in 10 ms steps, not at all.
+    #[test]
+    fn a_tick_is_credited_each_moment_once_and_no_steal() {
+        assert_eq!(taken(400, 0.6, 0.0, 0).ns(), 1_000_000);
+        assert_eq!(taken(400, 0.6, 0.0, 300).ns(), 700_000);
+        assert_eq!(taken(0, 0.0, 10.0, 0).ns(), 0);
+        assert_eq!(taken(100, 0.0, 10.0, 0).ns(), 100_000);
+    }
 }
