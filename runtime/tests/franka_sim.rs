@@ -123,7 +123,10 @@ fn assert_hal_never_computed_past_its_cycle(hal_stdout: &str) -> Attempt {
     let core = servo_core();
     let seen: Vec<String> = listed
         .iter()
-        .map(|&(start, wall, _)| witness().taken_from_tick(core, start, start + wall).to_string())
+        .map(|&(start, wall, cpu)| {
+            let taken = witness().taken_from_tick(core, start, start + wall);
+            format!("computing tick of {} µs, {} µs of CPU: {taken}", wall / 1000, cpu / 1000)
+        })
         .collect();
     let excuse = (listed.len() == computing)
         .then(|| witness().excuse_computing_ticks(failure.clone(), core, &listed, period_ns))
