@@ -11,7 +11,10 @@ use crate::monotonic_ns;
 
 /// How often the witness wakes: the HAL's period on an FR3, so a missed period of the rig is a late wake-up here.
 pub const PERIOD_NS: u64 = 1_000_000;
-/// A wake-up at least this late is recorded (the witness's own wake-up lateness on an idle VM is tens of µs).
+/// A wake-up at least this late is recorded (the witness's own wake-up lateness on an idle VM is tens of µs). Not
+/// lower: on a kernel that does not preempt itself (`preempt=none`) a thread of the rig in a system call on this
+/// core delays the witness too — a neighbour mapping and unmapping 1 GB made a waker at [`crate::PRIORITY`] ≥ 100
+/// µs late several times as often (`examples/absence_probe.rs --churn`) — and that is no stall of the machine.
 pub const LATE_NS: u64 = 500_000;
 /// Late wake-ups kept per core (the oldest go first): hours of a noisy machine.
 const CAPACITY: usize = 1 << 16;
