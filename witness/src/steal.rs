@@ -54,7 +54,7 @@ impl StealWatch {
     }
 
     /// The most steal a CPU lost over `(from, to)` (CPU `only`, or any), from the last sample at or before `from`
-    /// to the first at or after `to` — `None` if the samples do not bracket the window within [`SLACK_NS`].
+    /// to the first at or after `to` — `None` if the samples do not bracket the window within `SLACK_NS`.
     pub fn largest_in(&self, (from, to): (u64, u64), only: Option<usize>) -> Option<StealSeen> {
         let patience = monotonic_ns() + 3 * SAMPLE_MS * 1_000_000;
         loop {
