@@ -7,10 +7,11 @@
 //!   HAL at 85, marsd's servo at 80) — waking every millisecond on an absolute deadline and recording each wake-up
 //!   later than [`core_watch::LATE_NS`]. Nothing of a rig's user-space code can delay it: only the kernel,
 //!   interrupts, a higher-priority thread of another program, or the hypervisor (whose absences this VM charges to
-//!   the running thread's CPU clock: `examples/absence_probe.rs`). The kernel's work for a rig's system call can, on
-//!   a kernel that does not preempt itself, by less than [`core_watch::LATE_NS`] in what was measured; that is why
-//!   shorter lateness is not recorded. A late wake-up is a stretch in which its core ran nothing of the rig's own
-//!   code either.
+//!   the running thread's CPU clock: `examples/absence_probe.rs`). The kernel's work for a rig's system call can
+//!   delay it too, on a kernel that does not preempt itself: beside a neighbour's mmap churn (`absence_probe
+//!   --churn`) wake-ups ≥ 100 µs late came several times as often, those ≥ [`core_watch::LATE_NS`] not measurably
+//!   so; shorter lateness is therefore not recorded. A late wake-up is a stretch in which its core ran nothing of
+//!   the rig's own code either.
 //! - [`steal`]: the kernel's per-CPU `steal` counter (/proc/stat), sampled every 10 ms: CPU time the hypervisor
 //!   took.
 //! - [`irq_trace`]: the kernel's trace of interrupt handlers per CPU (tracefs, CLOCK_MONOTONIC): what a loop's
