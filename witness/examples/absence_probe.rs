@@ -22,6 +22,7 @@
 //! cargo run --release -p stall-witness --example absence_probe -- [SECONDS=10] [CPU=1] [--witness | --churn MB]
 //! ```
 
+use stall_witness::core_watch::{pin, sched_fifo, sleep_until};
 use stall_witness::monotonic_ns;
 
 /// Charged stretches by length (µs): the upper bound of each bucket.
@@ -52,7 +53,8 @@ struct Tally {
 }
 
 impl Tally {
-    fn add(&mut self, gap: u64, cpu: u64) {
+    /// A stretch of `gap` ns without progress from `start`, in which the thread's CPU clock advanced `cpu` ns.
+    fn add(&mut self, start: u64, gap: u64, cpu: u64) {
         if cpu * 2 <= gap {
             self.not_charged += 1;
             self.not_charged_ns += gap;
@@ -61,7 +63,7 @@ impl Tally {
         self.charged += 1;
         self.charged_ns += gap;
         if gap >= LONG_NS && self.long.len() < self.long.capacity() {
-            self.long.push((0, gap));
+            self.long.push((start, gap));
         }
         self.longest_charged_ns = self.longest_charged_ns.max(gap);
         let bucket = BUCKETS_US.iter().position(|&b| gap < b * 1000).unwrap_or(BUCKETS_US.len() - 1);
@@ -76,11 +78,7 @@ fn spin(seconds: f64) -> Tally {
     while t < end {
         let (t1, c1) = (monotonic_ns(), thread_cpu_ns());
         if t1 - t >= GAP_NS {
-            let kept = tally.long.len();
-            tally.add(t1 - t, c1.saturating_sub(c));
-            if let Some(l) = tally.long.get_mut(kept) {
-                l.0 = t;
-            }
+            tally.add(t, t1 - t, c1.saturating_sub(c));
         }
         (t, c) = (t1, c1);
     }
@@ -88,7 +86,7 @@ fn spin(seconds: f64) -> Tally {
 }
 
 /// Maps `mb` MB populated and unmaps it, over and over, until `end` (CLOCK_MONOTONIC ns); returns the rounds.
-fn churn(mb: usize, end: u64) -> u64 {
+fn churn(mb: usize, end: u64) -> Result<u64, String> {
     let len = mb << 20;
     let (prot, flags) =
         (libc::PROT_READ | libc::PROT_WRITE, libc::MAP_PRIVATE | libc::MAP_ANONYMOUS | libc::MAP_POPULATE);
@@ -97,25 +95,24 @@ fn churn(mb: usize, end: u64) -> u64 {
         // SAFETY: a fresh anonymous mapping, unmapped at once with its own length; nothing reads it.
         let p = unsafe { libc::mmap(std::ptr::null_mut(), len, prot, flags, -1, 0) };
         if p == libc::MAP_FAILED {
-            break;
+            return Err(format!("mapping {mb} MB: {}", std::io::Error::last_os_error()));
         }
         unsafe { libc::munmap(p, len) };
         rounds += 1;
     }
-    rounds
+    Ok(rounds)
 }
 
-/// A waker at the witness's priority every ms on `cpu` beside [`churn`] of `mb` MB; prints its lateness.
+/// A waker at the witness's priority every ms on `cpu` beside [`churn`] of `mb` MB (none for 0); prints its
+/// lateness.
 fn churn_probe(seconds: f64, cpu: usize, mb: usize) -> Result<(), String> {
     let end = monotonic_ns() + (seconds * 1e9) as u64;
-    let neighbour = std::thread::spawn(move || stall_witness::core_watch::pin(cpu).map(|()| churn(mb, end)));
-    stall_witness::core_watch::pin(cpu)?;
-    set_fifo(stall_witness::PRIORITY)?;
+    let neighbour = std::thread::spawn(move || if mb == 0 { Ok(0) } else { pin(cpu).and_then(|()| churn(mb, end)) });
+    pin(cpu)?;
+    sched_fifo(stall_witness::PRIORITY)?;
     let (mut due, mut wakes, mut over_100us, mut over_500us, mut worst) = (monotonic_ns() + 1_000_000, 0, 0, 0, 0);
     while due < end {
-        let ts = libc::timespec { tv_sec: (due / 1_000_000_000) as _, tv_nsec: (due % 1_000_000_000) as _ };
-        // SAFETY: an absolute sleep on CLOCK_MONOTONIC with a valid timespec.
-        unsafe { libc::clock_nanosleep(libc::CLOCK_MONOTONIC, libc::TIMER_ABSTIME, &ts, std::ptr::null_mut()) };
+        sleep_until(due);
         let late = monotonic_ns().saturating_sub(due);
         (wakes, worst) = (wakes + 1, worst.max(late));
         over_100us += u64::from(late >= 100_000);
@@ -132,49 +129,50 @@ fn churn_probe(seconds: f64, cpu: usize, mb: usize) -> Result<(), String> {
     Ok(())
 }
 
-fn set_fifo(priority: i32) -> Result<(), String> {
-    let param = libc::sched_param { sched_priority: priority };
-    // SAFETY: sched_setscheduler on this thread with a valid sched_param.
-    match unsafe { libc::sched_setscheduler(0, libc::SCHED_FIFO, &param) } {
-        0 => Ok(()),
-        _ => Err(format!("SCHED_FIFO {priority}: {} (run as root)", std::io::Error::last_os_error())),
+/// The command line: `[SECONDS] [CPU] [--witness | --churn MB]`.
+struct Args {
+    seconds: f64,
+    cpu: usize,
+    with_witness: bool,
+    churn_mb: Option<usize>,
+}
+
+fn parse_args() -> Result<Args, String> {
+    let mut a = Args { seconds: 10.0, cpu: 1, with_witness: false, churn_mb: None };
+    let mut numbers = 0;
+    let mut args = std::env::args().skip(1);
+    let bad = |what: &str, v: &str| {
+        format!("{what}: {v:?} is not a number (usage: [SECONDS] [CPU] [--witness | --churn MB])")
+    };
+    while let Some(arg) = args.next() {
+        match (arg.as_str(), numbers) {
+            ("--witness", _) => a.with_witness = true,
+            ("--churn", _) => {
+                let mb = args.next().unwrap_or_default();
+                a.churn_mb = Some(mb.parse().map_err(|_| bad("--churn MB", &mb))?);
+            }
+            (v, 0) => (a.seconds, numbers) = (v.parse().map_err(|_| bad("SECONDS", v))?, 1),
+            (v, 1) => (a.cpu, numbers) = (v.parse().map_err(|_| bad("CPU", v))?, 2),
+            (v, _) => return Err(format!("unexpected {v:?} (usage: [SECONDS] [CPU] [--witness | --churn MB])")),
+        }
     }
+    Ok(a)
+}
+
+fn exit_with(e: String) -> ! {
+    eprintln!("{e}");
+    std::process::exit(2)
 }
 
 fn main() {
-    let (mut with_witness, mut churn_mb, mut numbers) = (false, None, Vec::new());
-    let mut args = std::env::args().skip(1);
-    while let Some(a) = args.next() {
-        match a.as_str() {
-            "--witness" => with_witness = true,
-            "--churn" => churn_mb = args.next().and_then(|mb| mb.parse::<usize>().ok()),
-            _ => numbers.push(a),
-        }
-    }
-    let seconds: f64 = numbers.first().and_then(|s| s.parse().ok()).unwrap_or(10.0);
-    let cpu: usize = numbers.get(1).and_then(|s| s.parse().ok()).unwrap_or(1);
+    let Args { seconds, cpu, with_witness, churn_mb } = parse_args().unwrap_or_else(|e| exit_with(e));
     if let Some(mb) = churn_mb {
-        if let Err(e) = churn_probe(seconds, cpu, mb) {
-            eprintln!("{e}");
-            std::process::exit(2);
-        }
-        return;
+        return churn_probe(seconds, cpu, mb).unwrap_or_else(|e| exit_with(e));
     }
-    if with_witness {
-        let w = stall_witness::witness();
-        if let Some(why) = w.unable() {
-            eprintln!("the stall witness cannot run here: {why}");
-            std::process::exit(2);
-        }
+    if with_witness && let Some(why) = stall_witness::witness().unable() {
+        exit_with(format!("the stall witness cannot run here: {why}"));
     }
-    if let Err(e) = stall_witness::core_watch::pin(cpu) {
-        eprintln!("cpu {cpu}: {e}");
-        std::process::exit(2);
-    }
-    if let Err(e) = set_fifo(80) {
-        eprintln!("{e}");
-        std::process::exit(2);
-    }
+    pin(cpu).and_then(|()| sched_fifo(80)).unwrap_or_else(|e| exit_with(format!("cpu {cpu}: {e} (run as root)")));
     // The kernel's own trace of interrupt handlers (root): which charged stretches an interrupt explains.
     let trace = stall_witness::irq_trace::IrqTrace::start();
     let t = spin(seconds);
@@ -195,18 +193,18 @@ fn main() {
         println!("no kernel interrupt trace ({why}): the charged stretches are not told apart");
         return;
     }
-    let unexplained: Vec<u64> = t
-        .long
-        .iter()
-        .filter(|&&(from, len)| trace.time_in(cpu, from, from + len).is_some_and(|i| i.ns * 2 < len))
-        .map(|&(_, len)| len)
-        .collect();
+    // Per long stretch: its interrupt time, or None where the trace's buffer no longer reaches back to it.
+    let irq: Vec<(u64, Option<u64>)> =
+        t.long.iter().map(|&(from, len)| (len, trace.time_in(cpu, from, from + len).map(|i| i.ns))).collect();
+    let unexplained: Vec<u64> =
+        irq.iter().filter(|(len, ns)| ns.is_some_and(|ns| ns * 2 < *len)).map(|(len, _)| *len).collect();
     println!(
         "of the {} charged stretches ≥ {} µs, {} had less than half their time in interrupt handlers by the kernel's \
-         trace (the longest {:.0} µs): time the guest did not run and charged to the thread",
+         trace (the longest {:.0} µs): time the guest did not run and charged to the thread; {} no longer in the trace",
         t.long.len(),
         LONG_NS / 1000,
         unexplained.len(),
-        unexplained.iter().max().copied().unwrap_or(0) as f64 * 1e-3
+        unexplained.iter().max().copied().unwrap_or(0) as f64 * 1e-3,
+        irq.iter().filter(|(_, ns)| ns.is_none()).count()
     );
 }

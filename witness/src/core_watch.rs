@@ -136,7 +136,11 @@ impl CoreWatch {
 
 /// The witness thread: pin, SCHED_FIFO, then wake every period for ever, recording late wake-ups.
 fn watch(core: usize, shared: &Shared) {
-    let setup = pin(core).and_then(|()| sched_fifo(crate::PRIORITY)).map_err(|e| format!("core {core}: {e}"));
+    let fifo = || {
+        sched_fifo(crate::PRIORITY)
+            .map_err(|e| format!("{e}: without it the witness would see the loops' own work as stalls"))
+    };
+    let setup = pin(core).and_then(|()| fifo()).map_err(|e| format!("core {core}: {e}"));
     let ok = setup.is_ok();
     let _ = shared.setup.set(setup);
     if !ok {
@@ -170,12 +174,14 @@ fn watch(core: usize, shared: &Shared) {
     }
 }
 
-fn sleep_until(ns: u64) {
+/// Sleeps until `ns` on CLOCK_MONOTONIC (absolute).
+pub fn sleep_until(ns: u64) {
     let ts = libc::timespec { tv_sec: (ns / 1_000_000_000) as libc::time_t, tv_nsec: (ns % 1_000_000_000) as _ };
     // SAFETY: an absolute sleep on CLOCK_MONOTONIC with a valid timespec; EINTR just ends the sleep early.
     unsafe { libc::clock_nanosleep(libc::CLOCK_MONOTONIC, libc::TIMER_ABSTIME, &ts, std::ptr::null_mut()) };
 }
 
+/// Pins the calling thread to `core`.
 pub fn pin(core: usize) -> Result<(), String> {
     // SAFETY: a zeroed cpu_set_t is a valid empty set; CPU_SET and sched_setaffinity take it by reference.
     let mut set: libc::cpu_set_t = unsafe { std::mem::zeroed() };
@@ -186,14 +192,12 @@ pub fn pin(core: usize) -> Result<(), String> {
     }
 }
 
-fn sched_fifo(priority: i32) -> Result<(), String> {
+/// Raises the calling thread to SCHED_FIFO `priority`.
+pub fn sched_fifo(priority: i32) -> Result<(), String> {
     let param = libc::sched_param { sched_priority: priority };
     // SAFETY: the calling thread's own scheduling; the error comes back as the return value.
     match unsafe { libc::pthread_setschedparam(libc::pthread_self(), libc::SCHED_FIFO, &param) } {
         0 => Ok(()),
-        e => Err(format!(
-            "SCHED_FIFO {priority} refused ({}): without it the witness would see the loops' own work as stalls",
-            std::io::Error::from_raw_os_error(e)
-        )),
+        e => Err(format!("SCHED_FIFO {priority} refused ({})", std::io::Error::from_raw_os_error(e))),
     }
 }

@@ -21,13 +21,7 @@ pub fn take_core(core: usize, ms: u64) -> bool {
 
 /// Pins the calling thread to `core` and raises it to SCHED_FIFO 99; false if either was refused.
 pub fn pin_at_fifo_99(core: usize) -> bool {
-    // SAFETY: the calling thread's own affinity and scheduling.
-    let mut set: libc::cpu_set_t = unsafe { std::mem::zeroed() };
-    unsafe { libc::CPU_SET(core, &mut set) };
-    let pinned = unsafe { libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &set) } == 0;
-    let param = libc::sched_param { sched_priority: 99 };
-    let fifo = unsafe { libc::pthread_setschedparam(libc::pthread_self(), libc::SCHED_FIFO, &param) } == 0;
-    pinned && fifo
+    crate::core_watch::pin(core).is_ok() && crate::core_watch::sched_fifo(99).is_ok()
 }
 
 /// Busy for `ms`, never yielding.
