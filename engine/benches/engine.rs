@@ -103,7 +103,7 @@ fn model_dir(root: &Path) -> (PathBuf, String, bool) {
     let normalizer = Normalizer { obs: stats(cfg.model.obs_dim), action: stats(cfg.model.action_dim) };
     let trained = Trained { cfg, model, varmap, normalizer, log: Vec::new(), epoch_seconds: Vec::new() };
     let dir = std::env::temp_dir().join(format!("mars-engine-bench-{}", std::process::id()));
-    checkpoint::save(&dir, &trained).unwrap();
+    trained.save(&dir).unwrap();
     (dir, "configs/policy.toml network, random weights (runs/nav2d/mars absent)".into(), true)
 }
 

@@ -2,13 +2,11 @@
 //! encoder does at inference, and encoded by its own [`ImageEncoder`]; the features of every camera, then the
 //! state, become the encoder MLP's input — the order of `mars_policy::vision`'s concatenation.
 
-use std::path::Path;
-
 use crate::dims::VisionDims;
 use crate::error::LoadError;
 use crate::matmul::MatMul;
 use crate::resnet::ImageEncoder;
-use crate::weights::with_bytes;
+use crate::weights::Reader;
 
 pub struct Cameras {
     v: VisionDims,
@@ -18,9 +16,10 @@ pub struct Cameras {
 }
 
 impl Cameras {
-    /// The encoders in `bytes` (the checkpoint's safetensors file `weights`) under `encoder.vision.camera<i>.`.
-    pub fn load(weights: &Path, bytes: &[u8], v: &VisionDims, portable: bool) -> Result<Self, LoadError> {
-        let encoders = with_bytes(weights, bytes, MatMul::detect(1, portable), |r| {
+    /// The encoders under `encoder.vision.camera<i>.` of the checkpoint's weights. Each runs on one thread
+    /// (its own kernels, packed for them).
+    pub(crate) fn read(r: &Reader, v: &VisionDims, portable: bool) -> Result<Self, LoadError> {
+        let encoders = r.with_mm(MatMul::detect(1, portable), |r| {
             (0..v.cameras)
                 .map(|i| {
                     let prefix = format!("encoder.vision.camera{i}.");

@@ -1,8 +1,8 @@
 //! Every size the engine needs, derived once from the checkpoint's `ModelConfig`, and the analytic FLOP
 //! count of a call (for the benchmark's achieved-FLOP/s figure).
 
-use mars_policy::config::{EncoderConfig, ModelConfig, PolicyKind};
-use mars_policy::nn::resnet::ResNetConfig;
+use mars_policy_format::config::{EncoderConfig, ModelConfig, PolicyKind};
+use mars_policy_format::encoder::ResNetConfig;
 
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Dims {

@@ -11,9 +11,9 @@ use crate::error::{EngineError, Input, LoadError};
 use crate::matmul::MatMul;
 use crate::observe::{observe, source};
 use crate::velocity::{conditioning, velocity};
-use crate::weights::Weights;
-use mars_policy::checkpoint::{self, CheckpointError, CheckpointMeta, WEIGHTS_FILE};
-use mars_policy::config::PolicyKind;
+use crate::weights::{Weights, with_bytes};
+use mars_policy_format::checkpoint::{self, CheckpointError, CheckpointMeta, WEIGHTS_FILE};
+use mars_policy_format::config::PolicyKind;
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
 use rand_distr::StandardNormal;
@@ -107,9 +107,10 @@ fn check(what: Input, x: &[f32], want: usize) -> Result<(), EngineError> {
 impl Engine {
     /// Loads a checkpoint directory of any policy kind, allocates every buffer and runs the warm-up calls.
     ///
-    /// The checkpoint is validated by `mars_policy::checkpoint::load` (so every problem it reports — missing
-    /// file, corrupt weights, wrong shapes, unknown config — is reported the same way here), then refused if
-    /// the engine cannot run its config.
+    /// `policy.json` is checked by the checkpoint format's own reader (`mars_policy_format::checkpoint`, the
+    /// trainer's too: every size within its limits, statistics of the right lengths), the engine refuses a config
+    /// it cannot run, and then every tensor is checked as it is read (F32, the config's shape, finite values),
+    /// and a file holding tensors the config's network does not have is refused.
     pub fn load(dir: &Path, cfg: EngineConfig) -> Result<Self, LoadError> {
         cfg.validate().map_err(LoadError::Config)?;
         let meta_path = dir.join(checkpoint::META_FILE);
@@ -124,17 +125,18 @@ impl Engine {
     /// bytes.
     pub fn load_from(dir: &Path, meta_text: &str, weights: &[u8], cfg: EngineConfig) -> Result<Self, LoadError> {
         cfg.validate().map_err(LoadError::Config)?;
-        let meta = checkpoint::load_from(dir, meta_text, weights, &candle_core::Device::Cpu)?.meta;
+        let meta = checkpoint::parse_meta(dir, meta_text)?;
         let dims = Dims::new(&meta.model, meta.kind)
             .map_err(|problem| LoadError::Unsupported { path: dir.to_path_buf(), problem })?;
         let mm = MatMul::detect(cfg.threads, cfg.portable_kernels);
         let fixed_w = meta.kind.fixed_w(&meta.model);
         let path = dir.join(WEIGHTS_FILE);
-        let cameras = match &dims.vision {
-            Some(v) => Some(Cameras::load(&path, weights, v, cfg.portable_kernels)?),
-            None => None,
-        };
-        let weights = Weights::from_bytes(&path, weights, &dims, fixed_w, mm)?;
+        let (cameras, weights) = with_bytes(&path, weights, mm, |r| {
+            let cameras = dims.vision.as_ref().map(|v| Cameras::read(r, v, cfg.portable_kernels)).transpose()?;
+            let weights = Weights::read(r, &dims, fixed_w)?;
+            r.refuse_unread(&format!("`{}` model", meta.kind))?;
+            Ok((cameras, weights))
+        })?;
         let buf = Buffers::new(&dims).map_err(|problem| LoadError::Unsupported { path: dir.to_path_buf(), problem })?;
         let mut engine = Self {
             meta,

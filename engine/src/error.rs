@@ -2,7 +2,7 @@
 //! input costs no allocation and the caller can keep it, log it later or compare it. [`LoadError`] happens
 //! once, before any real-time work, and may carry text.
 
-use mars_policy::checkpoint::CheckpointError;
+use mars_policy_format::checkpoint::CheckpointError;
 use std::path::PathBuf;
 
 /// Which argument of a call was wrong.
@@ -45,13 +45,14 @@ pub enum EngineError {
 
 #[derive(Debug, thiserror::Error)]
 pub enum LoadError {
-    /// The checkpoint itself is bad (missing, corrupt, wrong shapes, unknown config): `mars_policy`'s checks.
+    /// The checkpoint cannot be read or its `policy.json` is not valid (`mars_policy_format::checkpoint`'s checks).
     #[error(transparent)]
     Checkpoint(#[from] CheckpointError),
     /// A valid checkpoint that this engine cannot run.
     #[error("checkpoint {path}: the engine cannot run it: {problem}")]
     Unsupported { path: PathBuf, problem: String },
-    /// A tensor the engine needs is missing or has another size than the config says.
+    /// A tensor the config's network needs is missing, not F32, of another size than the config says or not
+    /// finite; or the file holds a tensor that network does not have.
     #[error("checkpoint {path}: tensor `{name}`: {problem}")]
     Tensor { path: PathBuf, name: String, problem: String },
     /// The engine's own settings are invalid.

@@ -1,7 +1,8 @@
 //! Allocation-free MARS inference engine.
 //!
-//! [`Engine::load`] reads a `mars-policy` checkpoint (any policy kind: mars, fm, a2a, noise-a2a), lays the
-//! weights out for the kernels and allocates every buffer a call will ever need. After that,
+//! [`Engine::load`] reads a checkpoint `mars train` wrote (any policy kind: mars, fm, a2a, noise-a2a) through
+//! the checkpoint format's crate (`mars_policy_format`; the engine links neither the trainer nor candle), checks
+//! and lays the weights out for the kernels and allocates every buffer a call will ever need. After that,
 //! [`Engine::infer`] — normalise the observation → encode → modality weight w → K(w) → K Euler steps of the
 //! DiT velocity field → unnormalise the chunk — performs no heap allocation, so it can run on a pinned
 //! real-time thread. Its results equal the candle model's (`mars_policy::model::MarsModel`) up to float

@@ -8,8 +8,8 @@ use crate::dims::Dims;
 use crate::kernels::{sigmoid_in_place, silu_in_place};
 use crate::matmul::MatMul;
 use crate::weights::{Modality, Weights};
-use mars_policy::model::steps_for;
-use mars_policy::normalize::{Normalizer, Stats};
+use mars_policy_format::normalize::{Normalizer, Stats};
+use mars_policy_format::steps::steps_for;
 
 /// (x − mean) / std per dimension, as `Stats::normalize`, from `src` into `dst`.
 fn normalize_into(stats: &Stats, src: &[f32], dst: &mut [f32]) {

@@ -8,7 +8,7 @@
 
 use std::path::Path;
 
-use mars_policy::nn::resnet::{ResNetConfig, ResNetHead};
+use mars_policy_format::encoder::{ResNetConfig, ResNetHead};
 
 use crate::conv::{Conv, out_size};
 use crate::error::{EngineError, Input, LoadError};

@@ -10,7 +10,10 @@
 use crate::dims::Dims;
 use crate::error::LoadError;
 use crate::matmul::{MatMul, Panels, pack_panels};
-use safetensors::{Dtype, SafeTensors};
+use mars_policy_format::checkpoint::CheckpointError;
+use safetensors::{Dtype, SafeTensorError, SafeTensors};
+use std::cell::{Cell, RefCell};
+use std::collections::BTreeSet;
 use std::path::Path;
 
 /// y = x·Wᵀ + b.
@@ -61,11 +64,15 @@ pub struct Weights {
     pub freqs: Box<[f32]>,
 }
 
-/// Reads named tensors of one safetensors file, checked against the shapes the config makes.
+/// Reads named tensors of one safetensors file, each checked before use: F32, the shape the config makes,
+/// finite values. It remembers which tensors were read, so a file holding more than the config's network (a
+/// MARS checkpoint relabelled FM, say) is refused rather than run as something else ([`Reader::refuse_unread`]).
 pub(crate) struct Reader<'a> {
     st: SafeTensors<'a>,
     path: &'a Path,
-    mm: MatMul,
+    /// How the linears read now are packed (the cameras' encoders use their own; see [`Reader::with_mm`]).
+    mm: Cell<MatMul>,
+    read: RefCell<BTreeSet<String>>,
 }
 
 /// Reads the safetensors file `path` and hands `read` a [`Reader`] over it (the bytes live for the call).
@@ -86,26 +93,60 @@ pub(crate) fn with_bytes<T>(
     mm: MatMul,
     read: impl FnOnce(&Reader) -> Result<T, LoadError>,
 ) -> Result<T, LoadError> {
-    let err = |problem: String| LoadError::Tensor { path: path.into(), name: "*".into(), problem };
-    let st = SafeTensors::deserialize(bytes).map_err(|e| err(e.to_string()))?;
-    read(&Reader { st, path, mm })
+    let corrupt = |problem: String| CheckpointError::Corrupt { path: path.into(), problem };
+    let st = SafeTensors::deserialize(bytes).map_err(|e| corrupt(e.to_string()))?;
+    read(&Reader { st, path, mm: Cell::new(mm), read: RefCell::default() })
 }
 
 impl<'a> Reader<'a> {
     pub(crate) fn mm(&self) -> MatMul {
-        self.mm
+        self.mm.get()
+    }
+
+    /// `read` with the linears packed for `mm` (then back to this reader's own).
+    pub(crate) fn with_mm<T>(&self, mm: MatMul, read: impl FnOnce(&Self) -> T) -> T {
+        let own = self.mm.replace(mm);
+        let out = read(self);
+        self.mm.set(own);
+        out
+    }
+
+    /// The first tensor of the file nothing has read, as an error: it belongs to another network than the
+    /// config's `what` (e.g. "`mars` model").
+    pub(crate) fn refuse_unread(&self, what: &str) -> Result<(), LoadError> {
+        let read = self.read.borrow();
+        match self.st.names().into_iter().find(|n| !read.contains(*n)) {
+            None => Ok(()),
+            Some(name) => Err(LoadError::Tensor {
+                path: self.path.to_path_buf(),
+                name: name.to_string(),
+                problem: format!("not part of a {what} with this config (wrong policy kind or config?)"),
+            }),
+        }
     }
 
     pub(crate) fn tensor(&self, name: &str, shape: &[usize]) -> Result<Box<[f32]>, LoadError> {
         let err = |problem: String| LoadError::Tensor { path: self.path.to_path_buf(), name: name.into(), problem };
-        let view = self.st.tensor(name).map_err(|e| err(e.to_string()))?;
+        let view = match self.st.tensor(name) {
+            Ok(view) => view,
+            Err(SafeTensorError::TensorNotFound(_)) => {
+                return Err(err(format!("missing from the checkpoint (shape {shape:?})")));
+            }
+            Err(e) => return Err(err(e.to_string())),
+        };
         if view.dtype() != Dtype::F32 {
             return Err(err(format!("dtype {:?}, expected F32", view.dtype())));
         }
         if view.shape() != shape {
             return Err(err(format!("shape {:?}, the config needs {shape:?}", view.shape())));
         }
-        Ok(view.data().chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect())
+        let values: Box<[f32]> =
+            view.data().chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect();
+        if let Some(i) = values.iter().position(|v| !v.is_finite()) {
+            return Err(err(format!("value {i} is {}: the weights must be finite", values[i])));
+        }
+        self.read.borrow_mut().insert(name.to_string());
+        Ok(values)
     }
 
     /// A linear applied to one row (a matrix-vector product).
@@ -126,8 +167,9 @@ impl<'a> Reader<'a> {
 
     /// `l` with its weights also in panel layout, when the engine's products use it.
     pub(crate) fn panels(&self, mut l: Linear) -> Linear {
-        if self.mm.uses_panels() {
-            l.panels = pack_panels(&l.weight, l.output, l.input, self.mm);
+        let mm = self.mm.get();
+        if mm.uses_panels() {
+            l.panels = pack_panels(&l.weight, l.output, l.input, mm);
         }
         l
     }
@@ -145,21 +187,10 @@ fn stack(parts: &[Linear]) -> Linear {
 }
 
 impl Weights {
-    /// Reads the weights (`bytes`: the safetensors file `path`) of a checkpoint that
-    /// `mars_policy::checkpoint::load` has already validated; the shapes are checked again here so that a mismatch
-    /// can never reach a kernel. `fixed_w`: `PolicyKind::fixed_w` (`Some` for a baseline, which has no scheduler;
+    /// Reads the network's weights (all but the cameras' encoders), each checked against the config (`d`) by
+    /// the [`Reader`]. `fixed_w`: `PolicyKind::fixed_w` (`Some` for a baseline, which has no scheduler;
     /// `d.scheduler` follows it too).
-    pub fn from_bytes(
-        path: &Path,
-        bytes: &[u8],
-        d: &Dims,
-        fixed_w: Option<f32>,
-        mm: MatMul,
-    ) -> Result<Self, LoadError> {
-        with_bytes(path, bytes, mm, |r| Self::read(r, d, fixed_w))
-    }
-
-    fn read(r: &Reader, d: &Dims, fixed_w: Option<f32>) -> Result<Self, LoadError> {
+    pub(crate) fn read(r: &Reader, d: &Dims, fixed_w: Option<f32>) -> Result<Self, LoadError> {
         let w = d.width;
         let modality = match (d.scheduler, fixed_w) {
             (Some(s), None) => Modality::Scheduler {

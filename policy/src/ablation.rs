@@ -120,7 +120,7 @@ pub fn run(out: &Path, config: &Path, layout: &Path, o: &AblateOptions) -> anyho
             crate::checkpoint::load_meta(&dir)?.log.iter().map(|e| e.total).collect()
         } else {
             let t = train_with_progress(cfg, &demo_sets[*seed as usize].demos, indicatif::ProgressBar::hidden())?;
-            crate::checkpoint::save(&dir, &t)?;
+            t.save(&dir)?;
             t.log.iter().map(|e| e.total).collect()
         };
         let r = eval(&dir, layout, o.rollouts, seed + 1000, o.exec_horizon)?.report;

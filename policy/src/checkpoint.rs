@@ -1,48 +1,21 @@
-//! Checkpoints: a directory with `model.safetensors` (the weights) and `policy.json` (policy kind, network
-//! config, normalisation statistics, training log). Loading checks everything before a model exists: a
-//! corrupt, truncated or wrong-shape checkpoint is an error that names the file or tensor, never a panic.
+//! Checkpoints: a directory with `model.safetensors` (the weights) and `policy.json` (its format is
+//! `mars_policy_format::checkpoint`). This half writes the candle model's weights and builds the candle model
+//! back from them; loading checks everything before a model exists: a corrupt, truncated or wrong-shape
+//! checkpoint is an error that names the file or tensor, never a panic.
 
-use crate::config::{ModelConfig, PolicyConfig, PolicyKind, TrainConfig};
+use crate::config::PolicyConfig;
 use crate::model::MarsModel;
 use crate::normalize::Normalizer;
-use crate::train::{EpochLog, Trained};
 use candle_core::{DType, Device, Shape, Tensor};
 use candle_nn::{Init, VarBuilder, VarMap};
-use serde::{Deserialize, Serialize};
+use mars_policy_format::checkpoint::EpochLog;
 use std::collections::BTreeSet;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::{Arc, Mutex};
 
-pub const WEIGHTS_FILE: &str = "model.safetensors";
-pub const META_FILE: &str = "policy.json";
-const FORMAT: &str = "mars-policy-checkpoint";
-const VERSION: u32 = 1;
-
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct CheckpointMeta {
-    pub format: String,
-    pub version: u32,
-    pub kind: PolicyKind,
-    pub model: ModelConfig,
-    pub train: TrainConfig,
-    pub normalizer: Normalizer,
-    pub log: Vec<EpochLog>,
-}
-
-#[derive(Debug, thiserror::Error)]
-pub enum CheckpointError {
-    #[error("checkpoint {path}: cannot read: {source}")]
-    Io { path: PathBuf, source: std::io::Error },
-    #[error("checkpoint {path}: not a valid {META_FILE}: {problem}")]
-    Meta { path: PathBuf, problem: String },
-    #[error("checkpoint {path}: corrupt or truncated safetensors file: {problem}")]
-    Corrupt { path: PathBuf, problem: String },
-    #[error("checkpoint {path}: tensor `{name}`: {problem}")]
-    Tensor { path: PathBuf, name: String, problem: String },
-    #[error("checkpoint {path}: {problem}")]
-    Model { path: PathBuf, problem: String },
-}
+pub use mars_policy_format::checkpoint::{
+    CheckpointError, CheckpointMeta, META_FILE, WEIGHTS_FILE, load_meta, parse_meta,
+};
 
 pub struct Loaded {
     pub model: MarsModel,
@@ -50,12 +23,8 @@ pub struct Loaded {
 }
 
 /// Writes both files through temporary names and renames, so a crash never leaves a half-written checkpoint
-/// under the real names.
-pub fn save(dir: &Path, trained: &Trained) -> Result<(), CheckpointError> {
-    save_parts(dir, &trained.cfg, &trained.varmap, &trained.normalizer, &trained.log)
-}
-
-/// `save` from the pieces, for a model still in training (the snapshots of `train::Snapshots`).
+/// under the real names. From the pieces, so a model still in training can be saved (`train::Snapshots`);
+/// a trained one: `Trained::save`.
 pub fn save_parts(
     dir: &Path,
     cfg: &PolicyConfig,
@@ -65,15 +34,7 @@ pub fn save_parts(
 ) -> Result<(), CheckpointError> {
     let io = |source| CheckpointError::Io { path: dir.to_path_buf(), source };
     std::fs::create_dir_all(dir).map_err(io)?;
-    let meta = CheckpointMeta {
-        format: FORMAT.into(),
-        version: VERSION,
-        kind: cfg.kind,
-        model: cfg.model.clone(),
-        train: cfg.train.clone(),
-        normalizer: normalizer.clone(),
-        log: log.to_vec(),
-    };
+    let meta = CheckpointMeta::new(cfg.kind, cfg.model.clone(), cfg.train.clone(), normalizer.clone(), log.to_vec());
     let tmp_weights = dir.join(format!(".{WEIGHTS_FILE}.tmp"));
     varmap
         .save(&tmp_weights)
@@ -85,40 +46,6 @@ pub fn save_parts(
     std::fs::rename(&tmp_weights, dir.join(WEIGHTS_FILE)).map_err(io)?;
     std::fs::rename(&tmp_meta, dir.join(META_FILE)).map_err(io)?;
     Ok(())
-}
-
-pub fn load_meta(dir: &Path) -> Result<CheckpointMeta, CheckpointError> {
-    let path = dir.join(META_FILE);
-    let text = std::fs::read_to_string(&path).map_err(|source| CheckpointError::Io { path: path.clone(), source })?;
-    parse_meta(dir, &text)
-}
-
-/// [`load_meta`] of the text of `dir`'s `policy.json`.
-pub fn parse_meta(dir: &Path, text: &str) -> Result<CheckpointMeta, CheckpointError> {
-    let path = dir.join(META_FILE);
-    let meta_err = |problem: String| CheckpointError::Meta { path: path.clone(), problem };
-    let meta: CheckpointMeta = serde_json::from_str(text).map_err(|e| meta_err(e.to_string()))?;
-    if meta.format != FORMAT || meta.version != VERSION {
-        return Err(meta_err(format!(
-            "format {} v{}, this build reads {FORMAT} v{VERSION}",
-            meta.format, meta.version
-        )));
-    }
-    meta.model.validate().map_err(|e| meta_err(e.to_string()))?;
-    let n = &meta.normalizer;
-    if !n.obs.is_valid() || n.obs.dim() != meta.model.obs_dim {
-        return Err(meta_err(format!(
-            "observation statistics must be {} finite values with std > 0",
-            meta.model.obs_dim
-        )));
-    }
-    if !n.action.is_valid() || n.action.dim() != meta.model.action_dim {
-        return Err(meta_err(format!(
-            "action statistics must be {} finite values with std > 0",
-            meta.model.action_dim
-        )));
-    }
-    Ok(meta)
 }
 
 pub fn load(dir: &Path, device: &Device) -> Result<Loaded, CheckpointError> {

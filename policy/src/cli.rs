@@ -138,7 +138,7 @@ pub fn train_on_normalised(
     let snapshots = snapshot_every.map(|every| crate::train::Snapshots { every, dir: out.join("snapshots") });
     let bar = progress_bar(kind);
     let trained = crate::train::train_normalised_by(cfg, demos, given, bar, snapshots.as_ref())?;
-    checkpoint::save(out, &trained)?;
+    trained.save(out)?;
     let last = trained.log.last().context("training ran no epoch")?;
     println!(
         "{kind}: {} epochs in {:.1} s, final loss {:.4} (fm {:.4}, rec {:.4}, div {:.4}, mean ‖w‖∞ {:.3}) → {}",
@@ -152,6 +152,14 @@ pub fn train_on_normalised(
         out.display()
     );
     Ok(trained)
+}
+
+/// Parses a policy kind on a command line by its name and lists every kind with its summary in `--help`: what
+/// clap's `ValueEnum` derive would give, kept here so the checkpoint format's crate needs no clap.
+pub fn policy_kind_parser() -> impl clap::builder::TypedValueParser<Value = PolicyKind> {
+    use clap::builder::TypedValueParser;
+    let values = PolicyKind::ALL.map(|k| clap::builder::PossibleValue::new(k.name()).help(k.summary()));
+    clap::builder::PossibleValuesParser::new(values).try_map(|s| s.parse::<PolicyKind>())
 }
 
 pub fn eval(
@@ -252,7 +260,7 @@ pub fn diagnose(checkpoint_dir: &Path, demos: &Path, layout: &Path, seed: u64) -
     let mut w_inf = crate::train::w_inf_values(model, &data.tensors(&model.cfg, &Device::Cpu)?)?;
     let q: Vec<String> = [0.5, 0.9, 0.95, 0.99, 1.0]
         .iter()
-        .map(|&q| format!("q{} {:.3}", q * 100.0, crate::train::quantile(&mut w_inf, q)))
+        .map(|&q| format!("q{} {:.3}", q * 100.0, crate::stats::quantile(&mut w_inf, q)))
         .collect();
     println!(
         "{} on {} ({} demos), m = {}, S in normalised action units, S_curr averaged over noise draws.\n\
@@ -336,6 +344,10 @@ pub struct BenchmarkOptions {
     /// Condition the velocity field and the scheduler on the history (`model.velocity_uses_history`,
     /// `model.scheduler_uses_history`) whatever the config says: one side of the comparison that settles it.
     pub history_conditioning: bool,
+    /// Evaluate MARS with this `model.k_full_w` instead of its checkpoint's (1: the paper's K(w)); training is
+    /// unchanged, so `--resume` compares the two K(w) rules on the very same checkpoints. Written to
+    /// `eval_kfull<w>.json` beside the checkpoint's own `eval.json`.
+    pub k_full_w: Option<f32>,
     /// Other benchmarks run at the same time (`mars family` runs its layouts × seeds side by side), so this one's
     /// evaluation is not alone on the machine: its latencies say so.
     pub side_by_side: bool,
@@ -388,6 +400,10 @@ pub fn benchmark(
     layout_path: &Path,
     o: &BenchmarkOptions,
 ) -> anyhow::Result<Vec<crate::report::Row>> {
+    if let Some(w) = o.k_full_w {
+        // Refused before hours of training, not at the first evaluation after them.
+        anyhow::ensure!(w > 0.0 && w <= 1.0, "--k-full-w is {w}, must lie in (0, 1]");
+    }
     let demos_path = out.join("demos.json");
     demos_kept_or_made(layout_path, o.demos, o.seed, &demos_path, o.resume)?;
     let set = load_demos(&demos_path)?;
@@ -425,7 +441,7 @@ pub fn benchmark(
             bars.add(crate::train::progress_bar(kind)),
         )?;
         let dir = out.join(kind.name());
-        checkpoint::save(&dir, &t)?;
+        t.save(&dir)?;
         let secs = started.elapsed().as_secs_f32();
         std::fs::write(dir.join(TRAIN_SECONDS_FILE), format!("{secs}\n"))
             .with_context(|| format!("cannot write {}", dir.display()))
@@ -444,7 +460,11 @@ pub fn benchmark(
             })
             .collect::<anyhow::Result<Vec<_>>>()?;
         drop(policy);
-        let Evaluation { report, intervals } = eval(&dir, layout_path, o.rollouts, o.seed + 1000, o.exec_horizon)?;
+        // Only a learned w has a K(w) to change: FM and the A2As keep their fixed step counts.
+        let k_full_w = if kind == PolicyKind::Mars { o.k_full_w } else { None };
+        let ablation = StepsAblation { steps: None, k_full_w };
+        let Evaluation { report, intervals } =
+            eval_with_steps(&dir, layout_path, o.rollouts, o.seed + 1000, o.exec_horizon, DEFAULT_BATCH, ablation)?;
         rows.push(crate::report::Row { kind, epochs: meta.train.epochs, train_s, report, intervals, w_regions });
     }
     let md = crate::report::render(&rows, o, &layout);

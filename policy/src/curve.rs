@@ -100,7 +100,7 @@ pub struct CurveArgs {
     #[arg(long, default_value_t = 1000)]
     pub eval_seed: u64,
     /// Policies to compare.
-    #[arg(long, value_enum, value_delimiter = ',', default_value = "mars,fm,a2a")]
+    #[arg(long, value_parser = crate::cli::policy_kind_parser(), value_delimiter = ',', default_value = "mars,fm,a2a")]
     pub policies: Vec<PolicyKind>,
     /// Success rates (percent) whose epochs-to are reported.
     #[arg(long, value_delimiter = ',', default_value = "50,80,90")]
@@ -273,7 +273,7 @@ impl Trainer {
             Trainer::InProcess => {
                 let set = crate::cli::load_demos(demos)?;
                 let t = train_with_snapshots(cfg, &set.demos, indicatif::ProgressBar::hidden(), Some(&snaps))?;
-                crate::checkpoint::save(dir, &t)?;
+                t.save(dir)?;
             }
             Trainer::Command(mars) => {
                 std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;

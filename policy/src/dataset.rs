@@ -165,7 +165,7 @@ impl Dataset {
     pub fn rescale_target_spread(&mut self, q: f64) -> f32 {
         let d = self.s_next.len() / self.len.max(1);
         let mut peaks: Vec<f32> = self.s_next.chunks(d.max(1)).map(|s| s.iter().copied().fold(0.0, f32::max)).collect();
-        let at_q = crate::train::quantile(&mut peaks, q);
+        let at_q = crate::stats::quantile(&mut peaks, q);
         let noise_spread = 2.0 / std::f32::consts::PI.sqrt();
         let factor = if at_q > 0.0 { (noise_spread / at_q).max(1.0) } else { 1.0 };
         self.s_next.iter_mut().for_each(|s| *s *= factor);

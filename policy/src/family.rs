@@ -243,7 +243,7 @@ pub fn render(results: &[LayoutResult], o: &FamilyOptions, layouts_dir: &Path) -
     let mut s = String::from("# nav2d layout family\n\n");
     let _ = writeln!(
         s,
-        "Command: `mars family --layouts {} --seeds {} --demos {} --rollouts {}{}{} --policies {} --jobs {}`; \
+        "Command: `mars family --layouts {} --seeds {} --demos {} --rollouts {}{}{}{} --policies {} --jobs {}`; \
          mean over training seeds 0..{} (each seed its own demos and rollouts) with its 95 % t interval; a \
          target is met or not met when the whole interval says so, undecided otherwise.\n",
         layouts_dir.display(),
@@ -252,6 +252,7 @@ pub fn render(results: &[LayoutResult], o: &FamilyOptions, layouts_dir: &Path) -
         b.rollouts,
         b.epochs.map_or(String::new(), |e| format!(" --epochs {e}")),
         if b.history_conditioning { " --history-conditioning" } else { "" },
+        b.k_full_w.map_or(String::new(), |w| format!(" --k-full-w {w}")),
         policies.join(","),
         b.jobs,
         o.seeds,

@@ -18,12 +18,7 @@ pub struct MarsModel {
     velocity: Dit,
 }
 
-/// K(w) = ⌈K_max·‖w‖∞⌉ clamped to [1, K_max]. The small slack keeps float noise (0.1·10 = 1.0000001) from
-/// costing a whole extra step.
-pub fn steps_for(w_inf: f32, k_max: usize) -> usize {
-    let k = (k_max as f32 * w_inf - 1e-5).ceil();
-    if k.is_nan() { k_max } else { (k as i64).clamp(1, k_max as i64) as usize }
-}
+pub use mars_policy_format::steps::steps_for;
 
 impl MarsModel {
     pub fn new(cfg: &ModelConfig, kind: PolicyKind, vb: VarBuilder) -> Result<Self> {

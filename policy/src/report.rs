@@ -33,7 +33,7 @@ pub fn render(rows: &[Row], o: &BenchmarkOptions, layout: &Layout) -> String {
     let _ = writeln!(s, "# nav2d benchmark\n");
     let _ = writeln!(
         s,
-        "Command: `mars benchmark --demos {} --rollouts {} --seed {} --exec-horizon {}{}{} --policies {} --jobs {}` \
+        "Command: `mars benchmark --demos {} --rollouts {} --seed {} --exec-horizon {}{}{}{} --policies {} --jobs {}` \
          (layout `{}`, {} passages; {} CPU thread(s) per job; {}).\n",
         o.demos,
         o.rollouts,
@@ -41,6 +41,7 @@ pub fn render(rows: &[Row], o: &BenchmarkOptions, layout: &Layout) -> String {
         o.exec_horizon,
         o.epochs.map_or(String::new(), |e| format!(" --epochs {e}")),
         if o.history_conditioning { " --history-conditioning" } else { "" },
+        o.k_full_w.map_or(String::new(), |w| format!(" --k-full-w {w}")),
         policies.join(","),
         o.jobs,
         layout.name,

@@ -7,6 +7,7 @@ use crate::losses;
 use crate::model::MarsModel;
 use crate::nn::seeded_init::SeededInit;
 use crate::normalize::Normalizer;
+use crate::stats::quantile;
 use candle_core::{Device, Tensor, Var};
 use candle_nn::{AdamW, Optimizer, ParamsAdamW, VarMap};
 use mars_tasks::demo::Demo;
@@ -14,19 +15,8 @@ use rand::rngs::StdRng;
 use rand::seq::SliceRandom;
 use rand::{Rng, SeedableRng};
 use rand_distr::StandardNormal;
-use serde::{Deserialize, Serialize};
 
-/// Mean loss terms over one epoch (terms a policy kind does not use stay 0).
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-pub struct EpochLog {
-    pub epoch: usize,
-    pub total: f32,
-    pub fm: f32,
-    pub rec: f32,
-    pub div: f32,
-    /// Mean ‖w‖∞ over the epoch's samples.
-    pub w_inf: f32,
-}
+pub use mars_policy_format::checkpoint::EpochLog;
 
 pub struct Trained {
     pub cfg: PolicyConfig,
@@ -36,6 +26,13 @@ pub struct Trained {
     pub log: Vec<EpochLog>,
     /// Wall-clock seconds of each epoch's batches (not the dataset's set-up nor snapshots): `mars bench-train`.
     pub epoch_seconds: Vec<f64>,
+}
+
+impl Trained {
+    /// Writes the checkpoint directory `dir` (see [`crate::checkpoint::save_parts`]).
+    pub fn save(&self, dir: &std::path::Path) -> Result<(), crate::checkpoint::CheckpointError> {
+        crate::checkpoint::save_parts(dir, &self.cfg, &self.varmap, &self.normalizer, &self.log)
+    }
 }
 
 /// One batch, gathered from the dataset tensors.
@@ -385,16 +382,6 @@ pub fn w_inf_values(model: &MarsModel, data: &DatasetTensors) -> candle_core::Re
         out.extend(w.max(1)?.to_vec1::<f32>()?);
     }
     Ok(out)
-}
-
-/// The nearest-rank q-quantile (q in [0, 1]) of `v`; 0 for an empty slice. Sorts `v`.
-pub fn quantile(v: &mut [f32], q: f64) -> f32 {
-    if v.is_empty() {
-        return 0.0;
-    }
-    v.sort_by(f32::total_cmp);
-    let rank = ((q.clamp(0.0, 1.0) * v.len() as f64).ceil() as usize).clamp(1, v.len());
-    v[rank - 1]
 }
 
 pub fn progress_bar(kind: PolicyKind) -> indicatif::ProgressBar {

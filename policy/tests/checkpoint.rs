@@ -17,7 +17,7 @@ fn trained_dir(kind: PolicyKind, name: &str) -> PathBuf {
     let trained = train(&cfg, &common::forked_demos(8, 12), false).unwrap();
     let dir = std::env::temp_dir().join(format!("mars-ckpt-{}-{name}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
-    checkpoint::save(&dir, &trained).unwrap();
+    trained.save(&dir).unwrap();
     dir
 }
 
@@ -43,7 +43,7 @@ fn round_trip_gives_identical_predictions() {
         let demos = common::forked_demos(8, 12);
         let trained = train(&cfg, &demos, false).unwrap();
         let dir = std::env::temp_dir().join(format!("mars-ckpt-{}-rt-{kind}", std::process::id()));
-        checkpoint::save(&dir, &trained).unwrap();
+        trained.save(&dir).unwrap();
         let mut original = MarsPolicy::from_trained(trained, 3);
         let (mut loaded, meta) = MarsPolicy::load(&dir, 3).unwrap();
         assert_eq!(meta.kind, kind);

@@ -105,8 +105,8 @@ fn calibrated_k_gives_the_full_budget_from_k_full_w_on() {
 #[test]
 fn quantile_is_nearest_rank() {
     let mut v = vec![0.5f32, 0.1, 0.4, 0.2, 0.3];
-    assert_eq!(mars_policy::train::quantile(&mut v, 1.0), 0.5);
-    assert_eq!(mars_policy::train::quantile(&mut v, 0.5), 0.3);
-    assert_eq!(mars_policy::train::quantile(&mut v, 0.01), 0.1);
-    assert_eq!(mars_policy::train::quantile(&mut [], 0.5), 0.0);
+    assert_eq!(mars_policy::stats::quantile(&mut v, 1.0), 0.5);
+    assert_eq!(mars_policy::stats::quantile(&mut v, 0.5), 0.3);
+    assert_eq!(mars_policy::stats::quantile(&mut v, 0.01), 0.1);
+    assert_eq!(mars_policy::stats::quantile(&mut [], 0.5), 0.0);
 }

@@ -132,7 +132,7 @@ fn rescaled_target_puts_the_quantile_at_the_noise_spread_and_never_shrinks() {
     let d = cfg.model.action_dim;
     let factor = data.rescale_target_spread(0.9);
     let mut peaks: Vec<f32> = data.s_next.chunks(d).map(|s| s.iter().copied().fold(0.0, f32::max)).collect();
-    let at_q = mars_policy::train::quantile(&mut peaks, 0.9);
+    let at_q = mars_policy::stats::quantile(&mut peaks, 0.9);
     let noise_spread = 2.0 / std::f32::consts::PI.sqrt();
     assert!(factor > 1.0 && (at_q - noise_spread).abs() < 1e-4, "factor {factor}, q90 {at_q}");
     // One factor for every sample and dimension: the target's shape over the task is kept.
@@ -157,7 +157,7 @@ fn snapshots_are_complete_checkpoints_and_the_last_one_is_the_final_model() {
     let demos = common::forked_demos(8, 12);
     let t =
         mars_policy::train::train_with_snapshots(&cfg, &demos, indicatif::ProgressBar::hidden(), Some(&snaps)).unwrap();
-    mars_policy::checkpoint::save(&dir.join("final"), &t).unwrap();
+    t.save(&dir.join("final")).unwrap();
     let found: Vec<usize> =
         mars_policy::curve::snapshot_dirs(&snaps.dir).unwrap().into_iter().map(|(e, _)| e).collect();
     assert_eq!(found, [2, 4, 5], "every 2 epochs and the last");

@@ -51,6 +51,26 @@ pub struct MarsdArgs {
     pub replay_episode: Option<usize>,
 }
 
+impl MarsdArgs {
+    /// marsd on `config` as the file says: no override, no fault injected, nothing recorded or replayed (what
+    /// the command line gives without options).
+    pub fn new(config: PathBuf) -> Self {
+        Self {
+            config,
+            robot: None,
+            episodes: None,
+            out: None,
+            checkpoint: None,
+            engine_step_delay_ms: None,
+            max_state_gap_ms: None,
+            record: None,
+            record_writer_delay_ms: None,
+            replay_actions: None,
+            replay_episode: None,
+        }
+    }
+}
+
 /// marsd's logging, and its environment (see [`mars_policy::cli::quiet_video_encoder`]); from main, before any
 /// thread exists.
 pub fn init_logging() {
@@ -131,6 +151,21 @@ pub struct DemoArgs {
     /// Push-T with its camera and scene (configs/marsd_push_t.toml); an explicit --config decides instead.
     #[arg(long, value_enum, default_value_t = DemoTask::Pick)]
     pub task: DemoTask,
+}
+
+impl DemoArgs {
+    /// The demo of `marsd` with the command line's defaults: the mock robot, Pick, the HAL on core 1, no stall.
+    pub fn new(marsd: MarsdArgs) -> Self {
+        Self {
+            marsd,
+            hal_core: 1,
+            hal_stall_at_tick: None,
+            hal_stall_ms: None,
+            backend: DemoRobot::Mock,
+            franka_sim_venv: FRANKA_SIM_VENV.into(),
+            task: DemoTask::Pick,
+        }
+    }
 }
 
 #[derive(clap::ValueEnum, Debug, Clone, Copy, PartialEq, Eq)]
@@ -404,5 +439,25 @@ fn explain_trip(out: &Path, trip_line: Option<&str>, watched: &crate::stall_watc
     let path = out.join("trip.json");
     if let Err(e) = std::fs::write(&path, format!("{record:#}\n")) {
         eprintln!("could not write {}: {e}", path.display());
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[derive(Parser)]
+    struct Demo {
+        #[command(flatten)]
+        demo: DemoArgs,
+    }
+
+    /// The rigs' `DemoArgs::new(MarsdArgs::new(…))` is the demo a user gets with no options.
+    #[test]
+    fn the_constructors_are_the_command_lines_defaults() {
+        let parsed = Demo::parse_from(["mars-hil"]).demo;
+        let built = DemoArgs::new(MarsdArgs::new(DEFAULT_CONFIG.into()));
+        assert_eq!(format!("{parsed:?}"), format!("{built:?}"));
     }
 }

@@ -11,7 +11,7 @@ use anyhow::Context;
 use mars_lerobot::{Keys, LeRobotDataset};
 use serde::Serialize;
 
-use crate::cli::{DemoArgs, DemoRobot, DemoTask, MarsdArgs};
+use crate::cli::{DemoArgs, DemoRobot, MarsdArgs};
 use crate::recorded_actions::RunMeta;
 
 #[derive(clap::Args, Debug, Clone)]
@@ -194,27 +194,16 @@ pub fn run(args: &HilReplayArgs) -> anyhow::Result<(Option<HilReplayReport>, u8)
         "{} holds a replay already; give another --out (nothing is overwritten)",
         replayed.display()
     );
-    let demo = DemoArgs {
-        marsd: MarsdArgs {
-            config,
-            robot: None,
-            episodes: Some(1),
-            out: Some(args.out.clone()),
-            checkpoint: Some(meta.checkpoint.clone()),
-            engine_step_delay_ms: None,
-            max_state_gap_ms: None,
-            record: Some(replayed.clone()),
-            record_writer_delay_ms: None,
-            replay_actions: Some(args.dataset.clone()),
-            replay_episode: Some(args.episode),
-        },
-        hal_core: 1,
-        hal_stall_at_tick: None,
-        hal_stall_ms: None,
-        backend: args.backend,
-        franka_sim_venv: crate::cli::FRANKA_SIM_VENV.into(),
-        task: DemoTask::Pick,
+    let marsd = MarsdArgs {
+        episodes: Some(1),
+        out: Some(args.out.clone()),
+        checkpoint: Some(meta.checkpoint.clone()),
+        record: Some(replayed.clone()),
+        replay_actions: Some(args.dataset.clone()),
+        replay_episode: Some(args.episode),
+        ..MarsdArgs::new(config)
     };
+    let demo = DemoArgs { backend: args.backend, ..DemoArgs::new(marsd) };
     let code = crate::cli::demo(demo)?;
     if code != 0 {
         return Ok((None, code));

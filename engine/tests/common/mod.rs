@@ -10,7 +10,6 @@
 mod policy_common;
 
 use candle_core::{Device, Tensor};
-use mars_policy::checkpoint;
 use mars_policy::config::{PolicyConfig, PolicyKind};
 use mars_policy::dataset::Dataset;
 use mars_policy::train::{Trained, init_model, randn, train};
@@ -49,7 +48,7 @@ pub fn trained_checkpoint(kind: PolicyKind, name: &str, tweak: impl FnOnce(&mut 
     let trained = train(&cfg, &forked_demos(16, 16), false).unwrap();
     perturb(&trained, 0.05, 11);
     let dir = temp_dir(name);
-    checkpoint::save(&dir, &trained).unwrap();
+    trained.save(&dir).unwrap();
     dir
 }
 
@@ -68,7 +67,7 @@ pub fn perturbed_checkpoint(cfg: &PolicyConfig, name: &str) -> PathBuf {
     };
     perturb(&trained, 0.05, 12);
     let dir = temp_dir(name);
-    checkpoint::save(&dir, &trained).unwrap();
+    trained.save(&dir).unwrap();
     dir
 }
 
@@ -86,7 +85,7 @@ pub fn perturbed_vision_checkpoint(cfg: &PolicyConfig, side: usize, name: &str) 
     };
     perturb(&trained, 0.05, 12);
     let dir = temp_dir(name);
-    checkpoint::save(&dir, &trained).unwrap();
+    trained.save(&dir).unwrap();
     dir
 }
 

@@ -1,14 +1,15 @@
 //! Checkpoints: `policy.json` on its own, the policy's TOML configuration, and a whole checkpoint (`policy.json`
-//! with `model.safetensors`, either one mutated) loaded by the engine, which loads it through mars-policy's checks
-//! (the candle model) first. Seeds: every checkpoint in `assets/checkpoints` and every policy TOML in `configs`.
+//! with `model.safetensors`, either one mutated) loaded by both readers of the weights: the engine's own (what
+//! marsd runs) and the trainer's candle model (what `mars eval` runs). Seeds: every checkpoint in
+//! `assets/checkpoints` and every policy TOML in `configs`.
 
 use std::path::Path;
 use std::sync::Arc;
 use std::time::Duration;
 
 use mars_engine::{Engine, EngineConfig};
-use mars_policy::checkpoint::parse_meta;
-use mars_policy::config::PolicyConfig;
+use mars_policy_format::checkpoint::parse_meta;
+use mars_policy_format::config::PolicyConfig;
 
 use super::{Bundles, read, text};
 use crate::runner::Target;
@@ -44,7 +45,7 @@ pub fn policy_toml() -> Arc<dyn Target> {
     })
 }
 
-/// A whole checkpoint loaded by the engine (and so by mars-policy's loader first), then one call.
+/// A whole checkpoint loaded by the trainer's loader, then by the engine, then one call.
 pub fn checkpoint() -> Arc<dyn Target> {
     let bundles: Vec<Vec<Vec<u8>>> = CHECKPOINTS
         .iter()
@@ -54,6 +55,7 @@ pub fn checkpoint() -> Arc<dyn Target> {
     let decode = move |b: usize, f: usize, bytes: &[u8]| {
         let (meta, weights) = if f == 0 { (bytes, seeds[b][1].as_slice()) } else { (seeds[b][0].as_slice(), bytes) };
         let Some(meta) = text(meta) else { return false };
+        let _ = mars_policy::checkpoint::load_from(Path::new("checkpoint"), meta, weights, &candle_core::Device::Cpu);
         let cfg = EngineConfig { warmup_calls: 1, ..EngineConfig::with_seed(0) };
         let Ok(mut engine) = Engine::load_from(Path::new("checkpoint"), meta, weights, cfg) else { return false };
         let obs = engine.meta().normalizer.obs.mean.clone();

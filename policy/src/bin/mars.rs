@@ -33,7 +33,7 @@ enum Command {
     /// Training speed: seconds per epoch by hand, through candle's autograd and (with --python) in the PyTorch
     /// peer (policy/benches/torch_trainer.py) on the same samples, in turns; medians and ratios.
     BenchTrain {
-        #[arg(long, value_enum, default_value_t = PolicyKind::Mars)]
+        #[arg(long, value_parser = cli::policy_kind_parser(), default_value_t = PolicyKind::Mars)]
         policy: PolicyKind,
         #[arg(long, default_value = "configs/policy.toml")]
         config: PathBuf,
@@ -54,7 +54,7 @@ enum Command {
     },
     /// Train one policy on a demo file and write a checkpoint directory.
     Train {
-        #[arg(long, value_enum, default_value_t = PolicyKind::Mars)]
+        #[arg(long, value_parser = cli::policy_kind_parser(), default_value_t = PolicyKind::Mars)]
         policy: PolicyKind,
         #[arg(long, default_value = "configs/policy.toml")]
         config: PathBuf,
@@ -156,7 +156,7 @@ enum Command {
         #[arg(long, default_value_t = cli::DEFAULT_EXEC_HORIZON)]
         exec_horizon: usize,
         /// Only these policies (default: all four).
-        #[arg(long, value_enum, value_delimiter = ',')]
+        #[arg(long, value_parser = cli::policy_kind_parser(), value_delimiter = ',')]
         policies: Vec<PolicyKind>,
         /// Policies trained at the same time (default: one per core). Evaluation is always one at a time.
         #[arg(long)]
@@ -169,6 +169,10 @@ enum Command {
         /// scheduler_uses_history), whatever --config says.
         #[arg(long)]
         history_conditioning: bool,
+        /// Evaluate MARS with this ‖w‖∞ getting K_max steps instead of its checkpoint's `model.k_full_w` (1: the
+        /// paper's K(w)); with --resume, the same checkpoints under another K(w) rule.
+        #[arg(long)]
+        k_full_w: Option<f32>,
     },
     /// Training efficiency (paper Fig. 1(e)): train each policy × seed with a snapshot every N epochs, roll
     /// every snapshot out, and write success and γ per epoch (mean ± std), epochs-to-X % success and a plot.
@@ -240,7 +244,7 @@ enum Command {
         #[arg(long, default_value_t = cli::DEFAULT_EXEC_HORIZON)]
         exec_horizon: usize,
         /// Policies to compare (default: MARS and FM, the targets' two sides).
-        #[arg(long, value_enum, value_delimiter = ',')]
+        #[arg(long, value_parser = cli::policy_kind_parser(), value_delimiter = ',')]
         policies: Vec<PolicyKind>,
         #[arg(long)]
         jobs: Option<usize>,
@@ -252,6 +256,10 @@ enum Command {
         /// scheduler_uses_history), whatever --config says.
         #[arg(long)]
         history_conditioning: bool,
+        /// Evaluate MARS with this ‖w‖∞ getting K_max steps instead of its checkpoint's `model.k_full_w` (1: the
+        /// paper's K(w)); with --resume, the same checkpoints under another K(w) rule.
+        #[arg(long)]
+        k_full_w: Option<f32>,
     },
 }
 
@@ -343,6 +351,7 @@ fn main() -> std::process::ExitCode {
             policies,
             resume,
             history_conditioning,
+            k_full_w,
             ..
         } => {
             let policies = if policies.is_empty() { PolicyKind::ALL.to_vec() } else { policies };
@@ -356,6 +365,7 @@ fn main() -> std::process::ExitCode {
                 jobs,
                 resume,
                 history_conditioning,
+                k_full_w,
                 side_by_side: false,
             };
             cli::benchmark(&out, &config, &layout, &opts).map(|_| ())
@@ -399,6 +409,7 @@ fn main() -> std::process::ExitCode {
             policies,
             resume,
             history_conditioning,
+            k_full_w,
             ..
         } => {
             let policies = if policies.is_empty() { vec![PolicyKind::Mars, PolicyKind::Fm] } else { policies };
@@ -412,6 +423,7 @@ fn main() -> std::process::ExitCode {
                 jobs,
                 resume,
                 history_conditioning,
+                k_full_w,
                 side_by_side: false,
             };
             let opts = family::FamilyOptions { bench, seeds, targets: family::Targets::default() };

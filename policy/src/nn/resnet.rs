@@ -5,37 +5,10 @@
 
 use candle_core::{Module, Result, Tensor};
 use candle_nn::{Conv2d, Conv2dConfig, GroupNorm, VarBuilder, conv2d_no_bias, group_norm};
-use serde::{Deserialize, Serialize};
 
 use super::spatial_softmax::SpatialSoftmax;
 
-/// How the feature map becomes a vector.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case", deny_unknown_fields)]
-pub enum ResNetHead {
-    /// K keypoints' expected positions (2K values).
-    SpatialSoftmax { keypoints: usize },
-    /// The mean of each channel (8 × width values).
-    AvgPool,
-}
-
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct ResNetConfig {
-    /// Channels of the first stage (the paper's 64); the stages have 1, 2, 4 and 8 times this.
-    pub width: usize,
-    pub head: ResNetHead,
-}
-
-impl ResNetConfig {
-    /// Length of the vector [`ResNet18::forward`] returns.
-    pub fn out_dim(&self) -> usize {
-        match self.head {
-            ResNetHead::SpatialSoftmax { keypoints } => 2 * keypoints,
-            ResNetHead::AvgPool => 8 * self.width,
-        }
-    }
-}
+pub use mars_policy_format::encoder::{ResNetConfig, ResNetHead};
 
 /// GroupNorm with one group per 16 channels (at least one group).
 fn norm(channels: usize, vb: VarBuilder) -> Result<GroupNorm> {

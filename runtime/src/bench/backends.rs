@@ -151,26 +151,17 @@ fn run_one(args: &BackendBenchArgs, backend: DemoRobot, noisy: bool) -> Run {
     let _ = std::fs::remove_file(dir.join("hal.json"));
     let robot = format!("bench-backends-{}-{name}", std::process::id());
     eprintln!("== bench-backends: {name}, {} episodes → {}", args.episodes, dir.display());
+    let marsd = MarsdArgs {
+        robot: Some(robot.clone()),
+        episodes: Some(args.episodes),
+        out: Some(dir.clone()),
+        ..MarsdArgs::new(args.config.clone())
+    };
     let demo = DemoArgs {
-        marsd: MarsdArgs {
-            config: args.config.clone(),
-            robot: Some(robot.clone()),
-            episodes: Some(args.episodes),
-            out: Some(dir.clone()),
-            checkpoint: None,
-            engine_step_delay_ms: None,
-            max_state_gap_ms: None,
-            record: None,
-            record_writer_delay_ms: None,
-            replay_actions: None,
-            replay_episode: None,
-        },
         hal_core: super::demo_hal_core(),
-        hal_stall_at_tick: None,
-        hal_stall_ms: None,
         backend,
         franka_sim_venv: args.franka_sim_venv.clone(),
-        task: crate::cli::DemoTask::Pick,
+        ..DemoArgs::new(marsd)
     };
     let noise = noisy.then(|| {
         let ms = |v: f64| Duration::from_secs_f64(v / 1e3);

@@ -188,27 +188,14 @@ fn run_policy(args: &BenchArgs, name: &str, robot: &str) -> PolicyRun {
     let summary_path = dir.join("summary.json");
     let _ = std::fs::remove_file(&summary_path);
     eprintln!("== bench: {name} ({}), {} episodes → {}", checkpoint.display(), args.episodes, dir.display());
-    let demo = DemoArgs {
-        marsd: MarsdArgs {
-            config: args.config.clone(),
-            robot: Some(format!("{robot}-bench-{}-{name}", std::process::id())),
-            episodes: Some(args.episodes),
-            out: Some(dir.clone()),
-            checkpoint: Some(checkpoint.clone()),
-            engine_step_delay_ms: None,
-            max_state_gap_ms: None,
-            record: None,
-            record_writer_delay_ms: None,
-            replay_actions: None,
-            replay_episode: None,
-        },
-        hal_core: args.hal_core.unwrap_or_else(demo_hal_core),
-        hal_stall_at_tick: None,
-        hal_stall_ms: None,
-        backend: crate::cli::DemoRobot::Mock,
-        franka_sim_venv: crate::cli::FRANKA_SIM_VENV.into(),
-        task: crate::cli::DemoTask::Pick,
+    let marsd = MarsdArgs {
+        robot: Some(format!("{robot}-bench-{}-{name}", std::process::id())),
+        episodes: Some(args.episodes),
+        out: Some(dir.clone()),
+        checkpoint: Some(checkpoint.clone()),
+        ..MarsdArgs::new(args.config.clone())
     };
+    let demo = DemoArgs { hal_core: args.hal_core.unwrap_or_else(demo_hal_core), ..DemoArgs::new(marsd) };
     let probe = LoadProbe::start();
     let teed = tee_stderr(|| crate::cli::demo(demo));
     let load = probe.finish();

@@ -57,7 +57,9 @@ fn size_in(field: &'static str, v: usize, max: usize) -> Result<(), ConfigError>
 }
 
 /// MARS and the baselines it is compared with; all share one network and differ in source, losses and K.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+/// Named on a command line and in TOML by [`PolicyKind::name`] (`"noise-a2a"`); each kind's one-line summary is
+/// [`PolicyKind::summary`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum PolicyKind {
     /// Learned per-dimension w; L_fm + L_rec + L_div; K = K(w).
@@ -72,6 +74,16 @@ pub enum PolicyKind {
 
 impl PolicyKind {
     pub const ALL: [PolicyKind; 4] = [PolicyKind::Mars, PolicyKind::Fm, PolicyKind::A2a, PolicyKind::NoiseA2a];
+
+    /// One line on what the kind is (a command's `--help` lists it beside the name).
+    pub fn summary(self) -> &'static str {
+        match self {
+            PolicyKind::Mars => "Learned per-dimension w; L_fm + L_rec + L_div; K = K(w)",
+            PolicyKind::Fm => "Flow matching: Gaussian source (w ≡ 1), L_fm only, K = K_max",
+            PolicyKind::A2a => "Action-to-action: history source (w ≡ 0), L_fm + L_rec, K = 1",
+            PolicyKind::NoiseA2a => "A2A with a small constant noise weight (`model.noise_a2a_w`)",
+        }
+    }
 
     pub fn name(self) -> &'static str {
         match self {
@@ -101,6 +113,18 @@ impl PolicyKind {
     }
 }
 
+impl std::str::FromStr for PolicyKind {
+    type Err = String;
+
+    /// The inverse of [`PolicyKind::name`].
+    fn from_str(s: &str) -> Result<Self, String> {
+        PolicyKind::ALL.into_iter().find(|k| k.name() == s).ok_or_else(|| {
+            let names: Vec<&str> = PolicyKind::ALL.iter().map(|k| k.name()).collect();
+            format!("unknown policy kind `{s}`; one of {}", names.join(", "))
+        })
+    }
+}
+
 impl std::fmt::Display for PolicyKind {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.write_str(self.name())
@@ -115,7 +139,7 @@ pub enum EncoderConfig {
     StateMlp { hidden: usize },
     /// Camera images through ResNet-18 (one per camera), their features and the low-dimensional state through an
     /// MLP. The observation vector is the state followed by each camera's image: height × width × 3 values in
-    /// [0, 1], channels last (row-major H, W, RGB; see `crate::vision`), left unnormalised.
+    /// [0, 1], channels last (row-major H, W, RGB; see `mars_policy::vision`), left unnormalised.
     Vision(VisionConfig),
 }
 
@@ -130,7 +154,7 @@ pub struct VisionConfig {
     /// of 96). Equal to the image size: no crop.
     pub crop_height: usize,
     pub crop_width: usize,
-    pub resnet: crate::nn::resnet::ResNetConfig,
+    pub resnet: crate::encoder::ResNetConfig,
     /// Hidden width of the MLP over [features of every camera, state].
     pub hidden: usize,
 }
@@ -150,7 +174,7 @@ impl VisionConfig {
         size_in("model.encoder.cameras", self.cameras, limits::MAX_CAMERAS)?;
         size_in("model.encoder.hidden", self.hidden, limits::MAX_WIDTH)?;
         size_in("model.encoder.resnet.width", self.resnet.width, limits::MAX_WIDTH / 8)?;
-        if let crate::nn::resnet::ResNetHead::SpatialSoftmax { keypoints } = self.resnet.head {
+        if let crate::encoder::ResNetHead::SpatialSoftmax { keypoints } = self.resnet.head {
             size_in("model.encoder.resnet.head.keypoints", keypoints, limits::MAX_WIDTH)?;
         }
         size_in("model.encoder.image_height", self.image_height, limits::MAX_IMAGE_SIDE)?;
@@ -160,7 +184,7 @@ impl VisionConfig {
             return Err(invalid("model.encoder.crop_height", size));
         }
         let map = |side: usize| (0..5).fold(side, |s, _| (s - 1) / 2 + 1);
-        if matches!(self.resnet.head, crate::nn::resnet::ResNetHead::SpatialSoftmax { .. })
+        if matches!(self.resnet.head, crate::encoder::ResNetHead::SpatialSoftmax { .. })
             && (map(self.crop_height) < 2 || map(self.crop_width) < 2)
         {
             let why = format!(
@@ -269,7 +293,7 @@ pub struct TrainConfig {
     /// --knob fm-lambda-rec`), which shows L_rec pulling FM toward the central passages. Absent: plain FM.
     #[serde(default)]
     pub fm_lambda_rec: Option<f64>,
-    /// How the gradients are computed: by hand (`crate::grad`, state policies) or through candle's autograd
+    /// How the gradients are computed: by hand (`mars_policy::grad`, state policies) or through candle's autograd
     /// (always for a vision encoder). The two agree to float rounding (policy/tests/hand_gradients.rs).
     #[serde(default)]
     pub gradients: Gradients,
@@ -334,7 +358,7 @@ impl PolicyConfig {
 impl ModelConfig {
     /// K(w) for this model: ⌈K_max · min(1, ‖w‖∞ / k_full_w)⌉, at least 1.
     pub fn steps_for(&self, w_inf: f32) -> usize {
-        crate::model::steps_for(w_inf / self.k_full_w, self.k_max)
+        crate::steps::steps_for(w_inf / self.k_full_w, self.k_max)
     }
 
     /// The velocity field's conditioning width: E, plus H·D when it sees the history.
