@@ -15,8 +15,8 @@
 //! Activations are channels-last, [pixels, channels] row-major (NHWC for one image): a pixel's channels are
 //! contiguous, which is what an im2col row and a product's output row are.
 
+use crate::matmul::Linear;
 use crate::matmul::{Chunk, MAX_COLS, MatMul, Simd, pack_panels, tile};
-use crate::weights::Linear;
 
 /// One convolution with its input size fixed at load.
 #[derive(Debug, Clone)]

@@ -19,8 +19,19 @@
 //! - with `threads > 1`, multi-row products go to `gemm::gemm` whole with rayon parallelism; that path
 //!   allocates inside gemm, which is why it is not the default.
 
-use crate::weights::Linear;
 use gemm::Parallelism;
+
+/// y = x·Wᵀ + b: what every product here multiplies by.
+#[derive(Debug, Clone)]
+pub struct Linear {
+    /// [out, in], row-major.
+    pub weight: Box<[f32]>,
+    pub bias: Box<[f32]>,
+    pub input: usize,
+    pub output: usize,
+    /// `weight` in microkernel panel layout for token linears; empty otherwise.
+    pub panels: Panels,
+}
 
 /// How token products are computed, chosen once at load.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -201,8 +212,8 @@ pub(crate) use panels::{Chunk, MAX_COLS, tile};
 
 #[cfg(target_arch = "x86_64")]
 mod panels {
+    use super::Linear;
     use super::Simd;
-    use crate::weights::Linear;
     use gemm_common::microkernel::MicroKernelFn;
     use gemm_f32::microkernel::{avx512f::f32 as uk512, fma::f32 as uk256};
 
@@ -381,8 +392,8 @@ mod panels {
 
 #[cfg(not(target_arch = "x86_64"))]
 mod panels {
+    use super::Linear;
     use super::Simd;
-    use crate::weights::Linear;
 
     pub fn panel_rows(_simd: Simd, _output: usize) -> usize {
         1

@@ -12,8 +12,9 @@ use mars_policy_format::encoder::{ResNetConfig, ResNetHead};
 
 use crate::conv::{Conv, out_size};
 use crate::error::{EngineError, Input, LoadError};
+use crate::matmul::Linear;
 use crate::matmul::MatMul;
-use crate::weights::{Linear, Reader, with_reader};
+use crate::weights::{Reader, with_reader};
 
 /// candle's GroupNorm ε in the policy's ResNet.
 const GN_EPS: f64 = 1e-5;

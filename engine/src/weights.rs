@@ -9,24 +9,12 @@
 
 use crate::dims::Dims;
 use crate::error::LoadError;
-use crate::matmul::{MatMul, Panels, pack_panels};
+use crate::matmul::{Linear, MatMul, Panels, pack_panels};
 use mars_policy_format::checkpoint::CheckpointError;
 use safetensors::{Dtype, SafeTensorError, SafeTensors};
 use std::cell::{Cell, RefCell};
 use std::collections::BTreeSet;
 use std::path::Path;
-
-/// y = x·Wᵀ + b.
-#[derive(Debug, Clone)]
-pub struct Linear {
-    /// [out, in], row-major.
-    pub weight: Box<[f32]>,
-    pub bias: Box<[f32]>,
-    pub input: usize,
-    pub output: usize,
-    /// `weight` in microkernel panel layout for token linears; empty otherwise.
-    pub panels: Panels,
-}
 
 #[derive(Debug, Clone)]
 pub struct Block {

@@ -8,8 +8,8 @@
 //! multi-producer queue's slot hand-over). If the ring is full the event is dropped and counted, never waited for.
 
 use crate::backend::BackendError;
-use crate::control::StartError;
 use crate::safety::Refusal;
+use crate::takeover::StartError;
 use mars_ipc::liveness::Peer;
 use mars_ipc::{FrameReceiveError, FrameSendError, SchemaMismatch};
 use std::sync::Arc;

@@ -2,7 +2,7 @@
 //! implementation, and the `mars-hal` process loop.
 //!
 //! Data flow of one tick: the backend is read ([`backend`], [`sim`]) → commands arrive over iceoryx2 →
-//! [`control`] judges them ([`safety`], [`session`], [`gripper`]) → the setpoint goes to the backend → the state
+//! [`control`] judges them ([`safety`], [`session`], [`gripper`]; [`takeover`] decides whether it may start at all) → the setpoint goes to the backend → the state
 //! frame leaves ([`runner`] does the I/O). [`profile`] and [`velocity_limits`] hold the robot's limits. [`fci`] drives
 //! a Franka robot over its Control Interface (the HAL's tick inside the robot's 1 kHz callback, the Franka Hand,
 //! reflex recovery; `mars-hal fci-status` reads a state and commands nothing); [`ros2`] a robot over ROS 2 topics
@@ -22,4 +22,5 @@ pub mod runner;
 pub mod safety;
 pub mod session;
 pub mod sim;
+pub mod takeover;
 pub mod velocity_limits;

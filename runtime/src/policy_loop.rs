@@ -29,20 +29,7 @@ use crate::task::{HilTask, PushTHil};
 use crate::traces::{TRACE_CAPACITY, TraceRing};
 use crate::watchdog::{Streak, Trip};
 
-/// One episode's outcome.
-#[derive(Debug, Clone, Serialize)]
-pub struct EpisodeResult {
-    pub episode: u64,
-    pub success: bool,
-    pub mode: Option<usize>,
-    pub reason: Option<DoneReason>,
-    pub duration_s: f64,
-    pub chunks: u64,
-    pub mean_k_used: f64,
-    pub late_chunks: u64,
-    /// Servo periods missed while the episode ran (a stalled machine: the robot's commands came late).
-    pub servo_missed_periods: u64,
-}
+pub use crate::tally::EpisodeResult;
 
 /// How many late chunks a report times.
 pub const LATE_CHUNKS_KEPT: usize = 16;

@@ -8,7 +8,22 @@ use std::collections::VecDeque;
 
 use serde::Serialize;
 
-use crate::policy_loop::EpisodeResult;
+use mars_tasks::pick::DoneReason;
+
+/// One episode's outcome.
+#[derive(Debug, Clone, Serialize)]
+pub struct EpisodeResult {
+    pub episode: u64,
+    pub success: bool,
+    pub mode: Option<usize>,
+    pub reason: Option<DoneReason>,
+    pub duration_s: f64,
+    pub chunks: u64,
+    pub mean_k_used: f64,
+    pub late_chunks: u64,
+    /// Servo periods missed while the episode ran (a stalled machine: the robot's commands came late).
+    pub servo_missed_periods: u64,
+}
 
 #[derive(Debug, Clone, Default, Serialize)]
 pub struct EpisodeTally {

@@ -6,7 +6,8 @@ use std::path::Path;
 
 use mars_ipc::MAX_JOINTS;
 
-use super::setpoint_sync::{History, RobotSetpoints};
+use super::history::History;
+use super::setpoint_sync::RobotSetpoints;
 use super::sim_checker::{Judged, Shown, SimChecker};
 use super::state::JOINTS;
 use crate::profile::Profile;

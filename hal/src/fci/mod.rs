@@ -12,6 +12,7 @@ pub mod drive;
 pub mod error;
 pub mod franka_sim;
 pub mod hand;
+pub mod history;
 mod late_reads;
 pub mod params;
 pub mod recent_cycles;

@@ -14,8 +14,8 @@ use mars_tasks::push_t::PushTConfig;
 use mars_tasks::push_t::episode::Observe;
 use serde::Deserialize;
 
-use super::pick::{LIMIT_MARGIN_RAD, TaskError};
 use crate::effector::{PlanarEffector, Workspace};
+use mars_tasks::pick::{LIMIT_MARGIN_RAD, TaskError};
 
 /// Where the table is for the arm.
 #[derive(Debug, Clone, PartialEq, Deserialize)]
