@@ -313,7 +313,7 @@ fn mars_vs_fm(root: &Path) {
         );
         return;
     }
-    let set = mars_policy::cli::load_demos(&demos).unwrap();
+    let set = mars_policy::demo_file::load_demos(&demos).unwrap();
     let meta = checkpoint::load_meta(&mars).unwrap();
     let h = meta.model.history_len;
     let (mut obs, mut hist) = (Vec::new(), Vec::new());

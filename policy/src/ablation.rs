@@ -3,9 +3,11 @@
 //! ungated reconstruction loss pulling FM toward the central passages (`fm-lambda-rec`). They explain the
 //! method: a wide source keeps modes but learns slowly, and L_rec collapses modes unless gated by (1 − w).
 
-use crate::cli::{demos_kept_or_made, eval, load_demos, trained_with};
+use crate::benchmark::{demos_kept_or_made, trained_with};
+use crate::cli::eval;
 use crate::config::{PolicyConfig, PolicyKind};
-use crate::family::MeanStd;
+use crate::demo_file::load_demos;
+use crate::stats::MeanStd;
 use crate::train::train_with_progress;
 use anyhow::Context;
 use mars_tasks::nav2d::layout::Layout;

@@ -38,7 +38,7 @@ pub fn run(opts: &BenchTrainOptions) -> anyhow::Result<()> {
     cfg.kind = opts.kind;
     cfg.train.epochs = opts.epochs;
     anyhow::ensure!(crate::grad::supports(&cfg), "the hand-written gradients are for state policies");
-    let demos = crate::cli::load_demos(&opts.demos)?.demos;
+    let demos = crate::demo_file::load_demos(&opts.demos)?.demos;
     std::fs::create_dir_all(&opts.out).with_context(|| format!("creating {}", opts.out.display()))?;
     if opts.python.is_some() {
         write_samples(&cfg, &demos, &opts.out)?;

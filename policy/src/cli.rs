@@ -3,6 +3,7 @@
 use crate::checkpoint;
 use crate::config::{PolicyConfig, PolicyKind};
 use crate::dataset::history_window;
+use crate::demo_file::{load_demos, write_json};
 use crate::evaluation::{DEFAULT_BATCH, Evaluation, evaluate_policy};
 use crate::inference::MarsPolicy;
 use crate::plots;
@@ -50,21 +51,6 @@ pub fn quiet_video_encoder() {
     let filter = tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| default.into());
     let ansi = std::io::IsTerminal::is_terminal(&std::io::stderr());
     let _ = tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).with_ansi(ansi).try_init();
-}
-
-pub fn load_demos(path: &Path) -> anyhow::Result<DemoSet> {
-    let text = std::fs::read_to_string(path)
-        .with_context(|| format!("cannot read demos {} (generate them with `mars demos`)", path.display()))?;
-    serde_json::from_str(&text).with_context(|| format!("{} is not a valid demo file", path.display()))
-}
-
-fn write_json(path: &Path, value: &impl serde::Serialize) -> anyhow::Result<()> {
-    if let Some(dir) = path.parent() {
-        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
-    }
-    let tmp = path.with_extension("json.tmp");
-    std::fs::write(&tmp, serde_json::to_string(value)?).with_context(|| format!("cannot write {}", tmp.display()))?;
-    std::fs::rename(&tmp, path).with_context(|| format!("cannot write {}", path.display()))
 }
 
 pub fn demos(layout: &Path, n: usize, seed: u64, out: &Path) -> anyhow::Result<()> {
@@ -152,14 +138,6 @@ pub fn train_on_normalised(
         out.display()
     );
     Ok(trained)
-}
-
-/// Parses a policy kind on a command line by its name and lists every kind with its summary in `--help`: what
-/// clap's `ValueEnum` derive would give, kept here so the checkpoint format's crate needs no clap.
-pub fn policy_kind_parser() -> impl clap::builder::TypedValueParser<Value = PolicyKind> {
-    use clap::builder::TypedValueParser;
-    let values = PolicyKind::ALL.map(|k| clap::builder::PossibleValue::new(k.name()).help(k.summary()));
-    clap::builder::PossibleValuesParser::new(values).try_map(|s| s.parse::<PolicyKind>())
 }
 
 pub fn eval(
@@ -326,152 +304,6 @@ pub fn plot(run: &Path, layout: &Path) -> anyhow::Result<()> {
     }
     println!("plots written to {}", run.display());
     Ok(())
-}
-
-#[derive(Clone)]
-pub struct BenchmarkOptions {
-    pub demos: usize,
-    pub epochs: Option<usize>,
-    pub rollouts: usize,
-    pub seed: u64,
-    pub exec_horizon: usize,
-    pub policies: Vec<PolicyKind>,
-    /// Policies trained at the same time.
-    pub jobs: usize,
-    /// Keep each policy already trained under `out` with this very configuration (and the same demos) instead of
-    /// training it again; it is still evaluated. Long runs (`mars family`) then continue where they stopped.
-    pub resume: bool,
-    /// Condition the velocity field and the scheduler on the history (`model.velocity_uses_history`,
-    /// `model.scheduler_uses_history`) whatever the config says: one side of the comparison that settles it.
-    pub history_conditioning: bool,
-    /// Evaluate MARS with this `model.k_full_w` instead of its checkpoint's (1: the paper's K(w)); training is
-    /// unchanged, so `--resume` compares the two K(w) rules on the very same checkpoints. Written to
-    /// `eval_kfull<w>.json` beside the checkpoint's own `eval.json`.
-    pub k_full_w: Option<f32>,
-    /// Other benchmarks run at the same time (`mars family` runs its layouts × seeds side by side), so this one's
-    /// evaluation is not alone on the machine: its latencies say so.
-    pub side_by_side: bool,
-}
-
-/// Where `benchmark` records a policy's training wall time next to its checkpoint.
-const TRAIN_SECONDS_FILE: &str = "train_seconds";
-
-/// Writes the demos to `path`; under `resume`, demos already there are kept if they are exactly what `n` and `seed`
-/// make (regenerated beside them and compared), and refused otherwise: checkpoints kept beside them were trained
-/// on those, and a mismatch must neither be mixed in silently nor overwrite them.
-pub(crate) fn demos_kept_or_made(layout: &Path, n: usize, seed: u64, path: &Path, resume: bool) -> anyhow::Result<()> {
-    match std::fs::read(path) {
-        Ok(before) if resume => {
-            let fresh = path.with_extension("json.resume");
-            demos(layout, n, seed, &fresh)?;
-            let same = std::fs::read(&fresh).ok().as_deref() == Some(&before[..]);
-            let _ = std::fs::remove_file(&fresh);
-            anyhow::ensure!(
-                same,
-                "--resume: {} holds other demos than {n} demos of seed {seed} (or the expert changed): the \
-                 checkpoints beside it were trained on those; run without --resume or into another --out",
-                path.display(),
-            );
-            Ok(())
-        }
-        _ => demos(layout, n, seed, path),
-    }
-}
-
-/// `dir` holds a checkpoint of `cfg` (the calibrated `model.k_full_w` aside: training sets it). Compared through
-/// their JSON form: the configs have f32 fields and no `PartialEq`, and a field added since with a serde default
-/// compares equal to a checkpoint written before it.
-pub(crate) fn trained_with(dir: &Path, cfg: &PolicyConfig) -> bool {
-    let Ok(meta) = checkpoint::load_meta(dir) else { return false };
-    let mut model = meta.model.clone();
-    model.k_full_w = cfg.model.k_full_w;
-    let same = |a: serde_json::Result<serde_json::Value>, b: serde_json::Result<serde_json::Value>| matches!((a, b), (Ok(a), Ok(b)) if a == b);
-    meta.kind == cfg.kind
-        && same(serde_json::to_value(&model), serde_json::to_value(&cfg.model))
-        && same(serde_json::to_value(&meta.train), serde_json::to_value(&cfg.train))
-}
-
-/// Demos → train the policies (`jobs` at a time) → evaluate each, one after the other so that latencies are
-/// measured on an otherwise idle machine → `results.md` (the table and the paper's claims, checked) and the
-/// plots, all under `out`.
-pub fn benchmark(
-    out: &Path,
-    config: &Path,
-    layout_path: &Path,
-    o: &BenchmarkOptions,
-) -> anyhow::Result<Vec<crate::report::Row>> {
-    if let Some(w) = o.k_full_w {
-        // Refused before hours of training, not at the first evaluation after them.
-        anyhow::ensure!(w > 0.0 && w <= 1.0, "--k-full-w is {w}, must lie in (0, 1]");
-    }
-    let demos_path = out.join("demos.json");
-    demos_kept_or_made(layout_path, o.demos, o.seed, &demos_path, o.resume)?;
-    let set = load_demos(&demos_path)?;
-    let layout = Layout::load(layout_path)?;
-    let mut base = PolicyConfig::load(config)?;
-    base.train.epochs = o.epochs.unwrap_or(base.train.epochs);
-    base.train.seed = o.seed;
-    if o.history_conditioning {
-        (base.model.velocity_uses_history, base.model.scheduler_uses_history) = (true, true);
-    }
-
-    let config_of = |kind| {
-        let mut cfg = base.clone();
-        cfg.kind = kind;
-        cfg
-    };
-    let to_train: Vec<PolicyKind> = o
-        .policies
-        .iter()
-        .copied()
-        .filter(|&kind| {
-            let keep = o.resume && trained_with(&out.join(kind.name()), &config_of(kind));
-            if keep {
-                println!("{kind}: trained already under {} with this configuration, kept", out.display());
-            }
-            !keep
-        })
-        .collect();
-    let bars = indicatif::MultiProgress::new();
-    crate::jobs::parallel(&to_train, o.jobs, &|&kind| {
-        let started = Instant::now();
-        let t = crate::train::train_with_progress(
-            &config_of(kind),
-            &set.demos,
-            bars.add(crate::train::progress_bar(kind)),
-        )?;
-        let dir = out.join(kind.name());
-        t.save(&dir)?;
-        let secs = started.elapsed().as_secs_f32();
-        std::fs::write(dir.join(TRAIN_SECONDS_FILE), format!("{secs}\n"))
-            .with_context(|| format!("cannot write {}", dir.display()))
-    })?;
-    // Every policy is evaluated from its checkpoint on disk, trained now or kept: one path for both.
-    let mut rows = Vec::new();
-    for &kind in &o.policies {
-        let dir = out.join(kind.name());
-        let (policy, meta) = MarsPolicy::load(&dir, o.seed)?;
-        let train_s = std::fs::read_to_string(dir.join(TRAIN_SECONDS_FILE)).ok().and_then(|t| t.trim().parse().ok());
-        let w_regions = ["entry_gate", "junction", "exit_gate"]
-            .iter()
-            .map(|name| {
-                let r = layout.region(name).with_context(|| format!("layout has no region `{name}`"))?;
-                Ok((name.to_string(), mean_w_in_region(&policy, &set.demos, r)?))
-            })
-            .collect::<anyhow::Result<Vec<_>>>()?;
-        drop(policy);
-        // Only a learned w has a K(w) to change: FM and the A2As keep their fixed step counts.
-        let k_full_w = if kind == PolicyKind::Mars { o.k_full_w } else { None };
-        let ablation = StepsAblation { steps: None, k_full_w };
-        let Evaluation { report, intervals } =
-            eval_with_steps(&dir, layout_path, o.rollouts, o.seed + 1000, o.exec_horizon, DEFAULT_BATCH, ablation)?;
-        rows.push(crate::report::Row { kind, epochs: meta.train.epochs, train_s, report, intervals, w_regions });
-    }
-    let md = crate::report::render(&rows, o, &layout);
-    std::fs::write(out.join("results.md"), &md).with_context(|| format!("cannot write {}", out.display()))?;
-    plot(out, layout_path)?;
-    println!("\n{md}");
-    Ok(rows)
 }
 
 /// nav2d as a task of the training-efficiency curves (`mars curve`).

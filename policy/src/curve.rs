@@ -4,10 +4,12 @@
 //! (demos and evaluation come as closures), so nav2d (`mars curve`) and Pick Cup (`mars-hil curve`) share it.
 
 use crate::config::{PolicyConfig, PolicyKind};
-use crate::family::MeanStd;
+use crate::plots::{Area, FONT, LINE_SIZE, palette, plot_err, to_png};
+use crate::stats::MeanStd;
 use crate::train::{Snapshots, train_with_snapshots};
 use anyhow::Context;
 use mars_tasks::stats::{Estimate, mean_over_seeds};
+use plotters::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::fmt::Write;
 use std::path::{Path, PathBuf};
@@ -100,7 +102,7 @@ pub struct CurveArgs {
     #[arg(long, default_value_t = 1000)]
     pub eval_seed: u64,
     /// Policies to compare.
-    #[arg(long, value_parser = crate::cli::policy_kind_parser(), value_delimiter = ',', default_value = "mars,fm,a2a")]
+    #[arg(long, value_parser = crate::kind_arg::policy_kind_parser(), value_delimiter = ',', default_value = "mars,fm,a2a")]
     pub policies: Vec<PolicyKind>,
     /// Success rates (percent) whose epochs-to are reported.
     #[arg(long, value_delimiter = ',', default_value = "50,80,90")]
@@ -271,7 +273,7 @@ impl Trainer {
         let snaps = Snapshots { every, dir: dir.join("snapshots") };
         match self {
             Trainer::InProcess => {
-                let set = crate::cli::load_demos(demos)?;
+                let set = crate::demo_file::load_demos(demos)?;
                 let t = train_with_snapshots(cfg, &set.demos, indicatif::ProgressBar::hidden(), Some(&snaps))?;
                 t.save(dir)?;
             }
@@ -377,7 +379,7 @@ pub fn run(
     std::fs::write(out.join("curves.md"), &md).with_context(|| format!("cannot write {}", out.display()))?;
     std::fs::write(out.join("curves.json"), serde_json::to_string_pretty(&(&curves, &scores))?)
         .with_context(|| format!("cannot write {}", out.display()))?;
-    crate::plots::plot_curves(&curves, &title, &out.join("curves.png"))?;
+    plot_curves(&curves, &title, &out.join("curves.png"))?;
     println!("\n{md}");
     Ok(curves)
 }
@@ -442,6 +444,71 @@ pub fn render(curves: &[PolicyCurve], title: &str, command: &str, o: &CurveOptio
         let _ = writeln!(s, "| {} | {} | {success:.1} | {gamma:.2} | {tv} | {k} |", c.kind, to.join(" | "));
     }
     s
+}
+
+/// Success rate and γ against training epochs, one line per policy with its ± std band shaded (paper
+/// Fig. 1(e)): the training-efficiency curves of `curve::run`.
+pub fn plot_curves(curves: &[PolicyCurve], title: &str, path: &Path) -> anyhow::Result<()> {
+    to_png(path, (LINE_SIZE.0, 2 * LINE_SIZE.1), |root| {
+        root.fill(&WHITE).map_err(plot_err)?;
+        let (top, bottom) = root.split_vertically(LINE_SIZE.1);
+        draw_curve_panel(&top, curves, &format!("{title}: success rate"), "success %", 100.0, |p| p.success_pct)?;
+        draw_curve_panel(&bottom, curves, &format!("{title}: modal balance γ"), "γ", 1.0, |p| p.gamma)
+    })
+}
+
+fn draw_curve_panel(
+    root: &Area,
+    curves: &[PolicyCurve],
+    caption: &str,
+    y_desc: &str,
+    y_max: f32,
+    value: fn(&CurvePoint) -> MeanStd,
+) -> anyhow::Result<()> {
+    let last = curves.iter().flat_map(|c| c.points.iter().map(|p| p.epoch)).max().unwrap_or(1).max(1) as f32;
+    let mut chart = ChartBuilder::on(root)
+        .caption(caption, (FONT, 22))
+        .margin(15)
+        .x_label_area_size(40)
+        .y_label_area_size(60)
+        .build_cartesian_2d(0f32..last, 0f32..y_max * 1.05)
+        .map_err(plot_err)?;
+    chart
+        .configure_mesh()
+        .x_desc("epoch")
+        .y_desc(y_desc)
+        .label_style((FONT, 15))
+        .axis_desc_style((FONT, 16))
+        .light_line_style(WHITE)
+        .x_label_formatter(&|e| format!("{e:.0}"))
+        .y_label_formatter(&|v| if y_max > 1.0 { format!("{v:.0}") } else { format!("{v:.1}") })
+        .draw()
+        .map_err(plot_err)?;
+    for (i, c) in curves.iter().enumerate() {
+        let color = palette(i);
+        let pts: Vec<(f32, MeanStd)> = c.points.iter().map(|p| (p.epoch as f32, value(p))).collect();
+        // The band: mean + std forward, mean − std back, clipped to the axis.
+        let band: Vec<(f32, f32)> = pts
+            .iter()
+            .map(|(e, v)| (*e, (v.mean + v.std).min(y_max)))
+            .chain(pts.iter().rev().map(|(e, v)| (*e, (v.mean - v.std).max(0.0))))
+            .collect();
+        chart.draw_series(std::iter::once(Polygon::new(band, color.mix(0.2).filled()))).map_err(plot_err)?;
+        chart
+            .draw_series(LineSeries::new(pts.iter().map(|(e, v)| (*e, v.mean)), color.stroke_width(2)))
+            .map_err(plot_err)?
+            .label(c.kind.name())
+            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(3)));
+        chart.draw_series(pts.iter().map(|(e, v)| Circle::new((*e, v.mean), 3, color.filled()))).map_err(plot_err)?;
+    }
+    chart
+        .configure_series_labels()
+        .position(SeriesLabelPosition::LowerRight)
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .label_font((FONT, 14))
+        .draw()
+        .map_err(plot_err)
 }
 
 #[cfg(test)]

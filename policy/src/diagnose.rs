@@ -189,7 +189,7 @@ pub fn fork_choices(
             }
         }
     }
-    let shares = |v: &[usize]| crate::family::proportions(v);
+    let shares = |v: &[usize]| crate::stats::proportions(v);
     Ok(ForkChoices {
         states,
         draws,

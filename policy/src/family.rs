@@ -2,9 +2,9 @@
 //! demos), and the method's targets judged by their 95 % intervals over the seeds: met, not met or undecided.
 //! MARS and FM trained on one seed's demos are compared seed by seed (paired differences).
 
-use crate::cli::{BenchmarkOptions, benchmark};
+use crate::benchmark::{BenchmarkOptions, Row, benchmark};
 use crate::config::PolicyKind;
-use crate::report::Row;
+use crate::stats::proportions;
 use anyhow::Context;
 use mars_tasks::stats::{Estimate, Verdict, mean_over_seeds};
 use serde::{Deserialize, Serialize};
@@ -35,36 +35,6 @@ pub struct FamilyOptions {
     /// Training seeds 0..seeds (demos and rollouts use the same seed as the training).
     pub seeds: u64,
     pub targets: Targets,
-}
-
-/// Mean and sample standard deviation (the curve and ablation tables still print these).
-#[derive(Debug, Clone, Copy, Serialize)]
-pub struct MeanStd {
-    pub mean: f32,
-    /// Sample standard deviation (0 for a single seed).
-    pub std: f32,
-}
-
-impl MeanStd {
-    pub fn of(v: &[f32]) -> Self {
-        let n = v.len().max(1) as f32;
-        let mean = v.iter().sum::<f32>() / n;
-        let var = if v.len() > 1 { v.iter().map(|x| (x - mean).powi(2)).sum::<f32>() / (n - 1.0) } else { 0.0 };
-        Self { mean, std: var.sqrt() }
-    }
-}
-
-impl std::fmt::Display for MeanStd {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        let p = f.precision().unwrap_or(2);
-        write!(f, "{:.p$} ± {:.p$}", self.mean, self.std)
-    }
-}
-
-/// Successful rollouts per passage as shares of all successful rollouts that used a passage.
-pub fn proportions(counts: &[usize]) -> Vec<f32> {
-    let total: usize = counts.iter().sum();
-    counts.iter().map(|&c| if total == 0 { 0.0 } else { c as f32 / total as f32 }).collect()
 }
 
 /// One seed's figures of one policy.
@@ -216,7 +186,7 @@ pub fn run(out: &Path, config: &Path, layouts_dir: &Path, o: &FamilyOptions) -> 
     let mut results = Vec::new();
     for layout in &layouts {
         let runs: Vec<_> = runs.by_ref().take(o.seeds as usize).collect();
-        let set = crate::cli::load_demos(&out.join(&layout.name).join("seed0").join("demos.json"))?;
+        let set = crate::demo_file::load_demos(&out.join(&layout.name).join("seed0").join("demos.json"))?;
         let mut demo_counts = vec![0usize; layout.n_passages()];
         for m in set.demos.iter().filter_map(|d| d.mode) {
             if let Some(c) = demo_counts.get_mut(m) {
@@ -313,14 +283,6 @@ mod tests {
         let shares: &[f64] = if counts.len() == 3 { &demo_shares } else { &[0.5, 0.5] };
         let intervals = report.intervals(shares, 0);
         Row { kind, epochs: 1, train_s: Some(1.0), report, intervals, w_regions: Vec::new() }
-    }
-
-    #[test]
-    fn mean_std_is_the_sample_deviation() {
-        let m = MeanStd::of(&[1.0, 2.0, 3.0]);
-        assert_eq!(m.mean, 2.0);
-        assert!((m.std - 1.0).abs() < 1e-6);
-        assert_eq!(MeanStd::of(&[5.0]).std, 0.0);
     }
 
     fn runs(fm: &[Vec<usize>], mars: &[Vec<usize>], mars_k: f32) -> Vec<Vec<Row>> {

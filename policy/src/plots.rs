@@ -25,9 +25,9 @@ pub const MAP_SIZE: (u32, u32) = (1000, 640);
 pub const LINE_SIZE: (u32, u32) = (900, 520);
 
 const FONT_BYTES: &[u8] = include_bytes!("../../assets/DejaVuSansMono.ttf");
-const FONT: &str = "sans-serif";
+pub(crate) const FONT: &str = "sans-serif";
 
-type Area<'a> = DrawingArea<BitMapBackend<'a>, Shift>;
+pub(crate) type Area<'a> = DrawingArea<BitMapBackend<'a>, Shift>;
 
 /// Registers the bundled font once. plotters' default label styles ask for "sans-serif", so that name (and
 /// the other generic families, in case a style asks for them) all map to the bundled font.
@@ -46,7 +46,11 @@ pub fn ensure_font() -> anyhow::Result<()> {
 }
 
 /// Renders with `draw` into a PNG at `path`.
-fn to_png(path: &Path, size: (u32, u32), draw: impl FnOnce(&Area) -> anyhow::Result<()>) -> anyhow::Result<()> {
+pub(crate) fn to_png(
+    path: &Path,
+    size: (u32, u32),
+    draw: impl FnOnce(&Area) -> anyhow::Result<()>,
+) -> anyhow::Result<()> {
     ensure_font()?;
     let root = BitMapBackend::new(path, size).into_drawing_area();
     draw(&root).with_context(|| format!("drawing {}", path.display()))?;
@@ -54,7 +58,7 @@ fn to_png(path: &Path, size: (u32, u32), draw: impl FnOnce(&Area) -> anyhow::Res
     Ok(())
 }
 
-fn plot_err<E: std::error::Error + Send + Sync>(e: DrawingAreaErrorKind<E>) -> anyhow::Error {
+pub(crate) fn plot_err<E: std::error::Error + Send + Sync>(e: DrawingAreaErrorKind<E>) -> anyhow::Error {
     anyhow!("plotting failed: {e}")
 }
 
@@ -375,71 +379,6 @@ where
             .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(3)));
     }
     legend(&mut chart)
-}
-
-/// Success rate and γ against training epochs, one line per policy with its ± std band shaded (paper
-/// Fig. 1(e)): the training-efficiency curves of `curve::run`.
-pub fn plot_curves(curves: &[crate::curve::PolicyCurve], title: &str, path: &Path) -> anyhow::Result<()> {
-    to_png(path, (LINE_SIZE.0, 2 * LINE_SIZE.1), |root| {
-        root.fill(&WHITE).map_err(plot_err)?;
-        let (top, bottom) = root.split_vertically(LINE_SIZE.1);
-        draw_curve_panel(&top, curves, &format!("{title}: success rate"), "success %", 100.0, |p| p.success_pct)?;
-        draw_curve_panel(&bottom, curves, &format!("{title}: modal balance γ"), "γ", 1.0, |p| p.gamma)
-    })
-}
-
-fn draw_curve_panel(
-    root: &Area,
-    curves: &[crate::curve::PolicyCurve],
-    caption: &str,
-    y_desc: &str,
-    y_max: f32,
-    value: fn(&crate::curve::CurvePoint) -> crate::family::MeanStd,
-) -> anyhow::Result<()> {
-    let last = curves.iter().flat_map(|c| c.points.iter().map(|p| p.epoch)).max().unwrap_or(1).max(1) as f32;
-    let mut chart = ChartBuilder::on(root)
-        .caption(caption, (FONT, 22))
-        .margin(15)
-        .x_label_area_size(40)
-        .y_label_area_size(60)
-        .build_cartesian_2d(0f32..last, 0f32..y_max * 1.05)
-        .map_err(plot_err)?;
-    chart
-        .configure_mesh()
-        .x_desc("epoch")
-        .y_desc(y_desc)
-        .label_style((FONT, 15))
-        .axis_desc_style((FONT, 16))
-        .light_line_style(WHITE)
-        .x_label_formatter(&|e| format!("{e:.0}"))
-        .y_label_formatter(&|v| if y_max > 1.0 { format!("{v:.0}") } else { format!("{v:.1}") })
-        .draw()
-        .map_err(plot_err)?;
-    for (i, c) in curves.iter().enumerate() {
-        let color = palette(i);
-        let pts: Vec<(f32, crate::family::MeanStd)> = c.points.iter().map(|p| (p.epoch as f32, value(p))).collect();
-        // The band: mean + std forward, mean − std back, clipped to the axis.
-        let band: Vec<(f32, f32)> = pts
-            .iter()
-            .map(|(e, v)| (*e, (v.mean + v.std).min(y_max)))
-            .chain(pts.iter().rev().map(|(e, v)| (*e, (v.mean - v.std).max(0.0))))
-            .collect();
-        chart.draw_series(std::iter::once(Polygon::new(band, color.mix(0.2).filled()))).map_err(plot_err)?;
-        chart
-            .draw_series(LineSeries::new(pts.iter().map(|(e, v)| (*e, v.mean)), color.stroke_width(2)))
-            .map_err(plot_err)?
-            .label(c.kind.name())
-            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(3)));
-        chart.draw_series(pts.iter().map(|(e, v)| Circle::new((*e, v.mean), 3, color.filled()))).map_err(plot_err)?;
-    }
-    chart
-        .configure_series_labels()
-        .position(SeriesLabelPosition::LowerRight)
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK)
-        .label_font((FONT, 14))
-        .draw()
-        .map_err(plot_err)
 }
 
 #[cfg(test)]

@@ -33,7 +33,7 @@ enum Command {
     /// Training speed: seconds per epoch by hand, through candle's autograd and (with --python) in the PyTorch
     /// peer (policy/benches/torch_trainer.py) on the same samples, in turns; medians and ratios.
     BenchTrain {
-        #[arg(long, value_parser = cli::policy_kind_parser(), default_value_t = PolicyKind::Mars)]
+        #[arg(long, value_parser = mars_policy::kind_arg::policy_kind_parser(), default_value_t = PolicyKind::Mars)]
         policy: PolicyKind,
         #[arg(long, default_value = "configs/policy.toml")]
         config: PathBuf,
@@ -54,7 +54,7 @@ enum Command {
     },
     /// Train one policy on a demo file and write a checkpoint directory.
     Train {
-        #[arg(long, value_parser = cli::policy_kind_parser(), default_value_t = PolicyKind::Mars)]
+        #[arg(long, value_parser = mars_policy::kind_arg::policy_kind_parser(), default_value_t = PolicyKind::Mars)]
         policy: PolicyKind,
         #[arg(long, default_value = "configs/policy.toml")]
         config: PathBuf,
@@ -156,7 +156,7 @@ enum Command {
         #[arg(long, default_value_t = cli::DEFAULT_EXEC_HORIZON)]
         exec_horizon: usize,
         /// Only these policies (default: all four).
-        #[arg(long, value_parser = cli::policy_kind_parser(), value_delimiter = ',')]
+        #[arg(long, value_parser = mars_policy::kind_arg::policy_kind_parser(), value_delimiter = ',')]
         policies: Vec<PolicyKind>,
         /// Policies trained at the same time (default: one per core). Evaluation is always one at a time.
         #[arg(long)]
@@ -244,7 +244,7 @@ enum Command {
         #[arg(long, default_value_t = cli::DEFAULT_EXEC_HORIZON)]
         exec_horizon: usize,
         /// Policies to compare (default: MARS and FM, the targets' two sides).
-        #[arg(long, value_parser = cli::policy_kind_parser(), value_delimiter = ',')]
+        #[arg(long, value_parser = mars_policy::kind_arg::policy_kind_parser(), value_delimiter = ',')]
         policies: Vec<PolicyKind>,
         #[arg(long)]
         jobs: Option<usize>,
@@ -355,7 +355,7 @@ fn main() -> std::process::ExitCode {
             ..
         } => {
             let policies = if policies.is_empty() { PolicyKind::ALL.to_vec() } else { policies };
-            let opts = cli::BenchmarkOptions {
+            let opts = mars_policy::benchmark::BenchmarkOptions {
                 demos,
                 epochs,
                 rollouts,
@@ -368,7 +368,7 @@ fn main() -> std::process::ExitCode {
                 k_full_w,
                 side_by_side: false,
             };
-            cli::benchmark(&out, &config, &layout, &opts).map(|_| ())
+            mars_policy::benchmark::benchmark(&out, &config, &layout, &opts).map(|_| ())
         }
         Command::Ablate {
             knob,
@@ -413,7 +413,7 @@ fn main() -> std::process::ExitCode {
             ..
         } => {
             let policies = if policies.is_empty() { vec![PolicyKind::Mars, PolicyKind::Fm] } else { policies };
-            let bench = cli::BenchmarkOptions {
+            let bench = mars_policy::benchmark::BenchmarkOptions {
                 demos,
                 epochs,
                 rollouts,

@@ -89,7 +89,7 @@ enum Command {
     /// Train a Push-T vision policy: expert demos made in process from their seed (half by each route), then the
     /// trainer `mars train` runs, then a checkpoint marsd and the engine load.
     PushTTrain {
-        #[arg(long, value_parser = mars_policy::cli::policy_kind_parser())]
+        #[arg(long, value_parser = mars_policy::kind_arg::policy_kind_parser())]
         policy: mars_policy::config::PolicyKind,
         #[arg(long, default_value = "configs/push_t_policy.toml")]
         config: PathBuf,

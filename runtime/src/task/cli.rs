@@ -82,7 +82,7 @@ impl mars_policy::curve::CurveTask for PickCurve {
         let r = evaluate(dir, &task, &profile, self.episodes, seed)?;
         // The grasps' shares in the demos this checkpoint was trained on (the expert balances them).
         let mut demo_counts = vec![0usize; task.n_modes()];
-        for m in mars_policy::cli::load_demos(demos)?.demos.iter().filter_map(|d| d.mode) {
+        for m in mars_policy::demo_file::load_demos(demos)?.demos.iter().filter_map(|d| d.mode) {
             if let Some(c) = demo_counts.get_mut(m) {
                 *c += 1;
             }

@@ -1,6 +1,6 @@
 //! The benchmark's `results.md`: the table, and each of the paper's nav2d claims checked against it.
 
-use crate::cli::BenchmarkOptions;
+use super::options::BenchmarkOptions;
 use crate::config::PolicyKind;
 use mars_tasks::nav2d::EvalIntervals;
 use mars_tasks::nav2d::eval::EvalReport;
