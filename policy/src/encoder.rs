@@ -5,17 +5,8 @@ use crate::config::EncoderConfig;
 use crate::nn::mlp::{Activation, Mlp};
 use candle_core::{Module, Result, Tensor};
 use candle_nn::VarBuilder;
-use rand::rngs::StdRng;
 
-pub trait ObsEncoder: Send + Sync {
-    /// `obs`: [B, obs_dim] (normalised) → [B, embed_dim], as at inference.
-    fn forward(&self, obs: &Tensor) -> Result<Tensor>;
-
-    /// The same in training, where an encoder may augment (the vision encoder's random crops).
-    fn forward_train(&self, obs: &Tensor, _rng: &mut StdRng) -> Result<Tensor> {
-        self.forward(obs)
-    }
-}
+pub use crate::obs_encoder::ObsEncoder;
 
 /// A state vector through a two-layer MLP.
 pub struct StateMlpEncoder {

@@ -31,6 +31,7 @@ pub mod knn;
 pub mod losses;
 pub mod model;
 pub mod nn;
+pub mod obs_encoder;
 pub use mars_policy_format::normalize;
 pub mod plots;
 pub mod scheduler;

@@ -9,9 +9,9 @@ use rand::rngs::StdRng;
 
 use crate::augment::{centre_crop, random_crop};
 use crate::config::VisionConfig;
-use crate::encoder::ObsEncoder;
 use crate::nn::mlp::{Activation, Mlp};
 use crate::nn::resnet::ResNet18;
+use crate::obs_encoder::ObsEncoder;
 
 pub struct VisionEncoder {
     cfg: VisionConfig,

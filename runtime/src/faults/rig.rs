@@ -26,6 +26,12 @@ pub struct Rig {
     _rig: mars_rt::rig_lock::RtRigLock,
 }
 
+/// The HAL at the end of a backend's trials: its exit status and its report.
+pub struct HalEnd {
+    pub code: Option<i32>,
+    pub report: String,
+}
+
 /// How long the HAL may take to publish its first frame (franka-sim connects first).
 const HAL_START: Duration = Duration::from_secs(60);
 
@@ -100,12 +106,12 @@ impl Rig {
 
     /// Stops the HAL as systemd would (SIGTERM: it brakes to rest and releases the robot), then the simulator;
     /// returns the HAL's exit status and its report (stdout).
-    pub fn stop(mut self) -> super::table::HalEnd {
+    pub fn stop(mut self) -> HalEnd {
         // SAFETY: kill(2) on our own child's pid.
         unsafe { libc::kill(self.hal_pid(), libc::SIGTERM) };
         let code = wait_child(&mut self.hal, Duration::from_secs(15));
         let report = std::fs::read_to_string(self.dir.join("hal.out")).unwrap_or_default();
-        super::table::HalEnd { code, report }
+        HalEnd { code, report }
     }
 }
 

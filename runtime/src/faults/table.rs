@@ -5,15 +5,10 @@ use std::fmt::Write as _;
 
 use serde_json::Value;
 
+use super::rig::HalEnd;
 use super::trial::Outcome;
 use super::{FaultArgs, backend_name};
 use crate::cli::DemoRobot;
-
-/// The HAL at the end of a backend's trials: its exit status and its report.
-pub struct HalEnd {
-    pub code: Option<i32>,
-    pub report: String,
-}
 
 pub struct BackendResult {
     pub backend: DemoRobot,
