@@ -85,22 +85,15 @@ impl Rig {
     }
 
     /// Frames until `pred` holds for one (returned); panics after `timeout` with the HAL's output.
-    fn wait_for(&mut self, what: &str, timeout: Duration, mut pred: impl FnMut(&RobotState) -> bool) -> RobotState {
-        let end = Instant::now() + timeout;
-        while Instant::now() < end {
-            while let Some(s) = self.states.receive().unwrap() {
-                self.frames.push(s);
-                if pred(&s) {
-                    return s;
-                }
-            }
-            if let Some(status) = self.hal.as_mut().unwrap().try_wait().unwrap() {
-                let out = self.hal.take().unwrap().wait_with_output().unwrap();
-                panic!("mars-hal exited ({status}) while waiting for {what}:\n{}", text(&out));
-            }
-            std::thread::sleep(Duration::from_micros(200));
-        }
-        panic!("timed out after {timeout:?} waiting for {what}; the last frame: {:?}", self.frames.last());
+    fn wait_for(&mut self, what: &str, timeout: Duration, pred: impl FnMut(&RobotState) -> bool) -> RobotState {
+        let hal = &mut self.hal;
+        let exited = || {
+            let status = hal.as_mut().unwrap().try_wait().unwrap()?;
+            let out = hal.take().unwrap().wait_with_output().unwrap();
+            Some(format!("mars-hal exited ({status}):\n{}", text(&out)))
+        };
+        let waited = support::states::wait_for(&self.states, Some(&mut self.frames), what, timeout, pred, exited);
+        waited.unwrap_or_else(|e| panic!("{e}; the last frame: {:?}", self.frames.last()))
     }
 
     /// Sends `q_of(k)` in `session` as the answer to each of the next `frames` state frames (k = 0, 1, …);

@@ -1,6 +1,8 @@
 //! The real `mars-hal` binary in its own process, driven over iceoryx2 from the test. Each test uses its own
 //! robot namespace (pid + counter), so tests run in parallel.
 
+mod support;
+
 use std::f64::consts::{FRAC_PI_2, FRAC_PI_4};
 use std::path::Path;
 use std::process::{Child, Command, Stdio};
@@ -82,17 +84,8 @@ impl Rig {
     }
 
     /// Read frames until `pred` holds for one; panic with `what` after `timeout`.
-    fn wait_for(&self, what: &str, timeout: Duration, mut pred: impl FnMut(&RobotState) -> bool) -> RobotState {
-        let end = Instant::now() + timeout;
-        while Instant::now() < end {
-            while let Some(s) = self.states.receive().unwrap() {
-                if pred(&s) {
-                    return s;
-                }
-            }
-            std::thread::sleep(Duration::from_micros(200));
-        }
-        panic!("timed out after {timeout:?} waiting for {what}");
+    fn wait_for(&self, what: &str, timeout: Duration, pred: impl FnMut(&RobotState) -> bool) -> RobotState {
+        support::states::wait_for(&self.states, None, what, timeout, pred, || None).unwrap_or_else(|e| panic!("{e}"))
     }
 
     fn latest(&self) -> RobotState {

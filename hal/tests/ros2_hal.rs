@@ -121,25 +121,13 @@ impl Rig {
     }
 
     /// Frames until `pred` holds for one (returned); panics after `timeout` with the HAL's output.
-    fn wait_for(&mut self, what: &str, timeout: Duration, mut pred: impl FnMut(&RobotState) -> bool) -> RobotState {
-        let end = Instant::now() + timeout;
-        while Instant::now() < end {
-            while let Some(s) = self.states.receive().unwrap() {
-                self.frames.push(s);
-                if pred(&s) {
-                    return s;
-                }
-            }
-            if let Some(status) = self.hal.as_mut().unwrap().try_wait().unwrap() {
-                panic!("mars-hal exited ({status}) while waiting for {what}:\n{}", self.hal_output());
-            }
-            std::thread::sleep(Duration::from_micros(200));
+    fn wait_for(&mut self, what: &str, timeout: Duration, pred: impl FnMut(&RobotState) -> bool) -> RobotState {
+        let hal = &mut self.hal;
+        let exited = || hal.as_mut().unwrap().try_wait().unwrap().map(|status| format!("mars-hal exited ({status})"));
+        match support::states::wait_for(&self.states, Some(&mut self.frames), what, timeout, pred, exited) {
+            Ok(s) => s,
+            Err(e) => panic!("{e}; the last frame: {:?}\nmars-hal:\n{}", self.frames.last(), self.hal_output()),
         }
-        panic!(
-            "timed out after {timeout:?} waiting for {what}; the last frame: {:?}\nmars-hal:\n{}",
-            self.frames.last(),
-            self.hal_output()
-        );
     }
 
     /// Sends `q_of(t)` in `session` as the answer to each state frame for `secs`, with the gripper at `gripper`

@@ -5,3 +5,4 @@
 pub mod franka_sim;
 pub mod reflex;
 pub mod standin;
+pub mod states;
