@@ -202,25 +202,43 @@ impl Profile {
     }
 
     pub fn validate(&self) -> Result<(), ProfileError> {
-        let bad = |msg: String| Err(ProfileError::Invalid { name: self.name.clone(), msg });
+        let checks = || -> Result<(), String> {
+            self.check_rate_and_timeout()?;
+            self.check_joint_tables()?;
+            self.check_joint_limits()?;
+            self.check_gripper()?;
+            self.check_sim()?;
+            self.check_backend()?;
+            Ok(())
+        };
+        checks().map_err(|msg| ProfileError::Invalid { name: self.name.clone(), msg })
+    }
+
+    /// The robot's size, rate and command timeout.
+    fn check_rate_and_timeout(&self) -> Result<(), String> {
         if self.joints == 0 || self.joints > MAX_JOINTS {
-            return bad(format!("joints = {} but must be 1..={MAX_JOINTS}", self.joints));
+            return Err(format!("joints = {} but must be 1..={MAX_JOINTS}", self.joints));
         }
         if !(self.rate_hz.is_finite() && (1.0..=10_000.0).contains(&self.rate_hz)) {
-            return bad(format!("rate_hz = {} but must be in 1..=10000", self.rate_hz));
+            return Err(format!("rate_hz = {} but must be in 1..=10000", self.rate_hz));
         }
         let period_ms = 1e3 / self.rate_hz;
         if !(self.command_timeout_ms.is_finite()
             && self.command_timeout_ms >= 2.0 * period_ms
             && self.command_timeout_ms <= MAX_TIMEOUT_MS)
         {
-            return bad(format!(
+            return Err(format!(
                 "command_timeout_ms = {} but must be at least two control periods ({:.3} ms) and at most \
                  {MAX_TIMEOUT_MS} ms",
                 self.command_timeout_ms,
                 2.0 * period_ms
             ));
         }
+        Ok(())
+    }
+
+    /// Every per-joint table: one finite value per joint, each within this build's magnitudes.
+    fn check_joint_tables(&self) -> Result<(), String> {
         for (field, v) in [
             ("q_min", &self.q_min),
             ("q_max", &self.q_max),
@@ -230,10 +248,10 @@ impl Profile {
             ("home", &self.home),
         ] {
             if v.len() != self.joints {
-                return bad(format!("{field} has {} values but the robot has {} joints", v.len(), self.joints));
+                return Err(format!("{field} has {} values but the robot has {} joints", v.len(), self.joints));
             }
             if let Some(i) = v.iter().position(|x| !x.is_finite()) {
-                return bad(format!("{field}[{i}] is not a finite number"));
+                return Err(format!("{field}[{i}] is not a finite number"));
             }
         }
         for (field, v, max) in [
@@ -245,47 +263,51 @@ impl Profile {
             ("jerk_max", &self.jerk_max, MAX_JERK),
         ] {
             if let Some(i) = v.iter().position(|x| x.abs() > max) {
-                return bad(format!("{field}[{i}] = {:?} but its magnitude must be at most {max}", v[i]));
+                return Err(format!("{field}[{i}] = {:?} but its magnitude must be at most {max}", v[i]));
             }
         }
-        if let Err(msg) = self.velocity_limits.check_joints(self.joints) {
-            return bad(msg);
-        }
+        Ok(())
+    }
+
+    /// The limits as the safety filter will use them: ordered, leaving a position to rest in, home inside, one tick of
+    /// maximal jerk within the acceleration limit.
+    fn check_joint_limits(&self) -> Result<(), String> {
+        self.velocity_limits.check_joints(self.joints)?;
         let slowest = self.dq_max.iter().copied().fold(f64::INFINITY, f64::min);
         if !(self.velocity_headroom.is_finite()
             && self.velocity_headroom >= 0.0
             && self.velocity_headroom < 0.5 * slowest)
         {
-            return bad(format!(
+            return Err(format!(
                 "velocity_headroom = {} but must be ≥ 0 and below half the smallest dq_max ({slowest})",
                 self.velocity_headroom
             ));
         }
         for i in 0..self.joints {
             if self.q_min[i] >= self.q_max[i] {
-                return bad(format!("joint {i}: q_min {} must be below q_max {}", self.q_min[i], self.q_max[i]));
+                return Err(format!("joint {i}: q_min {} must be below q_max {}", self.q_min[i], self.q_max[i]));
             }
         }
         let (lo, hi) = self.position_limits();
         for i in 0..self.joints {
             if lo[i] >= hi[i] {
-                return bad(format!(
+                return Err(format!(
                     "joint {i}: the velocity bounds leave no position to rest in [{}, {}]",
                     lo[i], hi[i]
                 ));
             }
             if !(lo[i]..=hi[i]).contains(&self.home[i]) {
-                return bad(format!("joint {i}: home {} lies outside [{}, {}]", self.home[i], lo[i], hi[i]));
+                return Err(format!("joint {i}: home {} lies outside [{}, {}]", self.home[i], lo[i], hi[i]));
             }
             for (field, v) in [("dq_max", &self.dq_max), ("ddq_max", &self.ddq_max), ("jerk_max", &self.jerk_max)] {
                 if v[i] <= 0.0 {
-                    return bad(format!("{field}[{i}] = {} but must be positive", v[i]));
+                    return Err(format!("{field}[{i}] = {} but must be positive", v[i]));
                 }
             }
             // The safety filter's velocity-dependent acceleration bound keeps velocity and jerk inside their
             // limits only if one tick of maximal jerk does not exceed the acceleration limit.
             if self.jerk_max[i] / self.rate_hz > self.ddq_max[i] {
-                return bad(format!(
+                return Err(format!(
                     "joint {i}: jerk_max/rate_hz = {} exceeds ddq_max {}: raise the rate or lower jerk_max",
                     self.jerk_max[i] / self.rate_hz,
                     self.ddq_max[i]
@@ -295,21 +317,26 @@ impl Profile {
         for (i, b) in self.filter_velocity_bounds().iter().enumerate() {
             let (lo, hi) = b.rest_range(self.q_min[i], self.q_max[i]);
             if lo.partial_cmp(&hi) != Some(std::cmp::Ordering::Less) {
-                return bad(format!(
+                return Err(format!(
                     "joint {i}: the safety filter keeps ddq_max²/jerk_max = {} further inside the velocity bounds, which \
                      leaves it no position to rest in: lower ddq_max or raise jerk_max",
                     self.ddq_max[i] * self.ddq_max[i] / self.jerk_max[i]
                 ));
             }
         }
+        Ok(())
+    }
+
+    /// The gripper's range, speed, deadband and command interval.
+    fn check_gripper(&self) -> Result<(), String> {
         if !(self.gripper_min.is_finite() && self.gripper_max.is_finite() && self.gripper_min < self.gripper_max) {
-            return bad(format!(
+            return Err(format!(
                 "gripper range [{}, {}] is not a finite, non-empty interval",
                 self.gripper_min, self.gripper_max
             ));
         }
         if self.gripper_min.abs().max(self.gripper_max.abs()) > MAX_POSITION {
-            return bad(format!(
+            return Err(format!(
                 "gripper range [{}, {}] reaches past ±{MAX_POSITION}",
                 self.gripper_min, self.gripper_max
             ));
@@ -320,54 +347,64 @@ impl Profile {
             ("gripper_command_interval_ms", self.gripper_command_interval_ms),
         ] {
             if !(v.is_finite() && v > 0.0) {
-                return bad(format!("{field} = {v} but must be a positive number"));
+                return Err(format!("{field} = {v} but must be a positive number"));
             }
         }
         if self.gripper_speed_max > MAX_VELOCITY {
-            return bad(format!("gripper_speed_max = {} but must be at most {MAX_VELOCITY}", self.gripper_speed_max));
+            return Err(format!("gripper_speed_max = {} but must be at most {MAX_VELOCITY}", self.gripper_speed_max));
         }
         if self.gripper_command_interval_ms > MAX_TIMEOUT_MS {
-            return bad(format!(
+            return Err(format!(
                 "gripper_command_interval_ms = {} but must be at most {MAX_TIMEOUT_MS} ms",
                 self.gripper_command_interval_ms
             ));
         }
+        Ok(())
+    }
+
+    /// The mock plant's settings.
+    fn check_sim(&self) -> Result<(), String> {
         let s = &self.sim;
         if !(s.tracking_time_constant_s.is_finite() && (0.0..=3600.0).contains(&s.tracking_time_constant_s)) {
-            return bad(format!("sim.tracking_time_constant_s = {} must be in [0, 3600]", s.tracking_time_constant_s));
+            return Err(format!("sim.tracking_time_constant_s = {} must be in [0, 3600]", s.tracking_time_constant_s));
         }
         if !(s.position_noise_std.is_finite() && s.position_noise_std >= 0.0) {
-            return bad(format!("sim.position_noise_std = {} must be ≥ 0", s.position_noise_std));
+            return Err(format!("sim.position_noise_std = {} must be ≥ 0", s.position_noise_std));
         }
         if let Some(start) = &s.start
             && (start.len() != self.joints || start.iter().any(|x| !x.is_finite()))
         {
-            return bad(format!("sim.start must be {} finite joint positions", self.joints));
+            return Err(format!("sim.start must be {} finite joint positions", self.joints));
         }
         if s.start_gripper.is_some_and(|g| !g.is_finite()) {
-            return bad("sim.start_gripper must be a finite number".into());
+            return Err("sim.start_gripper must be a finite number".into());
         }
         if s.latency_ticks > 1000 {
-            return bad(format!("sim.latency_ticks = {} is more than 1000", s.latency_ticks));
+            return Err(format!("sim.latency_ticks = {} is more than 1000", s.latency_ticks));
         }
         if let Err(msg) = s.faults.validate(self.joints) {
-            return bad(format!("sim.{msg}"));
+            return Err(format!("sim.{msg}"));
         }
+        Ok(())
+    }
+
+    /// The driver's own settings, for the backend this profile names.
+    fn check_backend(&self) -> Result<(), String> {
         if self.backend == BackendKind::Fci {
             if self.joints != crate::fci::JOINTS || self.rate_hz != 1000.0 {
-                return bad(format!(
+                return Err(format!(
                     "backend = \"fci\" drives a Franka arm: 7 joints at 1000 Hz, not {} at {} Hz",
                     self.joints, self.rate_hz
                 ));
             }
             if let Err(msg) = self.fci.validate() {
-                return bad(format!("fci.{msg}"));
+                return Err(format!("fci.{msg}"));
             }
         }
         if self.backend == BackendKind::Ros2
             && let Err(msg) = self.ros2.validate(self.joints, self.rate_hz, self.command_timeout_ms)
         {
-            return bad(format!("ros2.{msg}"));
+            return Err(format!("ros2.{msg}"));
         }
         Ok(())
     }
