@@ -272,6 +272,17 @@ impl Summary {
 
 impl std::fmt::Display for Summary {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        self.write_outcome(f)?;
+        self.write_counts(f)?;
+        self.write_threads_and_inputs(f)?;
+        write!(f, "{}", self.latency)
+    }
+}
+
+/// The report's sections, in the order `Display` writes them.
+impl Summary {
+    /// Episodes, successes and modes; why the run stopped; what was recorded.
+    fn write_outcome(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         let modes: Vec<String> = self.modes.iter().map(|(m, n)| format!("{m} {n}")).collect();
         writeln!(
             f,
@@ -299,6 +310,11 @@ impl std::fmt::Display for Summary {
                 r.error.as_ref().map_or(String::new(), |e| format!("; {e}"))
             )?;
         }
+        Ok(())
+    }
+
+    /// K, deadline misses, limits, the HAL's last resorts and the wire's errors.
+    fn write_counts(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         let k = &self.k;
         writeln!(
             f,
@@ -343,6 +359,11 @@ impl std::fmt::Display for Summary {
             w.heartbeat.errors,
             w.heartbeat.withheld
         )?;
+        Ok(())
+    }
+
+    /// The real-time threads, the servo's allocations, the camera, the end effector and the state frames.
+    fn write_threads_and_inputs(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         for rt in &self.realtime {
             writeln!(
                 f,
@@ -402,6 +423,6 @@ impl std::fmt::Display for Summary {
             fr.stale,
             fr.out_of_order
         )?;
-        write!(f, "{}", self.latency)
+        Ok(())
     }
 }
