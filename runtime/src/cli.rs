@@ -289,36 +289,56 @@ pub fn demo(mut args: DemoArgs) -> anyhow::Result<u8> {
         crate::task::HilTask::Pick(_) => None,
     };
     let watch = crate::stall_watch::StallWatch::start(&robot, profile.period_s() * 1e3)?;
-    let mut marsd = Command::new(&exe);
-    marsd.arg("marsd").arg("--config").arg(&args.marsd.config).args(["--robot", &robot]);
-    if let Some(n) = args.marsd.episodes {
+    let marsd = marsd_command(&exe, &args.marsd, &robot, args.backend);
+    let (status, trip_line) = run_marsd(marsd)?;
+    let watched = watch.finish();
+    if status.code() == Some(i32::from(exit::TRIPPED)) {
+        explain_trip(&out, trip_line.as_deref(), &watched, profile.period_s() * 1e3);
+    }
+    stop_like_systemd(&mut scene.iter_mut().chain([&mut hal]).collect::<Vec<_>>());
+    drop(scene);
+    drop(hal);
+    Ok(status.code().map_or(exit::FAILURE, |c| c as u8))
+}
+
+/// `<exe> marsd` with the demo's overrides passed on, in the demo's namespace `robot`.
+fn marsd_command(exe: &Path, args: &MarsdArgs, robot: &str, backend: DemoRobot) -> Command {
+    let mut marsd = Command::new(exe);
+    marsd.arg("marsd").arg("--config").arg(&args.config).args(["--robot", robot]);
+    if let Some(n) = args.episodes {
         marsd.args(["--episodes", &n.to_string()]);
     }
-    if let Some(o) = &args.marsd.out {
+    if let Some(o) = &args.out {
         marsd.arg("--out").arg(o);
     }
-    if let Some(c) = &args.marsd.checkpoint {
+    if let Some(c) = &args.checkpoint {
         marsd.arg("--checkpoint").arg(c);
     }
-    if let Some(d) = args.marsd.engine_step_delay_ms {
+    if let Some(d) = args.engine_step_delay_ms {
         marsd.args(["--engine-step-delay-ms", &d.to_string()]);
     }
-    if let Some(r) = &args.marsd.record {
+    if let Some(r) = &args.record {
         marsd.arg("--record").arg(r);
     }
-    if let Some(d) = args.marsd.record_writer_delay_ms {
+    if let Some(d) = args.record_writer_delay_ms {
         marsd.args(["--record-writer-delay-ms", &d.to_string()]);
     }
-    if let (Some(dataset), Some(n)) = (&args.marsd.replay_actions, args.marsd.replay_episode) {
+    if let (Some(dataset), Some(n)) = (&args.replay_actions, args.replay_episode) {
         marsd.arg("--replay-actions").arg(dataset).args(["--replay-episode", &n.to_string()]);
     }
     // franka-sim is a Python MuJoCo loop that pauses now and then on a loaded machine (it runs at 0.6–0.9× real
     // time); its states then come late all together, counted in its own cycles, with no command lost. A real FR3
     // never pauses, so on a robot marsd keeps its 20 ms.
-    let gap = args.marsd.max_state_gap_ms.or((args.backend == DemoRobot::FrankaSim).then_some(FRANKA_SIM_STATE_GAP_MS));
+    let gap = args.max_state_gap_ms.or((backend == DemoRobot::FrankaSim).then_some(FRANKA_SIM_STATE_GAP_MS));
     if let Some(g) = gap {
         marsd.args(["--max-state-gap-ms", &g.to_string()]);
     }
+    marsd
+}
+
+/// Runs marsd to its end, its log passed through to the terminal (the first watchdog-trip line kept) and a
+/// termination request to the demo passed on to it. Its exit status, and the trip line if any.
+fn run_marsd(mut marsd: Command) -> anyhow::Result<(std::process::ExitStatus, Option<String>)> {
     // marsd's log passes through this process on its way to the terminal, so the trip line can be found.
     let mut marsd = Reaped(marsd.stderr(Stdio::piped()).spawn().context("starting marsd")?);
     let log = marsd.0.stderr.take().context("marsd's stderr")?;
@@ -348,24 +368,21 @@ pub fn demo(mut args: DemoArgs) -> anyhow::Result<u8> {
     signals_handle.close();
     let _ = forwarder.join();
     let trip_line = forward.join().unwrap_or(None);
-    let watched = watch.finish();
-    if status.code() == Some(i32::from(exit::TRIPPED)) {
-        explain_trip(&out, trip_line.as_deref(), &watched, profile.period_s() * 1e3);
-    }
-    // marsd has ended its session with a hold command; stop the scene and the HAL the way systemd would.
-    for child in scene.iter().chain([&hal]) {
+    Ok((status, trip_line))
+}
+
+/// Stops the demo's helper processes the way systemd would: SIGTERM to each, then up to 5 s for them to end.
+fn stop_like_systemd(children: &mut [&mut Reaped]) {
+    for child in children.iter() {
         // SAFETY: plain kill(2) on our own child's pid.
         unsafe { libc::kill(child.0.id() as libc::pid_t, libc::SIGTERM) };
     }
     let deadline = Instant::now() + Duration::from_secs(5);
-    for child in scene.iter_mut().chain([&mut hal]) {
+    for child in children.iter_mut() {
         while Instant::now() < deadline && matches!(child.0.try_wait(), Ok(None)) {
             std::thread::sleep(Duration::from_millis(20));
         }
     }
-    drop(scene);
-    drop(hal);
-    Ok(status.code().map_or(exit::FAILURE, |c| c as u8))
 }
 
 /// The HAL process as the demo starts it (`<exe> hal`, the same code as `mars-hal`): the robot's own control loop,
