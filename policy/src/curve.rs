@@ -4,7 +4,7 @@
 //! (demos and evaluation come as closures), so nav2d (`mars curve`) and Pick Cup (`mars-hil curve`) share it.
 
 use crate::config::{PolicyConfig, PolicyKind};
-use crate::plots::{Area, FONT, LINE_SIZE, palette, plot_err, to_png};
+use crate::plots::{Area, FONT, LINE_SIZE, legend, palette, plot_err, to_png};
 use crate::stats::MeanStd;
 use crate::train::{Snapshots, train_with_snapshots};
 use anyhow::Context;
@@ -501,14 +501,7 @@ fn draw_curve_panel(
             .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(3)));
         chart.draw_series(pts.iter().map(|(e, v)| Circle::new((*e, v.mean), 3, color.filled()))).map_err(plot_err)?;
     }
-    chart
-        .configure_series_labels()
-        .position(SeriesLabelPosition::LowerRight)
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK)
-        .label_font((FONT, 14))
-        .draw()
-        .map_err(plot_err)
+    legend(&mut chart, SeriesLabelPosition::LowerRight)
 }
 
 #[cfg(test)]

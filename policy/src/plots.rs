@@ -159,10 +159,14 @@ fn world_chart<'a, 'b>(area: &'a Area<'b>, layout: &Layout, title: &str) -> anyh
     Ok(chart)
 }
 
-fn legend<'a, 'b: 'a, CT: CoordTranslate>(chart: &mut ChartContext<'a, BitMapBackend<'b>, CT>) -> anyhow::Result<()> {
+/// The series' legend at `position`, on a light box, in the plots' font.
+pub(crate) fn legend<'a, 'b: 'a, CT: CoordTranslate>(
+    chart: &mut ChartContext<'a, BitMapBackend<'b>, CT>,
+    position: SeriesLabelPosition,
+) -> anyhow::Result<()> {
     chart
         .configure_series_labels()
-        .position(SeriesLabelPosition::UpperRight)
+        .position(position)
         .background_style(WHITE.mix(0.85))
         .border_style(BLACK)
         .label_font((FONT, 14))
@@ -199,7 +203,7 @@ fn draw_demos(root: &Area, layout: &Layout, demos: &[Demo]) -> anyhow::Result<()
             .label(format!("{name} ({n})"))
             .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(3)));
     }
-    legend(&mut chart)
+    legend(&mut chart, SeriesLabelPosition::UpperRight)
 }
 
 /// The positions a demo visited, including the one its last action led to (observations stop one short).
@@ -249,7 +253,7 @@ fn draw_rollouts(root: &Area, layout: &Layout, episodes: &[Episode], title: &str
         .map_err(plot_err)?
         .label(format!("success {ok}/{}", episodes.len()))
         .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], w_color(1.0).stroke_width(3)));
-    legend(&mut chart)?;
+    legend(&mut chart, SeriesLabelPosition::UpperRight)?;
     draw_colorbar(&bar)
 }
 
@@ -319,7 +323,7 @@ fn draw_k_per_step(root: &Area, series: &[(String, Vec<usize>)]) -> anyhow::Resu
             .label(name.as_str())
             .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(3)));
     }
-    legend(&mut chart)
+    legend(&mut chart, SeriesLabelPosition::UpperRight)
 }
 
 /// Training loss per epoch, one line per policy; log-scaled y when every value is positive (paper Fig. 1(e)).
@@ -378,7 +382,7 @@ where
             .label(name.as_str())
             .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(3)));
     }
-    legend(&mut chart)
+    legend(&mut chart, SeriesLabelPosition::UpperRight)
 }
 
 #[cfg(test)]

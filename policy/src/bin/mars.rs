@@ -218,6 +218,19 @@ struct TrainArgs {
     snapshot_every: Option<usize>,
 }
 
+/// The configuration a benchmark or family run compares, beside what `--config` says.
+#[derive(clap::Args)]
+struct Variant {
+    /// Condition the velocity field and the scheduler on the history (model.velocity_uses_history and
+    /// scheduler_uses_history), whatever --config says.
+    #[arg(long)]
+    history_conditioning: bool,
+    /// Evaluate MARS with this ‖w‖∞ getting K_max steps instead of its checkpoint's `model.k_full_w` (1: the
+    /// paper's K(w)); with --resume, the same checkpoints under another K(w) rule.
+    #[arg(long)]
+    k_full_w: Option<f32>,
+}
+
 #[derive(clap::Args)]
 struct BenchmarkArgs {
     #[arg(long, default_value = "runs/nav2d")]
@@ -246,14 +259,8 @@ struct BenchmarkArgs {
     /// evaluated): a stopped run continues where it stopped.
     #[arg(long)]
     resume: bool,
-    /// Condition the velocity field and the scheduler on the history (model.velocity_uses_history and
-    /// scheduler_uses_history), whatever --config says.
-    #[arg(long)]
-    history_conditioning: bool,
-    /// Evaluate MARS with this ‖w‖∞ getting K_max steps instead of its checkpoint's `model.k_full_w` (1: the
-    /// paper's K(w)); with --resume, the same checkpoints under another K(w) rule.
-    #[arg(long)]
-    k_full_w: Option<f32>,
+    #[command(flatten)]
+    variant: Variant,
 }
 
 #[derive(clap::Args)]
@@ -314,14 +321,8 @@ struct FamilyArgs {
     /// evaluated): a stopped family run continues where it stopped, and more seeds add to fewer.
     #[arg(long)]
     resume: bool,
-    /// Condition the velocity field and the scheduler on the history (model.velocity_uses_history and
-    /// scheduler_uses_history), whatever --config says.
-    #[arg(long)]
-    history_conditioning: bool,
-    /// Evaluate MARS with this ‖w‖∞ getting K_max steps instead of its checkpoint's `model.k_full_w` (1: the
-    /// paper's K(w)); with --resume, the same checkpoints under another K(w) rule.
-    #[arg(long)]
-    k_full_w: Option<f32>,
+    #[command(flatten)]
+    variant: Variant,
 }
 
 impl BenchTrainArgs {
@@ -391,8 +392,7 @@ impl BenchmarkArgs {
             exec_horizon,
             policies,
             resume,
-            history_conditioning,
-            k_full_w,
+            variant: Variant { history_conditioning, k_full_w },
             ..
         } = self;
         let policies = if policies.is_empty() { PolicyKind::ALL.to_vec() } else { policies };
@@ -444,8 +444,7 @@ impl FamilyArgs {
             exec_horizon,
             policies,
             resume,
-            history_conditioning,
-            k_full_w,
+            variant: Variant { history_conditioning, k_full_w },
             ..
         } = self;
         let policies = if policies.is_empty() { vec![PolicyKind::Mars, PolicyKind::Fm] } else { policies };
