@@ -22,6 +22,7 @@ pub mod live;
 pub mod liveness;
 pub mod names;
 pub mod node;
+mod peer_process;
 pub mod scene;
 pub mod schema;
 pub mod state;

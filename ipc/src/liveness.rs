@@ -6,12 +6,16 @@
 //! an iceoryx2 `WaitSet` with the listener attached *as a deadline*. The watch states are:
 //!
 //! - heartbeats arrive → [`Peer::Alive`];
-//! - the WaitSet reports the deadline missed → [`Peer::Late`], and the watch looks up the nodes of the service's
-//!   notifiers: if every one is dead (its process is gone) → [`Peer::Dead`] at once. Then it asks iceoryx2 to
-//!   clean up dead nodes, which also emits the service's `notifier_dead_event` on behalf of a dead notifier (→
-//!   [`Peer::Dead`] too, for a death another process found first). The look-up only reads the node registry;
-//!   the clean-up removes files under iceoryx2's root, so it waits on a busy disk, and the verdict does not wait
-//!   for it. A peer that is only slow stays `Late` until its next heartbeat;
+//! - the WaitSet reports the deadline missed → [`Peer::Late`], and the watch asks whether the peer's processes
+//!   are gone → [`Peer::Dead`] at once. It holds each process of the service's notifiers by a pidfd from the
+//!   peer's first heartbeats on ([`crate::peer_process`]): one `poll`, asked again every millisecond while the
+//!   peer stays late, so a dying peer whose exit the kernel takes tens of ms to finish is found within about a
+//!   millisecond of its end. Where it cannot hold them, it looks the notifiers' nodes up in iceoryx2's registry
+//!   (every node of the machine, 3–12 ms on a busy VM) at each missed deadline. After a death, or after each
+//!   look-up, it asks iceoryx2 to clean up dead nodes, which also emits the service's `notifier_dead_event` on
+//!   behalf of a dead notifier (→ [`Peer::Dead`] too, for a death another process found first); the clean-up
+//!   removes files, so it waits on a busy disk, and the verdict does not wait for it. A peer that is only slow
+//!   stays `Late` until its next heartbeat;
 //! - the peer dropped its notifier (a clean exit: `notifier_dropped_event`) → [`Peer::Left`].
 //!
 //! The watch thread publishes its verdict in an atomic, so a real-time loop reads it with one load per tick and
@@ -23,6 +27,7 @@ use std::sync::atomic::{AtomicBool, AtomicU8, AtomicU64, Ordering};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
+use iceoryx2::identifiers::UniqueNodeId;
 use iceoryx2::node::NodeView;
 use iceoryx2::port::listener::Listener;
 use iceoryx2::port::notifier::{Notifier, NotifierNotifyError};
@@ -30,12 +35,18 @@ use iceoryx2::prelude::*;
 
 use crate::names::RobotNamespace;
 use crate::node::create_node;
+use crate::peer_process::PeerProcesses;
 use crate::wire::WireError;
 
 /// Longest silence of a live peer: a heartbeat must arrive at least this often.
 pub const HEARTBEAT_DEADLINE: Duration = Duration::from_millis(10);
 /// How often [`Heartbeat::beat`] actually notifies (it may be called more often, e.g. every tick).
 pub const HEARTBEAT_PERIOD: Duration = Duration::from_millis(2);
+
+/// How often a watch asks a late peer's processes whether they are gone, and for how long after it turned late
+/// (a peer silent longer is stalled, not dying: then only at each missed deadline).
+const LATE_POLL: Duration = Duration::from_millis(1);
+const LATE_POLL_SPAN: Duration = Duration::from_secs(1);
 
 const HEARTBEAT: usize = 1;
 const DROPPED: usize = 2;
@@ -247,27 +258,33 @@ impl Drop for PeerWatch {
     }
 }
 
-/// The peer's process is gone: the service has notifiers and the node of every one is dead. Reads only
-/// iceoryx2's node registry (no clean-up, which writes), so a busy disk does not delay the answer.
-fn peer_died(service: &EventService, config: &Config) -> bool {
-    let mut notifier_nodes = Vec::with_capacity(MAX_PORTS);
+/// The nodes of the service's notifiers, each once, into `into` (cleared first).
+fn notifier_nodes(service: &EventService, into: &mut Vec<UniqueNodeId>) {
+    into.clear();
     service.dynamic_config().list_notifiers(|n| {
-        // Once per node: the count below compares nodes found dead with nodes.
-        if !notifier_nodes.contains(&n.node_id) {
-            notifier_nodes.push(n.node_id);
+        if !into.contains(&n.node_id) {
+            into.push(n.node_id);
         }
         CallbackProgression::Continue
     });
+}
+
+/// The peer's process is gone: the service has notifiers and the node of every one is dead, as iceoryx2's node
+/// registry says (no clean-up, which writes, so a busy disk does not delay the answer; but a listing of every
+/// node of the machine, 3–12 ms on a busy VM: the fallback where [`PeerProcesses`] cannot answer).
+fn peer_died(service: &EventService, config: &Config) -> bool {
+    let mut nodes = Vec::with_capacity(MAX_PORTS);
+    notifier_nodes(service, &mut nodes);
     let mut dead = 0;
     let listed = Node::<ipc::Service>::list(config, |state| {
         if let NodeState::Dead(view) = &state
-            && notifier_nodes.contains(view.id())
+            && nodes.contains(view.id())
         {
             dead += 1;
         }
         CallbackProgression::Continue
     });
-    listed.is_ok() && dead > 0 && dead == notifier_nodes.len()
+    listed.is_ok() && dead > 0 && dead == nodes.len()
 }
 
 fn watch_loop(
@@ -298,6 +315,9 @@ fn watch_loop(
     // A death we declared ourselves, whose `notifier_dead_event` (from the clean-up) is still to come: that event
     // must not count it twice.
     let mut dead_event_due = false;
+    // The peer's processes, held from its heartbeats on; when the peer turned late, while it stays so.
+    let (mut peers, mut nodes) = (PeerProcesses::default(), Vec::with_capacity(MAX_PORTS));
+    let mut late_since: Option<Instant> = None;
     let declare_dead = || {
         shared.deaths.fetch_add(1, Ordering::AcqRel);
         set(Peer::Dead);
@@ -313,8 +333,14 @@ fn watch_loop(
             }
             CallbackProgression::Continue
         };
-        // Wake at least every 50 ms to notice `stop`.
-        if waitset.wait_and_process_once_with_timeout(on_wake, Duration::from_millis(50)).is_err() {
+        // Wake at least every 50 ms to notice `stop`; every millisecond while the peer is late, see below.
+        late_since = match get() {
+            Peer::Late => late_since.or(Some(Instant::now())),
+            _ => None,
+        };
+        let polling = late_since.is_some_and(|t| t.elapsed() < LATE_POLL_SPAN);
+        let timeout = if polling { LATE_POLL } else { Duration::from_millis(50) };
+        if waitset.wait_and_process_once_with_timeout(on_wake, timeout).is_err() {
             std::thread::sleep(Duration::from_millis(1));
             continue;
         }
@@ -332,6 +358,8 @@ fn watch_loop(
             if beat {
                 // A new peer: a dead event still due would be about its predecessor, already counted.
                 dead_event_due = false;
+                notifier_nodes(service, &mut nodes);
+                peers.follow::<ipc::Service>(&nodes, node.config());
             }
             if dead {
                 declare_dead();
@@ -342,14 +370,23 @@ fn watch_loop(
                 set(Peer::Alive);
             }
         }
-        if missed && matches!(get(), Peer::Alive | Peer::Late) {
+        // A late peer may be a dying one whose process the kernel is still taking down (freeing its memory,
+        // closing its files: 20–100 ms seen). Its pidfds tell the end of that at once, so while it stays late
+        // they are asked every millisecond, not only at each missed deadline.
+        let look_again = polling && !missed && get() == Peer::Late && peers.all_gone().is_some();
+        if (missed && matches!(get(), Peer::Alive | Peer::Late)) || look_again {
             set(Peer::Late);
-            if peer_died(service, node.config()) {
+            let held = peers.all_gone();
+            let died = held.unwrap_or_else(|| peer_died(service, node.config()));
+            if died {
                 declare_dead();
                 dead_event_due = true;
             }
-            // Emits the dead notifier's notifier_dead_event to our listener (read on the next round).
-            node.try_cleanup_dead_nodes();
+            if died || held.is_none() {
+                // Emits the dead notifier's notifier_dead_event to our listener (read on the next round), and
+                // frees what the dead node held. Not while the held peer lives: it costs 5–20 ms of file work.
+                node.try_cleanup_dead_nodes();
+            }
         }
     }
 }

@@ -13,6 +13,7 @@ use std::time::{Duration, Instant};
 
 use common::*;
 use mars_ipc::{HoldReason, RobotNamespace, RobotState, StateWriter, status};
+use stall_witness::process_exit::ExitWatch;
 
 /// How long a stop from `v` (rad/s) takes braking at `a` (rad/s²), plus the jerk-limited ramps into and out of the
 /// braking acceleration (2·a/J with the FR3's J = 5000 rad/s³): the physics part of a reaction time.
@@ -319,10 +320,12 @@ fn sigkill_of_the_hal_makes_marsd_trip_and_exit_3() {
 /// README's figure for SIGKILL of the HAL → marsd's first trip, which stops the arm (ms): the stale-state check
 /// (20 ms without a frame) or liveness, whichever comes first.
 const KILL_HAL_STOP_MS: f64 = 21.0;
-/// README's tested bound for SIGKILL of the HAL → marsd's log line naming the dead HAL (ms). Not 1.5× its ~32 ms
-/// on an idle machine: the killed HAL's exit (the kernel freeing its locked memory, ~20 ms here) and iceoryx2's
-/// clean-up of its nodes run as ordinary work that a busy machine delays, and the stall witness cannot see that.
-const KILL_HAL_NAMED_MS: f64 = 100.0;
+/// README's figure for the HAL's process gone (the kernel's pidfd: its threads stopped, its memory freed, its
+/// files closed) → marsd's log line naming the dead HAL (ms): the sum of the polls on that path — the liveness
+/// watch asks the late HAL's pidfd every 1 ms, the stopped servo loop asks the watch every 1 ms, the thread that
+/// logs trips looks every 2 ms. The kernel's part before it (18–95 ms seen) is printed, not bounded: it is
+/// neither marsd's code nor the HAL's, and the exit watch that times it is not the code under test.
+const KILL_HAL_NAMED_AFTER_EXIT_MS: f64 = 4.0;
 /// README's figure for SIGKILL of the HAL → marsd's exit (ms); it writes its report at normal priority, so the
 /// tested bound is 1 s.
 const KILL_HAL_EXIT_BOUND_MS: f64 = 1000.0;
@@ -332,9 +335,11 @@ const KILL_HAL_EXIT_BOUND_MS: f64 = 1000.0;
 fn kill_hal_attempt(attempt: u32) -> Attempt {
     let Moving { logs, hal, rec, mut marsd, .. } = start_moving("kill-hal", attempt)?;
     let commands_before = rec.commands_len();
+    let exit_watch = ExitWatch::start(hal.pid()).expect("a pidfd for the HAL");
     let (killed_at, killed_ns) = (Instant::now(), monotonic_ns());
     hal.signal(libc::SIGKILL);
     let status = marsd.wait_timeout(Duration::from_secs(10));
+    let gone_ns = exit_watch.join().expect("the kernel's word that the HAL is gone");
     let exit_after = killed_at.elapsed();
     let r = rec.finish();
     let status = status.unwrap_or_else(|| panic!("marsd still running 10 s after the HAL died\n{}", marsd.logs()));
@@ -370,11 +375,20 @@ fn kill_hal_attempt(attempt: u32) -> Attempt {
         KILL_HAL_STOP_MS,
         (killed_ns, stop_ns),
     )?;
-    let (named_ms, _) = after_kill_ms(named);
-    eprintln!("SIGKILL of the HAL → marsd names the dead HAL: {named_ms:.1} ms (tested bound {KILL_HAL_NAMED_MS} ms)");
-    assert!(named_ms <= KILL_HAL_NAMED_MS, "marsd named the dead HAL {named_ms:.1} ms after the kill\n{err}");
-    let exit_ms = exit_after.as_secs_f64() * 1e3;
-    assert!(exit_ms <= KILL_HAL_EXIT_BOUND_MS, "marsd exited {exit_ms:.0} ms after the kill\n{err}");
+    let (named_ms, named_ns) = after_kill_ms(named);
+    let exit_ms = gone_ns.saturating_sub(killed_ns) as f64 * 1e-6;
+    eprintln!(
+        "SIGKILL of the HAL → the kernel reports its process gone (pidfd): {exit_ms:.1} ms; marsd names the dead \
+         HAL: {named_ms:.1} ms"
+    );
+    near_claim(
+        "the HAL's process gone → marsd names the dead HAL",
+        named_ns.saturating_sub(gone_ns) as f64 * 1e-6,
+        KILL_HAL_NAMED_AFTER_EXIT_MS,
+        (gone_ns, named_ns),
+    )?;
+    let marsd_exit_ms = exit_after.as_secs_f64() * 1e3;
+    assert!(marsd_exit_ms <= KILL_HAL_EXIT_BOUND_MS, "marsd exited {marsd_exit_ms:.0} ms after the kill\n{err}");
     assert_eq!(s["stop"], "trip");
     assert_eq!(s["trip"], trip_text);
     check_commands(&r.commands, &Limits::fr3()).unwrap();

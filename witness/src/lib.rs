@@ -27,6 +27,9 @@
 //! own log of falling behind real time — an account neither of the code under test nor of this witness, and the
 //! only other evidence a rerun may rest on.
 //!
+//! [`process_exit`]: when the kernel finished a killed process's exit (its pidfd), the moment from which a peer
+//! can be held responsible for noticing it is gone.
+//!
 //! [`rerun`] is the rule the tests follow: at most one rerun per test, only with such evidence for that very
 //! failure's time, printed to the test's stderr (past libtest's capture) and appended to `$MARS_RERUN_LOG`,
 //! which `.ci/run` sums up in its last line.
@@ -46,6 +49,7 @@ pub mod irq_trace;
 pub mod log_time;
 pub mod outrank;
 pub mod peer;
+pub mod process_exit;
 pub mod rerun;
 pub mod steal;
 
