@@ -1,7 +1,10 @@
 //! What else used the machine while the benchmark measured: per-process CPU time from /proc, steal and CPU
 //! pressure, so a disturbed phase is flagged rather than averaged in.
 
+use std::fmt::Write as _;
+
 use super::*;
+
 /// What else used the CPUs during one phase (sampled from /proc), and how much CPU the hypervisor stole.
 #[derive(Default, Clone)]
 pub(super) struct PhaseLoad {
