@@ -8,7 +8,7 @@
 //! - heartbeats arrive → [`Peer::Alive`];
 //! - the WaitSet reports the deadline missed → [`Peer::Late`], and the watch asks whether the peer's processes
 //!   are gone → [`Peer::Dead`] at once. It holds each process of the service's notifiers by a pidfd from the
-//!   peer's first heartbeats on ([`crate::peer_process`]): one `poll`, asked again every millisecond while the
+//!   peer's first heartbeats on (`peer_process.rs`): one `poll`, asked again every millisecond while the
 //!   peer stays late, so a dying peer whose exit the kernel takes tens of ms to finish is found within about a
 //!   millisecond of its end. Where it cannot hold them, it looks the notifiers' nodes up in iceoryx2's registry
 //!   (every node of the machine, 3–12 ms on a busy VM) at each missed deadline. After a death, or after each

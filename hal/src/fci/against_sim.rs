@@ -6,10 +6,10 @@ use std::path::Path;
 
 use mars_ipc::MAX_JOINTS;
 
+use super::JOINTS;
 use super::history::History;
 use super::setpoint_sync::RobotSetpoints;
 use super::sim_checker::{Judged, Shown, SimChecker};
-use super::state::JOINTS;
 use crate::profile::Profile;
 use crate::safety::SafetyFilter;
 

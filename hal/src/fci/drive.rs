@@ -25,11 +25,12 @@ use franka::{ControllerMode, FrankaError, JointPositions, RobotMode, RobotState}
 use mars_rt::overlong::Stamp;
 use tracing::{info, warn};
 
+use super::JOINTS;
 use super::hand::{Grasp, Hand};
 use super::recent_cycles::{CycleRecord, RecentCycles};
 use super::report::RobotLoopReport;
 use super::setpoint_sync::{ResyncFrom, RobotSetpoints};
-use super::state::{JOINTS, measurement};
+use super::state::measurement;
 use super::{Fci, LateCommands, Realtime, connect};
 use crate::backend::{Backend, BackendError, Measurement, RobotReport};
 use crate::gripper::GripperMove;

@@ -2,7 +2,7 @@
 //! close to a reported setpoint ours must be to count as the same: what `setpoint_sync` models and `late_reads`
 //! searches.
 
-use super::state::JOINTS;
+use super::JOINTS;
 
 /// A reported setpoint this far (rad) from our last command means the robot applied another one: above float32
 /// rounding (at most 2.4e-7 rad below 4.6 rad), below the jerk·dt³ (4.5e-6 rad at 4500 rad/s³) that matters.

@@ -12,8 +12,8 @@
 //! the last command recorded if it comes late too. Which, a later state may show; until then those histories are
 //! the alternatives the filter keeps its step within the limits from, where it can.
 
+use super::JOINTS;
 use super::history::{History, RESYNC_RAD, RESYNC_RAD_S, distance};
-use super::state::JOINTS;
 
 /// A reported acceleration (rad/s²) this far from a history's is another history: above float32's rounding (at
 /// most 4.8e-7 below 16 rad/s²).

@@ -14,7 +14,6 @@ pub mod franka_sim;
 pub mod hand;
 pub mod history;
 mod late_reads;
-pub mod params;
 pub mod recent_cycles;
 pub mod recover;
 pub mod report;
@@ -27,8 +26,7 @@ mod against_sim;
 #[cfg(test)]
 mod sim_checker;
 
+pub use crate::profile::fci_params::{FciParams, JOINTS, LateCommands, Realtime};
 pub use connect::{Fci, connect};
 pub use error::FciError;
-pub use params::{FciParams, LateCommands, Realtime};
 pub use report::RobotLoopReport;
-pub use state::JOINTS;

@@ -3,7 +3,7 @@
 //! and how regularly its states came before it (a robot that skipped or bunched states leaves the HAL to guess what
 //! it applied meanwhile).
 
-use super::state::JOINTS;
+use super::JOINTS;
 
 /// One cycle: the robot's period (ms), its reported setpoint and derivatives, and the command we sent back.
 #[derive(Debug, Clone, Copy, Default)]

@@ -29,9 +29,9 @@
 //!   the command in between is kept within the limits from both histories where it can be
 //!   (`SafetyFilter::also_judged_from`).
 
+use super::JOINTS;
 use super::history::{History, RESYNC_RAD, RESYNC_RAD_S, distance};
 use super::late_reads::{Races, Unread};
-use super::state::JOINTS;
 
 /// Where a resync continued from (kept for the reflex report).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

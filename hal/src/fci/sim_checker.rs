@@ -17,8 +17,8 @@
 //!   there) is outside every run: judged, dispatched, **not** recorded; the guess that follows stands.
 //! - A state shows the last command dispatched and the history's derivatives at that moment, in float32.
 
+use super::JOINTS;
 use super::history::History;
-use super::state::JOINTS;
 
 /// franka-sim's limits (`limits/tables.py`: `MAX_JOINT_ACCELERATION`, `MAX_JOINT_JERK`), compared strictly.
 pub const MAX_ACCELERATION: f64 = 10.0;

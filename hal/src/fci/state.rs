@@ -7,10 +7,8 @@
 
 use franka::{RobotMode, RobotState};
 
+use super::JOINTS;
 use crate::backend::Measurement;
-
-/// Joints of an FR3 (and of an FER): the length of every joint array in `franka::RobotState`.
-pub const JOINTS: usize = 7;
 
 /// The joints of `s`: measured positions `q` (rad), velocities `dq` (rad/s) and link-side torques `tau_J` (N·m).
 /// The gripper is not part of a robot state (the Franka Hand has a connection and a state of its own) and stays

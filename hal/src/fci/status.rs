@@ -6,9 +6,10 @@ use std::time::{Duration, Instant};
 
 use franka::{FciVersion, RobotMode};
 
+use super::JOINTS;
 use super::connect::{Fci, connect};
 use super::error::FciError;
-use super::state::{JOINTS, RobotStatus, measurement};
+use super::state::{RobotStatus, measurement};
 
 /// One look at the robot.
 #[derive(Debug, Clone)]

@@ -30,8 +30,7 @@ pub mod domain;
 pub mod drive;
 pub mod io;
 pub mod message;
-pub mod params;
 pub mod topics;
 
+pub use crate::profile::ros2_params::{Reliability, Ros2Params};
 pub use backend::Ros2Backend;
-pub use params::{Reliability, Ros2Params};

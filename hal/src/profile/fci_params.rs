@@ -2,6 +2,9 @@
 
 use serde::Deserialize;
 
+/// Joints of an FR3 (and of an FER): the length of every joint array in `franka::RobotState`.
+pub const JOINTS: usize = 7;
+
 /// Whether the HAL insists on a real-time kernel before it drives a robot over FCI.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "snake_case")]

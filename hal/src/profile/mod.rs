@@ -1,5 +1,6 @@
-//! Robot profiles: joint count, rate, limits, safety policy and sim parameters, read from TOML and validated
-//! before anything moves.
+//! Robot profiles: joint count, rate, limits, safety policy, sim parameters, and each driver's own table as
+//! data ([`fci_params`], [`ros2_params`]: the drivers read the profile, never the other way), read from TOML and
+//! validated before anything moves.
 
 use std::path::Path;
 
@@ -7,6 +8,9 @@ use mars_ipc::MAX_JOINTS;
 use serde::Deserialize;
 
 use crate::fault::FaultConfig;
+
+pub mod fci_params;
+pub mod ros2_params;
 use crate::velocity_limits::{JointVelocityBound, VelocityLimits};
 
 /// What the safety filter does with a command outside the limits.
@@ -102,9 +106,9 @@ pub struct Profile {
     #[serde(default)]
     pub sim: SimParams,
     #[serde(default)]
-    pub fci: crate::fci::FciParams,
+    pub fci: fci_params::FciParams,
     #[serde(default)]
-    pub ros2: crate::ros2::Ros2Params,
+    pub ros2: ros2_params::Ros2Params,
 }
 
 /// The robot behind the HAL.
@@ -391,7 +395,7 @@ impl Profile {
     /// The driver's own settings, for the backend this profile names.
     fn check_backend(&self) -> Result<(), String> {
         if self.backend == BackendKind::Fci {
-            if self.joints != crate::fci::JOINTS || self.rate_hz != 1000.0 {
+            if self.joints != fci_params::JOINTS || self.rate_hz != 1000.0 {
                 return Err(format!(
                     "backend = \"fci\" drives a Franka arm: 7 joints at 1000 Hz, not {} at {} Hz",
                     self.joints, self.rate_hz

@@ -14,7 +14,7 @@ pub enum Reliability {
 }
 
 /// One of the robot's cameras (`[[ros2.cameras]]`): a `sensor_msgs/CompressedImage` (JPEG) topic, bridged to our
-/// image frames on `mars/<robot>/camera/<id>` ([`super::camera`]).
+/// image frames on `mars/<robot>/camera/<id>` ([`crate::ros2::camera`]).
 #[derive(Debug, Clone, PartialEq, Eq, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct CameraParams {
@@ -121,7 +121,7 @@ impl Ros2Params {
             ("gripper_feedback_topic", &self.gripper_feedback_topic),
             ("gripper_target_topic", &self.gripper_target_topic),
         ] {
-            if let Err(why) = super::topics::check_ros_name(topic) {
+            if let Err(why) = check_ros_name(topic) {
                 return Err(format!("{field} = {topic:?}: {why}"));
             }
         }
@@ -138,7 +138,7 @@ impl Ros2Params {
             if self.cameras[..i].iter().any(|o| o.id == c.id) {
                 return Err(format!("cameras[{i}].id = {:?} names two cameras", c.id));
             }
-            if let Err(why) = super::topics::check_ros_name(&c.topic) {
+            if let Err(why) = check_ros_name(&c.topic) {
                 return Err(format!("cameras[{i}].topic = {:?}: {why}", c.topic));
             }
             if !(1..=MAX_CAMERA_SIDE).contains(&c.width) || !(1..=MAX_CAMERA_SIDE).contains(&c.height) {
@@ -156,7 +156,7 @@ impl Ros2Params {
         }
         let period_ms = 1e3 / rate_hz;
         let timeout = self.feedback_timeout_ms(command_timeout_ms);
-        let max = crate::profile::MAX_TIMEOUT_MS;
+        let max = super::MAX_TIMEOUT_MS;
         if !(timeout.is_finite() && timeout >= 2.0 * period_ms && timeout <= max) {
             return Err(format!(
                 "feedback_timeout_ms = {timeout} must be at least two feedback periods ({:.3} ms) and at most {max} ms",
@@ -170,12 +170,49 @@ impl Ros2Params {
     }
 }
 
+/// Whether `name` is an absolute ROS topic name: `/` then tokens of ASCII letters, digits and `_`, separated by
+/// single `/`s, no token starting with a digit, no `__`, no trailing `/` (ROS 2's name rules, the part that
+/// applies to a fully qualified name).
+pub fn check_ros_name(name: &str) -> Result<(), &'static str> {
+    let Some(rest) = name.strip_prefix('/') else {
+        return Err("a ROS topic name here must be absolute (start with /)");
+    };
+    if rest.is_empty() {
+        return Err("an empty topic name");
+    }
+    for token in rest.split('/') {
+        if token.is_empty() {
+            return Err("an empty token (// or a trailing /)");
+        }
+        if !token.chars().all(|c| c.is_ascii_alphanumeric() || c == '_') {
+            return Err("only ASCII letters, digits, _ and / are allowed");
+        }
+        if token.starts_with(|c: char| c.is_ascii_digit()) {
+            return Err("a token may not start with a digit");
+        }
+        if token.contains("__") {
+            return Err("a name may not contain __");
+        }
+    }
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use std::path::Path;
 
     use super::*;
     use crate::profile::{BackendKind, Profile};
+
+    #[test]
+    fn the_r1_lite_topics_are_valid_ros_names_and_malformed_ones_are_not() {
+        for t in ["/hdas/feedback_arm_right", "/motion_target/target_position_gripper_right"] {
+            assert_eq!(check_ros_name(t), Ok(()), "{t}");
+        }
+        for bad in ["hdas/x", "/", "/a//b", "/a/", "/a-b", "/1a", "/a__b"] {
+            assert!(check_ros_name(bad).is_err(), "{bad}");
+        }
+    }
 
     fn r1_lite() -> Profile {
         Profile::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/r1_lite.toml")).unwrap()
