@@ -195,7 +195,7 @@ pub fn run(out: &Path, config: &Path, layouts_dir: &Path, o: &FamilyOptions) -> 
         }
         results.push(aggregate(&layout.name, &demo_counts, &runs, &o.targets));
     }
-    let md = render(&results, o, layouts_dir);
+    let md = render(&results, o, config, layouts_dir);
     std::fs::write(out.join("family.md"), &md).with_context(|| format!("cannot write {}", out.display()))?;
     std::fs::write(out.join("family.json"), serde_json::to_string_pretty(&results)?)
         .with_context(|| format!("cannot write {}", out.display()))?;
@@ -207,15 +207,16 @@ fn shares(p: &[f32]) -> String {
     p.iter().map(|x| format!("{:.0}", 100.0 * x)).collect::<Vec<_>>().join("/")
 }
 
-pub fn render(results: &[LayoutResult], o: &FamilyOptions, layouts_dir: &Path) -> String {
+pub fn render(results: &[LayoutResult], o: &FamilyOptions, config: &Path, layouts_dir: &Path) -> String {
     let b = &o.bench;
     let policies: Vec<&str> = b.policies.iter().map(|k| k.name()).collect();
     let mut s = String::from("# nav2d layout family\n\n");
     let _ = writeln!(
         s,
-        "Command: `mars family --layouts {} --seeds {} --demos {} --rollouts {}{}{}{} --policies {} --jobs {}`; \
+        "Command: `mars family --config {} --layouts {} --seeds {} --demos {} --rollouts {}{}{}{} --policies {} --jobs {}`; \
          mean over training seeds 0..{} (each seed its own demos and rollouts) with its 95 % t interval; a \
          target is met or not met when the whole interval says so, undecided otherwise.\n",
+        config.display(),
         layouts_dir.display(),
         o.seeds,
         b.demos,

@@ -105,7 +105,9 @@ fn family_writes_a_table_per_layout_and_the_verdicts() {
     ]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let md = std::fs::read_to_string(dir.join("family.md")).unwrap();
-    for want in ["## three_passages", "## four_uneven_passages", "| mars |", "| fm |", "MARS mean K ≤ 3"] {
+    // Its command line names every input, so that rerunning it reads the same files.
+    let command = format!("`mars family --config {} --layouts {} --seeds 2", cfg.display(), layouts.display());
+    for want in ["## three_passages", "## four_uneven_passages", "| mars |", "| fm |", "MARS mean K ≤ 3", &command] {
         assert!(md.contains(want), "family.md lacks {want:?}:\n{md}");
     }
     let json: serde_json::Value =
@@ -115,6 +117,12 @@ fn family_writes_a_table_per_layout_and_the_verdicts() {
     // The layouts × seeds ran two at a time, and each benchmark says its latencies were not measured alone.
     let results = std::fs::read_to_string(run.join("results.md")).unwrap();
     assert!(results.contains("beside other layouts or seeds"), "{results}");
+    let command = format!(
+        "`mars benchmark --config {} --layout {}",
+        cfg.display(),
+        layouts.join("three_passages.toml").display()
+    );
+    assert!(results.contains(&command), "{results}");
     let meta: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(run.join("mars/policy.json")).unwrap()).unwrap();
     let k_full_w = meta["model"]["k_full_w"].as_f64().unwrap();
@@ -124,12 +132,12 @@ fn family_writes_a_table_per_layout_and_the_verdicts() {
     // other demos under the same folder are refused, not silently mixed with the kept checkpoints.
     let weights = |seed: u32| std::fs::read(dir.join(format!("three_passages/seed{seed}/mars/model.safetensors")));
     let seed0 = weights(0).unwrap();
-    let family = |seeds: &str, demos: &str| {
+    let family = |seeds: &str, demos: &str, extra: &[&str]| {
         let (d, c, l) = (dir.to_str().unwrap(), cfg.to_str().unwrap(), layouts.to_str().unwrap());
         let args = ["family", "--out", d, "--config", c, "--layouts", l, "--seeds", seeds, "--demos", demos];
-        mars(&[&args[..], &["--epochs", "1", "--rollouts", "2", "--jobs", "2", "--resume"][..]].concat())
+        mars(&[&args[..], &["--epochs", "1", "--rollouts", "2", "--jobs", "2", "--resume"][..], extra].concat())
     };
-    let out = family("3", "6");
+    let out = family("3", "6", &[]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let kept = String::from_utf8_lossy(&out.stdout).matches("with this configuration, kept").count();
     assert_eq!(kept, 2 * 2 * 2, "layouts × old seeds × policies kept");
@@ -139,11 +147,20 @@ fn family_writes_a_table_per_layout_and_the_verdicts() {
         serde_json::from_str(&std::fs::read_to_string(dir.join("family.json")).unwrap()).unwrap();
     assert_eq!(json[0]["policies"][0]["per_seed"].as_array().map(Vec::len), Some(3), "three seeds aggregated");
     let demos0 = std::fs::read(dir.join("three_passages/seed0/demos.json")).unwrap();
-    let out = family("3", "7");
+    let out = family("3", "7", &[]);
     assert!(!out.status.success(), "other demos under --resume must be refused");
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("--resume") && err.contains("demos.json"), "{err}");
     assert_eq!(std::fs::read(dir.join("three_passages/seed0/demos.json")).unwrap(), demos0, "refused: nothing lost");
+    // --k-full-w with --resume: the very same checkpoints judged under the paper's K(w), written beside their own
+    // evaluation, and the option in the command line.
+    let out = family("3", "6", &["--k-full-w", "1"]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert_eq!(weights(0).unwrap(), seed0, "--k-full-w evaluates, it does not retrain");
+    assert!(dir.join("three_passages/seed0/mars/eval_kfull1.json").exists());
+    assert!(std::fs::read_to_string(dir.join("family.md")).unwrap().contains("--k-full-w 1 --policies"));
+    let out = family("3", "6", &["--k-full-w", "1.5"]);
+    assert!(!out.status.success() && String::from_utf8_lossy(&out.stderr).contains("--k-full-w"));
 
     let layout = layouts.join("three_passages.toml");
     let (ckpt, layout) = (run.join("mars"), layout.to_str().unwrap().to_string());

@@ -127,7 +127,7 @@ pub fn benchmark(out: &Path, config: &Path, layout_path: &Path, o: &BenchmarkOpt
             eval_with_steps(&dir, layout_path, o.rollouts, o.seed + 1000, o.exec_horizon, DEFAULT_BATCH, ablation)?;
         rows.push(Row { kind, epochs: meta.train.epochs, train_s, report, intervals, w_regions });
     }
-    let md = report::render(&rows, o, &layout);
+    let md = report::render(&rows, o, (config, layout_path), &layout);
     std::fs::write(out.join("results.md"), &md).with_context(|| format!("cannot write {}", out.display()))?;
     plot(out, layout_path)?;
     println!("\n{md}");

@@ -6,6 +6,7 @@ use mars_tasks::nav2d::EvalIntervals;
 use mars_tasks::nav2d::eval::EvalReport;
 use mars_tasks::nav2d::layout::Layout;
 use std::fmt::Write;
+use std::path::Path;
 
 pub struct Row {
     pub kind: PolicyKind,
@@ -27,14 +28,17 @@ fn verdict(ok: bool) -> &'static str {
     if ok { "reproduced" } else { "NOT reproduced" }
 }
 
-pub fn render(rows: &[Row], o: &BenchmarkOptions, layout: &Layout) -> String {
+/// `files`: the config and layout files the run read, for its command line.
+pub fn render(rows: &[Row], o: &BenchmarkOptions, files: (&Path, &Path), layout: &Layout) -> String {
     let mut s = String::new();
     let policies: Vec<&str> = o.policies.iter().map(|k| k.name()).collect();
     let _ = writeln!(s, "# nav2d benchmark\n");
     let _ = writeln!(
         s,
-        "Command: `mars benchmark --demos {} --rollouts {} --seed {} --exec-horizon {}{}{}{} --policies {} --jobs {}` \
+        "Command: `mars benchmark --config {} --layout {} --demos {} --rollouts {} --seed {} --exec-horizon {}{}{}{} --policies {} --jobs {}` \
          (layout `{}`, {} passages; {} CPU thread(s) per job; {}).\n",
+        files.0.display(),
+        files.1.display(),
         o.demos,
         o.rollouts,
         o.seed,
