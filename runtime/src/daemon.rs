@@ -135,23 +135,7 @@ pub fn run(p: Prepared) -> anyhow::Result<Outcome> {
     let task_view = task.clone();
     std::fs::create_dir_all(&cfg.out).with_context(|| format!("creating {}", cfg.out.display()))?;
     let status = Arc::new(Status::default());
-    let live = crate::live::publisher(crate::live::LiveSetup {
-        robot: cfg.robot.clone(),
-        status: status.clone(),
-        period_ns: (profile.period_s() * 1e9) as u64,
-        inference_budget_ns: ((cfg.policy.lead_ms - cfg.policy.handoff_margin_ms).max(0.0) * 1e6) as u64,
-        camera: match &task {
-            HilTask::PushT(t) => Some(t.cfg.camera.name.clone()),
-            HilTask::Pick(_) => None,
-        },
-    });
-    let collector = Collector::start_with(&cfg.out, Duration::from_millis(50), Some(live))?;
-    let servo_rec = collector.recorder("servo", &servo_channels(&task), 8);
-    let policy_rec = collector.recorder(
-        "policy",
-        &[Channel::Inference, Channel::KRequested, Channel::KUsed, Channel::Encode, Channel::CameraAge, Channel::WInf],
-        8,
-    );
+    let (collector, servo_rec, policy_rec) = start_collector(&cfg, &profile, &task, &status)?;
 
     // Policy thread → servo thread (see `shared`).
     let (requests_in, requests_out) = rtrb::RingBuffer::new(16);
@@ -180,41 +164,8 @@ pub fn run(p: Prepared) -> anyhow::Result<Outcome> {
     };
     let servo_ch =
         ServoChannels { chunks: chunk_out, observed: obs_in, requests: requests_out, status: status.clone() };
-    let (servo_core, servo_prio, lock) = (cfg.servo.core, cfg.servo.priority, cfg.servo.lock_memory);
-    let (robot, watch_prio) = (cfg.robot.clone(), cfg.watchdog.priority);
-    let (opened_tx, opened_rx) = std::sync::mpsc::channel::<anyhow::Result<()>>();
-    let servo = std::thread::Builder::new()
-        .name("marsd-servo".into())
-        .spawn(move || {
-            let wire = match ServoWire::open(&robot, watch_prio) {
-                Ok(w) => {
-                    let _ = opened_tx.send(Ok(()));
-                    w
-                }
-                Err(e) => {
-                    let _ = opened_tx.send(Err(e));
-                    return None;
-                }
-            };
-            let rt = crate::rt::setup_realtime("servo", servo_core, Some(servo_prio), lock);
-            Some((run_servo(tick, wire, servo_ch, servo_rec, loop_cfg), rt))
-        })
-        .context("spawning the servo thread")?;
-    opened_rx.recv().context("the servo thread died while opening the wire")??;
-    // Beats while the servo's tick counter advances; a syscall the servo thread does not make itself.
-    let ticks = status.clone();
-    let progress = move || ticks.ticks.load(Ordering::Acquire);
-    let heartbeat = match HeartbeatThread::start_then(
-        &cfg.robot,
-        Side::Controller,
-        &format!("marsd-{}", cfg.robot),
-        progress,
-        move || {
-            crate::rt::setup_realtime("heartbeat", None, Some(watch_prio), false);
-        },
-    )
-    .context("opening the liveness heartbeat")
-    {
+    let servo = start_servo(&cfg, tick, servo_ch, servo_rec, loop_cfg)?;
+    let heartbeat = match start_heartbeat(&cfg, &status) {
         Ok(h) => h,
         Err(e) => {
             // Nothing was commanded yet: the servo loop ends at once on a stop request before the handshake.
@@ -223,67 +174,24 @@ pub fn run(p: Prepared) -> anyhow::Result<Outcome> {
             return Err(e);
         }
     };
-    // Signals only set flags; the main thread turns them into a safe stop. A second SIGINT/SIGTERM while
-    // stopping exits at once (status 1); the HAL then brakes on command loss. Registered after the wire is
-    // open: `ServoWire::open` makes iceoryx2 install its own handlers, which replace whatever is there, and
-    // signal-hook chains to a handler installed before it.
-    let term = Arc::new(AtomicBool::new(false));
-    for sig in [signal_hook::consts::SIGTERM, signal_hook::consts::SIGINT] {
-        signal_hook::flag::register_conditional_shutdown(sig, 1, term.clone())?;
-        signal_hook::flag::register(sig, term.clone())?;
-    }
+    // After the wire is open: `ServoWire::open` makes iceoryx2 install its own handlers, which replace whatever
+    // is there, and signal-hook chains to a handler installed before it.
+    let term = on_termination_signals()?;
 
-    let policy_cfg = cfg.clone();
     let policy_ch =
         PolicyChannels { chunks: chunk_in, observed: obs_out, requests: requests_in, status: status.clone() };
-    let (policy_core, policy_prio) = (cfg.policy.core, cfg.policy.priority);
-    // Push-T's camera and scene are opened on the policy thread (iceoryx2 ports stay on their thread); a failure
-    // to open them stops marsd before anything moved, like a bad configuration.
-    let (scene_tx, scene_rx) = std::sync::mpsc::channel::<anyhow::Result<()>>();
-    let policy_status = status.clone();
-    let policy = std::thread::Builder::new()
-        .name("marsd-policy".into())
-        .spawn(move || {
-            let scene = match &task {
-                HilTask::PushT(t) => match SceneLink::open(&policy_cfg.robot, t, recording.is_some()) {
-                    Ok(s) => Some(s),
-                    Err(e) => {
-                        let _ = scene_tx.send(Err(e));
-                        policy_status.stop_requested.store(true, Ordering::Release);
-                        return None;
-                    }
-                },
-                HilTask::Pick(_) => None,
-            };
-            let _ = scene_tx.send(Ok(()));
-            let rt = crate::rt::setup_realtime("policy", policy_core, Some(policy_prio), false);
-            Some((
-                PolicyLoop {
-                    engine,
-                    task,
-                    ch: policy_ch,
-                    rec: policy_rec,
-                    scene,
-                    next_interval_ns: 0,
-                    recording,
-                    last_image: Vec::new(),
-                    view_image: Vec::new(),
-                    replay,
-                }
-                .run(&policy_cfg),
-                rt,
-            ))
-        })
-        .context("spawning the policy thread")?;
-    if let Err(e) = scene_rx.recv().unwrap_or(Ok(())) {
-        let _ = servo.join();
-        let _ = policy.join();
-        return Err(e.context("opening the task's camera and scene"));
-    }
+    let parts = PolicyParts { engine, task, ch: policy_ch, rec: policy_rec, recording, replay };
+    let policy = match start_policy(&cfg, parts, status.clone()) {
+        Ok(p) => p,
+        Err(e) => {
+            let _ = servo.join();
+            return Err(e.context("opening the task's camera and scene"));
+        }
+    };
 
     // The main thread logs a trip: at the watchers' priority while the loops run, so a busy machine cannot delay
     // the report; back to the normal scheduler for the summary and plots.
-    let supervisor_rt = crate::rt::setup_realtime("supervisor", None, Some(watch_prio), false);
+    let supervisor_rt = crate::rt::setup_realtime("supervisor", None, Some(cfg.watchdog.priority), false);
     let no_hal = supervise(&status, &term, &servo, cfg.handshake_timeout());
     crate::rt::back_to_sched_other();
     let servo_joined = servo.join();
@@ -317,6 +225,150 @@ pub fn run(p: Prepared) -> anyhow::Result<Outcome> {
         exit::OK
     };
     Ok(Outcome { exit, summary })
+}
+
+/// The latency collector (and the live view it feeds) and its recorders for the servo and the policy loop.
+fn start_collector(
+    cfg: &DaemonConfig,
+    profile: &Profile,
+    task: &HilTask,
+    status: &Arc<Status>,
+) -> anyhow::Result<(Collector, crate::latency::Recorder, crate::latency::Recorder)> {
+    let live = crate::live::publisher(crate::live::LiveSetup {
+        robot: cfg.robot.clone(),
+        status: status.clone(),
+        period_ns: (profile.period_s() * 1e9) as u64,
+        inference_budget_ns: ((cfg.policy.lead_ms - cfg.policy.handoff_margin_ms).max(0.0) * 1e6) as u64,
+        camera: match task {
+            HilTask::PushT(t) => Some(t.cfg.camera.name.clone()),
+            HilTask::Pick(_) => None,
+        },
+    });
+    let collector = Collector::start_with(&cfg.out, Duration::from_millis(50), Some(live))?;
+    let servo_rec = collector.recorder("servo", &servo_channels(task), 8);
+    let policy_rec = collector.recorder(
+        "policy",
+        &[Channel::Inference, Channel::KRequested, Channel::KUsed, Channel::Encode, Channel::CameraAge, Channel::WInf],
+        8,
+    );
+    Ok((collector, servo_rec, policy_rec))
+}
+
+/// The liveness heartbeat, beating only while the servo's tick counter advances: a syscall the servo thread does
+/// not make itself.
+fn start_heartbeat(cfg: &DaemonConfig, status: &Arc<Status>) -> anyhow::Result<HeartbeatThread> {
+    let ticks = status.clone();
+    let progress = move || ticks.ticks.load(Ordering::Acquire);
+    let watch_prio = cfg.watchdog.priority;
+    HeartbeatThread::start_then(&cfg.robot, Side::Controller, &format!("marsd-{}", cfg.robot), progress, move || {
+        crate::rt::setup_realtime("heartbeat", None, Some(watch_prio), false);
+    })
+    .context("opening the liveness heartbeat")
+}
+
+/// The flag SIGTERM and SIGINT set. Signals only set flags; the main thread turns them into a safe stop. A second
+/// SIGINT/SIGTERM while stopping exits at once (status 1); the HAL then brakes on command loss.
+fn on_termination_signals() -> anyhow::Result<Arc<AtomicBool>> {
+    let term = Arc::new(AtomicBool::new(false));
+    for sig in [signal_hook::consts::SIGTERM, signal_hook::consts::SIGINT] {
+        signal_hook::flag::register_conditional_shutdown(sig, 1, term.clone())?;
+        signal_hook::flag::register(sig, term.clone())?;
+    }
+    Ok(term)
+}
+
+/// The servo thread's end: its report and real-time setup (`None`: it could not open the wire).
+type ServoThread = std::thread::JoinHandle<Option<(ServoReport, RtStatus)>>;
+/// The policy thread's end (`None`: it could not open the task's camera and scene).
+type PolicyThread = std::thread::JoinHandle<Option<(crate::policy_loop::PolicyReport, RtStatus)>>;
+
+/// Starts the servo thread, which opens the wire itself (iceoryx2's ports stay on the thread that made them);
+/// returns once it is open.
+fn start_servo(
+    cfg: &DaemonConfig,
+    tick: ServoTick,
+    ch: ServoChannels,
+    rec: crate::latency::Recorder,
+    loop_cfg: ServoLoopConfig,
+) -> anyhow::Result<ServoThread> {
+    let (core, priority, lock) = (cfg.servo.core, cfg.servo.priority, cfg.servo.lock_memory);
+    let (robot, watch_priority) = (cfg.robot.clone(), cfg.watchdog.priority);
+    let (opened_tx, opened_rx) = std::sync::mpsc::channel::<anyhow::Result<()>>();
+    let servo = std::thread::Builder::new()
+        .name("marsd-servo".into())
+        .spawn(move || {
+            let wire = match ServoWire::open(&robot, watch_priority) {
+                Ok(w) => {
+                    let _ = opened_tx.send(Ok(()));
+                    w
+                }
+                Err(e) => {
+                    let _ = opened_tx.send(Err(e));
+                    return None;
+                }
+            };
+            let rt = crate::rt::setup_realtime("servo", core, Some(priority), lock);
+            Some((run_servo(tick, wire, ch, rec, loop_cfg), rt))
+        })
+        .context("spawning the servo thread")?;
+    opened_rx.recv().context("the servo thread died while opening the wire")??;
+    Ok(servo)
+}
+
+/// What the policy thread is started with; it opens the rest (the scene) itself.
+struct PolicyParts {
+    engine: Engine,
+    task: HilTask,
+    ch: PolicyChannels,
+    rec: crate::latency::Recorder,
+    recording: Option<crate::record::Recorder>,
+    replay: Option<RecordedActions>,
+}
+
+/// Starts the policy thread; returns once it has opened Push-T's camera and scene (on that thread: iceoryx2's
+/// ports stay on their thread). A failure to open them stops the servo loop before anything moved, like a bad
+/// configuration; the caller then joins the servo thread.
+fn start_policy(cfg: &DaemonConfig, parts: PolicyParts, status: Arc<Status>) -> anyhow::Result<PolicyThread> {
+    let cfg = cfg.clone();
+    let (scene_tx, scene_rx) = std::sync::mpsc::channel::<anyhow::Result<()>>();
+    let thread = std::thread::Builder::new()
+        .name("marsd-policy".into())
+        .spawn(move || {
+            let PolicyParts { engine, task, ch, rec, recording, replay } = parts;
+            let scene = match &task {
+                HilTask::PushT(t) => match SceneLink::open(&cfg.robot, t, recording.is_some()) {
+                    Ok(s) => Some(s),
+                    Err(e) => {
+                        let _ = scene_tx.send(Err(e));
+                        status.stop_requested.store(true, Ordering::Release);
+                        return None;
+                    }
+                },
+                HilTask::Pick(_) => None,
+            };
+            let _ = scene_tx.send(Ok(()));
+            let rt = crate::rt::setup_realtime("policy", cfg.policy.core, Some(cfg.policy.priority), false);
+            let (last_image, view_image) = (Vec::new(), Vec::new());
+            let policy = PolicyLoop {
+                engine,
+                task,
+                ch,
+                rec,
+                scene,
+                next_interval_ns: 0,
+                recording,
+                last_image,
+                view_image,
+                replay,
+            };
+            Some((policy.run(&cfg), rt))
+        })
+        .context("spawning the policy thread")?;
+    if let Err(e) = scene_rx.recv().unwrap_or(Ok(())) {
+        let _ = thread.join();
+        return Err(e);
+    }
+    Ok(thread)
 }
 
 /// The recording's dataset: the policy's state and action (named per joint), Push-T's camera, the task's name.
