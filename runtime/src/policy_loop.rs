@@ -321,22 +321,7 @@ impl PolicyLoop {
             let progress = match &mut judge {
                 Judge::Arm(m) => m.update(&o.position[..n], o.gripper, t_s),
                 Judge::Scene { timeout_s, silent_limit_ns } => {
-                    let scene = self.scene.as_mut().expect("a Push-T task has its scene opened");
-                    let s = *scene.poll();
-                    if scene.silent_ns(monotonic_ns()) > *silent_limit_ns || s.stale_robot != 0 {
-                        tracing::error!("the scene's referee went silent or lost the robot's state mid-episode");
-                        self.request(Request::Trip(Trip::SceneLost));
-                        return None;
-                    }
-                    let mine = s.episode == episode;
-                    let mode = if mine { s.mode() } else { None };
-                    if mine && s.success != 0 {
-                        Progress::Done { success: true, mode, reason: DoneReason::GoalReached }
-                    } else if t_s >= *timeout_s {
-                        Progress::Done { success: false, mode, reason: DoneReason::Timeout }
-                    } else {
-                        Progress::Running
-                    }
+                    self.scene_progress(episode, t_s, *timeout_s, *silent_limit_ns)?
                 }
             };
             if trace.q.len() < TRACE_CAPACITY {
@@ -346,18 +331,7 @@ impl PolicyLoop {
                 trace.w_inf.push(w_inf);
             }
             if let Progress::Done { success, mode, reason } = progress {
-                if let Some(r) = &mut self.recording {
-                    let mut end = crate::record::EpisodeEnd {
-                        episode,
-                        frames: k,
-                        success,
-                        mode,
-                        rest: [0.0; crate::chunk::MAX_ACTION],
-                        rest_len: rest.len(),
-                    };
-                    end.rest[..rest.len()].copy_from_slice(rest);
-                    r.end_episode(end);
-                }
+                self.end_recorded_episode(episode, k, success, mode, rest);
                 trace.mode = mode;
                 trace.success = success;
                 // The scene as the episode ended, for the camera strip (the policy's last view can be 0.8 s older).
@@ -444,16 +418,9 @@ impl PolicyLoop {
                     return None;
                 }
             };
-            self.rec.record(Channel::Encode, out.encode.as_nanos() as u64);
-            self.rec.record(Channel::KRequested, out.k_requested as u64);
-            self.rec.record(Channel::KUsed, out.k_used as u64);
             let interval_ns = (cfg.histograms.interval_s * 1e9) as u64;
-            if ready >= self.next_interval_ns {
-                if self.next_interval_ns != 0 {
-                    self.rec.end_interval(ready);
-                }
-                self.next_interval_ns = ready + interval_ns;
-            }
+            let call = (out.encode.as_nanos() as u64, out.k_requested, out.k_used);
+            record_call(&mut self.rec, &mut self.next_interval_ns, interval_ns, call, ready);
             if out.capped {
                 report.capped += 1;
             }
@@ -484,18 +451,11 @@ impl PolicyLoop {
             }
             chunks += 1;
             k_sum += out.k_used as u64;
-            if ready > need_ns {
-                report.late_chunks += 1;
-                if report.late_chunk_times.len() < LATE_CHUNKS_KEPT {
-                    report.late_chunk_times.push(LateChunk { woke_ns: now, need_ns, ready_ns: ready });
-                }
-                ep_late += 1;
-                if faults.late.bad() {
-                    self.request(Request::Trip(Trip::LateChunks));
-                    return None;
-                }
-            } else {
-                faults.late.good();
+            let late = LateChunk { woke_ns: now, need_ns, ready_ns: ready };
+            ep_late += u64::from(ready > need_ns);
+            if count_late(late, report, faults) {
+                self.request(Request::Trip(Trip::LateChunks));
+                return None;
             }
             if self.recording.is_some() {
                 if let Some(pixels) = self.last_pixels() {
@@ -505,6 +465,43 @@ impl PolicyLoop {
             }
         }
         unreachable!("the episode loop only ends by returning")
+    }
+
+    /// Push-T's referee's verdict on `episode` at `t_s` into it; `None`, after asking for a trip, if the referee
+    /// went silent or lost the robot's state.
+    fn scene_progress(&mut self, episode: u64, t_s: f64, timeout_s: f64, silent_limit_ns: u64) -> Option<Progress> {
+        let scene = self.scene.as_mut().expect("a Push-T task has its scene opened");
+        let s = *scene.poll();
+        if scene.silent_ns(monotonic_ns()) > silent_limit_ns || s.stale_robot != 0 {
+            tracing::error!("the scene's referee went silent or lost the robot's state mid-episode");
+            self.request(Request::Trip(Trip::SceneLost));
+            return None;
+        }
+        let mine = s.episode == episode;
+        let mode = if mine { s.mode() } else { None };
+        Some(if mine && s.success != 0 {
+            Progress::Done { success: true, mode, reason: DoneReason::GoalReached }
+        } else if t_s >= timeout_s {
+            Progress::Done { success: false, mode, reason: DoneReason::Timeout }
+        } else {
+            Progress::Running
+        })
+    }
+
+    /// Closes `episode` in the recording, if one runs: its `frames`, outcome and the rest pose it started from.
+    fn end_recorded_episode(&mut self, episode: u64, frames: u64, success: bool, mode: Option<usize>, rest: &[f32]) {
+        if let Some(r) = &mut self.recording {
+            let mut end = crate::record::EpisodeEnd {
+                episode,
+                frames,
+                success,
+                mode,
+                rest: [0.0; crate::chunk::MAX_ACTION],
+                rest_len: rest.len(),
+            };
+            end.rest[..rest.len()].copy_from_slice(rest);
+            r.end_episode(end);
+        }
     }
 
     /// Hands a chunk (`C × d` actions) to the servo thread, without locks.
@@ -671,4 +668,39 @@ impl PolicyLoop {
         }
         false
     }
+}
+
+/// Records one engine call's encode time and steps (`call`: encode ns, K requested, K used), and closes the
+/// recorder's interval when it has run out, so the live view sees the policy's channels while the run goes on.
+fn record_call(
+    rec: &mut Recorder,
+    next_interval_ns: &mut u64,
+    interval_ns: u64,
+    call: (u64, usize, usize),
+    ready: u64,
+) {
+    let (encode_ns, k_requested, k_used) = call;
+    rec.record(Channel::Encode, encode_ns);
+    rec.record(Channel::KRequested, k_requested as u64);
+    rec.record(Channel::KUsed, k_used as u64);
+    if ready >= *next_interval_ns {
+        if *next_interval_ns != 0 {
+            rec.end_interval(ready);
+        }
+        *next_interval_ns = ready + interval_ns;
+    }
+}
+
+/// Counts a chunk that was ready after it was needed (keeping the first few's times); whether late chunks came in
+/// a row often enough to trip.
+fn count_late(chunk: LateChunk, report: &mut PolicyReport, faults: &mut ChunkFaults) -> bool {
+    if chunk.ready_ns <= chunk.need_ns {
+        faults.late.good();
+        return false;
+    }
+    report.late_chunks += 1;
+    if report.late_chunk_times.len() < LATE_CHUNKS_KEPT {
+        report.late_chunk_times.push(chunk);
+    }
+    faults.late.bad()
 }
