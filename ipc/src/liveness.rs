@@ -373,7 +373,7 @@ fn watch_loop(
         // A late peer may be a dying one whose process the kernel is still taking down (freeing its memory,
         // closing its files: 20–100 ms seen). Its pidfds tell the end of that at once, so while it stays late
         // they are asked every millisecond, not only at each missed deadline.
-        let look_again = polling && !missed && get() == Peer::Late && peers.all_gone().is_some();
+        let look_again = polling && !missed && get() == Peer::Late && peers.held();
         if (missed && matches!(get(), Peer::Alive | Peer::Late)) || look_again {
             set(Peer::Late);
             let held = peers.all_gone();
@@ -384,7 +384,7 @@ fn watch_loop(
             }
             if died || held.is_none() {
                 // Emits the dead notifier's notifier_dead_event to our listener (read on the next round), and
-                // frees what the dead node held. Not while the held peer lives: it costs 5–20 ms of file work.
+                // frees what the dead node held. Not while the held peer lives: it is file work (5–20 ms, timed once).
                 node.try_cleanup_dead_nodes();
             }
         }
