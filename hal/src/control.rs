@@ -65,6 +65,8 @@ pub struct HalControl {
     clock: LoopClock,
     /// Two periods: how long the controller may be silent before its dead process ends the session.
     quiet_ns: u64,
+    /// The watch's verdict when it last reported a controller lost, for a loss ended later (it went quiet).
+    lost_peer: mars_ipc::Peer,
     gripper: GripperTarget,
     target: Option<[f64; MAX_JOINTS]>,
     last_command_seq: u64,
@@ -114,6 +116,7 @@ impl HalControl {
             // per tick.
             clock: LoopClock::new(2 * period_ns),
             quiet_ns: 2 * period_ns,
+            lost_peer: mars_ipc::Peer::Unknown,
             gripper: GripperTarget::new(profile, first.gripper.clamp(g_min, g_max)),
             target: None,
             last_command_seq: 0,
@@ -293,6 +296,7 @@ impl HalControl {
 
     /// The liveness watch saw a controller process die.
     pub fn on_controller_lost(&mut self, peer: mars_ipc::Peer, ev: &mut EventSender) {
+        self.lost_peer = peer;
         if self.supervisor.on_controller_lost(self.loop_ns, self.quiet_ns) {
             ev.send(LoopEvent::ControllerLost(peer));
             self.target = None;
@@ -301,6 +305,10 @@ impl HalControl {
 
     /// The setpoint for this tick (following the session, or braking to rest) and the gripper move, if any.
     pub fn step(&mut self, timeout_ms: u64, ev: &mut EventSender) -> Step<'_> {
+        if self.supervisor.on_tick_after_loss(self.loop_ns) {
+            ev.send(LoopEvent::ControllerLost(self.lost_peer));
+            self.target = None;
+        }
         if self.supervisor.on_tick(self.loop_ns) {
             ev.send(LoopEvent::CommandTimeout { ms: timeout_ms });
             self.target = None;

@@ -54,11 +54,19 @@ pub struct Supervisor {
     mode: Mode,
     timeout_ns: u64,
     last_valid_ns: u64,
+    /// A controller's death reported while the session was still commanding, not yet judged.
+    loss: Option<Loss>,
+}
+
+#[derive(Debug, Clone, Copy)]
+struct Loss {
+    at_ns: u64,
+    quiet_ns: u64,
 }
 
 impl Supervisor {
     pub fn new(timeout_ns: u64) -> Self {
-        Self { mode: Mode::Idle, timeout_ns, last_valid_ns: 0 }
+        Self { mode: Mode::Idle, timeout_ns, last_valid_ns: 0, loss: None }
     }
 
     pub fn mode(&self) -> Mode {
@@ -84,18 +92,35 @@ impl Supervisor {
         Decision::Follow
     }
 
-    /// A controller's process was found dead (or closed its heartbeat) at `now_ns`: the active session ends at
-    /// once, without waiting for the command timeout, unless it sent a valid command within the last
-    /// `quiet_ns`. The liveness watch cannot say *which* controller died, and a dead one has been silent for at
-    /// least the heartbeat deadline, so a session still commanding belongs to a live controller (e.g. one that
-    /// just replaced the dead one) and is kept; if the dead one was missed this way, the command timeout still
-    /// catches it. Returns true if a session was ended.
+    /// A controller's process was found dead (or closed its heartbeat) at `now_ns`: the active session ends as
+    /// soon as it has sent no valid command for `quiet_ns`, without waiting for the command timeout. The liveness
+    /// watch cannot say *which* controller died, and it may say so a millisecond after the death (the kernel's
+    /// word, by pidfd), while the dead controller's last command is still fresh. So the loss is kept and judged
+    /// again each tick ([`Self::on_tick_after_loss`]): a session that goes quiet ends; one that still commands
+    /// `quiet_ns` after the loss belongs to a live controller (e.g. one that just replaced the dead one) and is
+    /// kept, the loss forgotten; if the dead one was missed this way, the command timeout still catches it.
+    /// Returns true if a session was ended.
     pub fn on_controller_lost(&mut self, now_ns: u64, quiet_ns: u64) -> bool {
-        if let Mode::Active { session } = self.mode
-            && now_ns.saturating_sub(self.last_valid_ns) > quiet_ns
-        {
+        if matches!(self.mode, Mode::Active { .. }) {
+            self.loss = Some(Loss { at_ns: now_ns, quiet_ns });
+        }
+        self.on_tick_after_loss(now_ns)
+    }
+
+    /// Judges a loss still open (see [`Self::on_controller_lost`]); called once per tick. Returns true if it
+    /// ended the session now.
+    pub fn on_tick_after_loss(&mut self, now_ns: u64) -> bool {
+        let (Some(loss), Mode::Active { session }) = (self.loss, self.mode) else {
+            self.loss = None;
+            return false;
+        };
+        if now_ns.saturating_sub(self.last_valid_ns) > loss.quiet_ns {
             self.mode = Mode::Holding { session, reason: HoldReason::ControllerLost };
+            self.loss = None;
             return true;
+        }
+        if self.last_valid_ns > loss.at_ns + loss.quiet_ns {
+            self.loss = None;
         }
         false
     }
@@ -174,6 +199,33 @@ mod tests {
         assert!(!s.on_controller_lost(14 * MS, 2 * MS));
         assert_eq!(s.on_command(4, false, MS), Decision::StaleSession);
         assert_eq!(s.on_command(5, false, MS), Decision::Follow);
+    }
+
+    #[test]
+    fn a_loss_reported_while_the_session_commands_ends_it_once_it_goes_quiet() {
+        let mut s = Supervisor::new(20 * MS);
+        s.on_command(4, false, 10 * MS);
+        // The kernel's word of the death came before the dead controller's last command went stale.
+        assert!(!s.on_controller_lost(10 * MS + MS / 2, 2 * MS));
+        assert!(!s.on_tick_after_loss(11 * MS));
+        assert!(!s.on_tick_after_loss(12 * MS));
+        assert!(s.on_tick_after_loss(12 * MS + 1), "quiet for more than 2 ms after the loss: ended");
+        assert_eq!(s.mode(), Mode::Holding { session: 4, reason: HoldReason::ControllerLost });
+        assert!(!s.on_tick_after_loss(13 * MS), "ended once");
+    }
+
+    #[test]
+    fn a_loss_is_forgotten_when_the_session_commands_on_past_the_quiet_time() {
+        let mut s = Supervisor::new(20 * MS);
+        s.on_command(4, false, 10 * MS);
+        assert!(!s.on_controller_lost(10 * MS, 2 * MS));
+        for t in 11..=13 {
+            s.on_command(4, false, t * MS);
+            assert!(!s.on_tick_after_loss(t * MS));
+        }
+        // Commanding 3 ms after the loss: a live controller's session. A later pause is no loss.
+        assert!(!s.on_tick_after_loss(16 * MS));
+        assert_eq!(s.mode(), Mode::Active { session: 4 });
     }
 
     #[test]

@@ -32,7 +32,7 @@ pub use command::{CommandMode, JointCommand};
 pub use heartbeat_thread::{HeartbeatReport, HeartbeatThread};
 pub use image::{ImageEncoding, ImageHeader};
 pub use live::{HalLive, LIVE_CHANNELS, LiveChannel, LiveStats, ServoLive};
-pub use liveness::{ControllerLiveness, HalLiveness, Heartbeat, Peer, PeerWatch, Side};
+pub use liveness::{ControllerLiveness, HalLiveness, Heartbeat, Peer, PeerView, PeerWatch, Route, Side};
 pub use names::{NameError, RobotNamespace};
 pub use scene::{SceneAction, ScenePhase, SceneRequest, SceneState};
 pub use schema::{FrameHeader, SCHEMA_VERSION, SchemaMismatch};

@@ -6,16 +6,17 @@
 //! an iceoryx2 `WaitSet` with the listener attached *as a deadline*. The watch states are:
 //!
 //! - heartbeats arrive → [`Peer::Alive`];
-//! - the WaitSet reports the deadline missed → [`Peer::Late`], and the watch asks whether the peer's processes
-//!   are gone → [`Peer::Dead`] at once. It holds each process of the service's notifiers by a pidfd from the
-//!   peer's first heartbeats on (`peer_process.rs`): one `poll`, asked again every millisecond while the
-//!   peer stays late, so a dying peer whose exit the kernel takes tens of ms to finish is found within about a
-//!   millisecond of its end. Where it cannot hold them, it looks the notifiers' nodes up in iceoryx2's registry
-//!   (every node of the machine, 3–12 ms on a busy VM) at each missed deadline. After a death, or after each
-//!   look-up, it asks iceoryx2 to clean up dead nodes, which also emits the service's `notifier_dead_event` on
-//!   behalf of a dead notifier (→ [`Peer::Dead`] too, for a death another process found first); the clean-up
-//!   removes files, so it waits on a busy disk, and the verdict does not wait for it. A peer that is only slow
-//!   stays `Late` until its next heartbeat;
+//! - the WaitSet reports the deadline missed → [`Peer::Late`]. A peer that is only slow stays `Late` until its
+//!   next heartbeat;
+//! - a process of the peer ended → [`Peer::Dead`] at once. The watch holds each process of the service's
+//!   notifiers by a pidfd from the peer's first heartbeats on (`peer_process.rs`), attached to the same WaitSet,
+//!   so the kernel's end of the process wakes it (for a HAL with locked memory that end comes tens of ms after
+//!   a SIGKILL, well after the deadline). Where it cannot hold them ([`Route::Registry`]), it looks the
+//!   notifiers' nodes up in iceoryx2's registry (every node of the machine, 3–12 ms on a busy VM) at each
+//!   missed deadline instead. After a death it asks iceoryx2 to clean up dead nodes, which also emits the
+//!   service's `notifier_dead_event` on behalf of a dead notifier (→ [`Peer::Dead`] too, for a death another
+//!   process found first); the clean-up removes files, so it waits on a busy disk, and the verdict does not wait
+//!   for it;
 //! - the peer dropped its notifier (a clean exit: `notifier_dropped_event`) → [`Peer::Left`].
 //!
 //! The watch thread publishes its verdict in an atomic, so a real-time loop reads it with one load per tick and
@@ -42,11 +43,6 @@ use crate::wire::WireError;
 pub const HEARTBEAT_DEADLINE: Duration = Duration::from_millis(10);
 /// How often [`Heartbeat::beat`] actually notifies (it may be called more often, e.g. every tick).
 pub const HEARTBEAT_PERIOD: Duration = Duration::from_millis(2);
-
-/// How often a watch asks a late peer's processes whether they are gone, and for how long after it turned late
-/// (a peer silent longer is stalled, not dying: then only at each missed deadline).
-const LATE_POLL: Duration = Duration::from_millis(1);
-const LATE_POLL_SPAN: Duration = Duration::from_secs(1);
 
 const HEARTBEAT: usize = 1;
 const DROPPED: usize = 2;
@@ -153,7 +149,35 @@ struct Shared {
     state: AtomicU8,
     deaths: AtomicU64,
     exits: AtomicU64,
+    route: AtomicU8,
     stop: AtomicBool,
+}
+
+impl Shared {
+    fn peer(&self) -> Peer {
+        Peer::from_u8(self.state.load(Ordering::Acquire))
+    }
+
+    fn route(&self) -> Route {
+        match self.route.load(Ordering::Acquire) {
+            1 => Route::Pidfd,
+            2 => Route::Registry,
+            _ => Route::Unknown,
+        }
+    }
+}
+
+/// How a [`PeerWatch`] learns that its peer's process died.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[repr(u8)]
+pub enum Route {
+    /// No peer followed yet.
+    Unknown = 0,
+    /// Every peer process is held by a pidfd on the watch's WaitSet: its end wakes the watch at once.
+    Pidfd = 1,
+    /// At each missed deadline, from iceoryx2's node registry (3–12 ms per look-up on a busy VM): the peer's
+    /// processes could not be held (another pid namespace, a process this one may not see).
+    Registry = 2,
 }
 
 /// Watches the other side's heartbeat from a thread blocked on an iceoryx2 WaitSet with a deadline.
@@ -194,6 +218,7 @@ impl PeerWatch {
             state: AtomicU8::new(0),
             deaths: AtomicU64::new(0),
             exits: AtomicU64::new(0),
+            route: AtomicU8::new(Route::Unknown as u8),
             stop: AtomicBool::new(false),
         });
         let (ready_tx, ready_rx) = std::sync::mpsc::channel();
@@ -230,12 +255,22 @@ impl PeerWatch {
 
     /// The current verdict (one atomic load).
     pub fn peer(&self) -> Peer {
-        Peer::from_u8(self.shared.state.load(Ordering::Acquire))
+        self.shared.peer()
     }
 
     /// How many times the peer was found dead since the watch started.
     pub fn deaths(&self) -> u64 {
         self.shared.deaths.load(Ordering::Acquire)
+    }
+
+    /// How the watch learns of the peer's death, as decided when it last saw a new peer.
+    pub fn route(&self) -> Route {
+        self.shared.route()
+    }
+
+    /// A read-only handle on the verdicts, for another thread (the watch itself stays with its owner).
+    pub fn view(&self) -> PeerView {
+        PeerView { shared: self.shared.clone() }
     }
 
     /// How many times a peer closed its heartbeat (clean exits) since the watch started.
@@ -246,6 +281,24 @@ impl PeerWatch {
     /// Deaths plus clean exits: a count that grows whenever a peer went away, for edge-triggered reactions.
     pub fn losses(&self) -> u64 {
         self.deaths() + self.exits()
+    }
+}
+
+/// What another thread may read of a [`PeerWatch`]: the verdict and how it is reached.
+#[derive(Clone)]
+pub struct PeerView {
+    shared: Arc<Shared>,
+}
+
+impl PeerView {
+    /// The current verdict (one atomic load).
+    pub fn peer(&self) -> Peer {
+        self.shared.peer()
+    }
+
+    /// How the watch learns of the peer's death, as decided when it last saw a new peer.
+    pub fn route(&self) -> Route {
+        self.shared.route()
     }
 }
 
@@ -287,6 +340,31 @@ fn peer_died(service: &EventService, config: &Config) -> bool {
     listed.is_ok() && dead > 0 && dead == nodes.len()
 }
 
+/// What ended one stretch of watching a fixed set of peer processes.
+enum Change {
+    /// The watch was asked to stop.
+    Stop,
+    /// The heartbeat's notifier nodes changed: resolve the peer's processes again.
+    Notifiers,
+    /// A held process exited: let go of it.
+    Exited,
+    /// The held processes could not be attached to the WaitSet: fall back to iceoryx2's look-up.
+    Unattachable,
+}
+
+/// The watch thread's state, apart from the peer's processes (which its WaitSet borrows while it waits).
+struct Watch<'a> {
+    node: &'a Node<ipc::Service>,
+    service: &'a EventService,
+    listener: &'a Listener<ipc::Service>,
+    shared: &'a Shared,
+    /// A death we declared ourselves, whose `notifier_dead_event` (from the clean-up) is still to come: that event
+    /// must not count it twice.
+    dead_event_due: bool,
+    /// The heartbeat's notifier nodes, as last listed.
+    nodes: Vec<UniqueNodeId>,
+}
+
 fn watch_loop(
     node: &Node<ipc::Service>,
     service: &EventService,
@@ -294,8 +372,6 @@ fn watch_loop(
     shared: &Shared,
     ready: std::sync::mpsc::Sender<Result<(), WireError>>,
 ) {
-    let set = |p: Peer| shared.state.store(p as u8, Ordering::Release);
-    let get = || Peer::from_u8(shared.state.load(Ordering::Acquire));
     let waitset = match WaitSetBuilder::new().create::<ipc::Service>() {
         Ok(w) => w,
         Err(e) => {
@@ -304,7 +380,7 @@ fn watch_loop(
         }
     };
     let deadline = listener.deadline().unwrap_or(HEARTBEAT_DEADLINE);
-    let guard = match waitset.attach_deadline(listener, deadline) {
+    let beats = match waitset.attach_deadline(listener, deadline) {
         Ok(g) => g,
         Err(e) => {
             let _ = ready.send(Err(WireError::Node(format!("attaching the heartbeat deadline: {e:?}"))));
@@ -312,82 +388,136 @@ fn watch_loop(
         }
     };
     let _ = ready.send(Ok(()));
-    // A death we declared ourselves, whose `notifier_dead_event` (from the clean-up) is still to come: that event
-    // must not count it twice.
-    let mut dead_event_due = false;
-    // The peer's processes, held from its heartbeats on; when the peer turned late, while it stays so.
-    let (mut peers, mut nodes) = (PeerProcesses::default(), Vec::with_capacity(MAX_PORTS));
-    let mut late_since: Option<Instant> = None;
-    let declare_dead = || {
-        shared.deaths.fetch_add(1, Ordering::AcqRel);
-        set(Peer::Dead);
-    };
-    while !shared.stop.load(Ordering::Acquire) {
-        let mut missed = false;
-        let mut events = false;
-        let on_wake = |id: WaitSetAttachmentId<ipc::Service>| {
-            if id.has_event_from(&guard) {
-                events = true;
-            } else if id.has_missed_deadline(&guard) {
-                missed = true;
-            }
-            CallbackProgression::Continue
+    let mut watch = Watch { node, service, listener, shared, dead_event_due: false, nodes: Vec::new() };
+    let mut peers = PeerProcesses::default();
+    loop {
+        // The WaitSet wakes on the held processes' ends too, for as long as the set of them stays the same.
+        let change = match peers.ends().iter().map(|e| waitset.attach_notification(e)).collect::<Result<Vec<_>, _>>() {
+            Ok(ends) => watch.until_change(&waitset, &beats, &ends, &peers),
+            Err(_) => Change::Unattachable,
         };
-        // Wake at least every 50 ms to notice `stop`; every millisecond while the peer is late, see below.
-        late_since = match get() {
-            Peer::Late => late_since.or(Some(Instant::now())),
-            _ => None,
-        };
-        let polling = late_since.is_some_and(|t| t.elapsed() < LATE_POLL_SPAN);
-        let timeout = if polling { LATE_POLL } else { Duration::from_millis(50) };
-        if waitset.wait_and_process_once_with_timeout(on_wake, timeout).is_err() {
-            std::thread::sleep(Duration::from_millis(1));
-            continue;
-        }
-        if events {
-            let (mut beat, mut dead, mut left) = (false, false, false);
-            let _ = listener.try_wait(|a| match a.id.as_value() {
-                HEARTBEAT => beat = true,
-                DEAD => dead = true,
-                DROPPED => left = true,
-                _ => {}
-            });
-            if dead && std::mem::take(&mut dead_event_due) {
-                dead = false;
-            }
-            if beat {
-                // A new peer: a dead event still due would be about its predecessor, already counted.
-                dead_event_due = false;
-                notifier_nodes(service, &mut nodes);
-                peers.follow::<ipc::Service>(&nodes, node.config());
-            }
-            if dead {
-                declare_dead();
-            } else if left {
-                shared.exits.fetch_add(1, Ordering::AcqRel);
-                set(Peer::Left);
-            } else if beat {
-                set(Peer::Alive);
+        match change {
+            Change::Stop => return,
+            Change::Exited => peers.drop_exited(),
+            Change::Notifiers | Change::Unattachable => {
+                if matches!(change, Change::Notifiers) {
+                    peers.follow::<ipc::Service>(&watch.nodes, node.config());
+                } else {
+                    peers.release();
+                }
+                let route = if peers.held() { Route::Pidfd } else { Route::Registry };
+                shared.route.store(route as u8, Ordering::Release);
             }
         }
-        // A late peer may be a dying one whose process the kernel is still taking down (freeing its memory,
-        // closing its files: 20–100 ms seen). Its pidfds tell the end of that at once, so while it stays late
-        // they are asked every millisecond, not only at each missed deadline.
-        let look_again = polling && !missed && get() == Peer::Late && peers.held();
-        if (missed && matches!(get(), Peer::Alive | Peer::Late)) || look_again {
-            set(Peer::Late);
-            let held = peers.all_gone();
-            let died = held.unwrap_or_else(|| peer_died(service, node.config()));
-            if died {
-                declare_dead();
-                dead_event_due = true;
+    }
+}
+
+impl Watch<'_> {
+    fn get(&self) -> Peer {
+        self.shared.peer()
+    }
+
+    fn set(&self, p: Peer) {
+        self.shared.state.store(p as u8, Ordering::Release);
+    }
+
+    fn declare_dead(&self) {
+        self.shared.deaths.fetch_add(1, Ordering::AcqRel);
+        self.set(Peer::Dead);
+    }
+
+    /// Waits and judges until the set of peer processes to hold changes (or the watch stops).
+    fn until_change(
+        &mut self,
+        waitset: &WaitSet<ipc::Service>,
+        beats: &WaitSetGuard<ipc::Service>,
+        ends: &[WaitSetGuard<ipc::Service>],
+        peers: &PeerProcesses,
+    ) -> Change {
+        while !self.shared.stop.load(Ordering::Acquire) {
+            let (mut events, mut missed, mut ended) = (false, false, false);
+            let on_wake = |id: WaitSetAttachmentId<ipc::Service>| {
+                if id.has_event_from(beats) {
+                    events = true;
+                } else if id.has_missed_deadline(beats) {
+                    missed = true;
+                } else if ends.iter().any(|e| id.has_event_from(e)) {
+                    ended = true;
+                }
+                CallbackProgression::Continue
+            };
+            // Wake at least every 50 ms to notice `stop`.
+            if waitset.wait_and_process_once_with_timeout(on_wake, Duration::from_millis(50)).is_err() {
+                std::thread::sleep(Duration::from_millis(1));
+                continue;
             }
-            if died || held.is_none() {
-                // Emits the dead notifier's notifier_dead_event to our listener (read on the next round), and
-                // frees what the dead node held. Not while the held peer lives: it is file work (5–20 ms, timed once).
-                node.try_cleanup_dead_nodes();
+            if events && self.on_events() && self.nodes != peers.nodes() {
+                return Change::Notifiers;
+            }
+            if ended {
+                self.on_process_end(peers);
+                return Change::Exited;
+            }
+            if missed && matches!(self.get(), Peer::Alive | Peer::Late) {
+                self.on_missed_deadline(peers);
             }
         }
+        Change::Stop
+    }
+
+    /// Reads the listener's events; true if a heartbeat came (the notifier nodes were listed again).
+    fn on_events(&mut self) -> bool {
+        let (mut beat, mut dead, mut left) = (false, false, false);
+        let _ = self.listener.try_wait(|a| match a.id.as_value() {
+            HEARTBEAT => beat = true,
+            DEAD => dead = true,
+            DROPPED => left = true,
+            _ => {}
+        });
+        if dead && std::mem::take(&mut self.dead_event_due) {
+            dead = false;
+        }
+        if beat {
+            // A new peer: a dead event still due would be about its predecessor, already counted.
+            self.dead_event_due = false;
+            notifier_nodes(self.service, &mut self.nodes);
+        }
+        if dead {
+            self.declare_dead();
+        } else if left {
+            self.shared.exits.fetch_add(1, Ordering::AcqRel);
+            self.set(Peer::Left);
+        } else if beat {
+            self.set(Peer::Alive);
+        }
+        beat
+    }
+
+    /// A held process ended. The kernel has finished it (freed its memory, closed its files: 20–100 ms after a
+    /// SIGKILL for a process with locked memory), which is the moment iceoryx2 too could first tell it dead.
+    fn on_process_end(&mut self, peers: &PeerProcesses) {
+        // A peer that left cleanly, or one already declared dead, exits without a new verdict.
+        if matches!(self.get(), Peer::Alive | Peer::Late) && peers.all_gone() == Some(true) {
+            self.declare_dead();
+            self.dead_event_due = true;
+            // Emits the dead notifier's notifier_dead_event to our listener (read on a next round) and frees what
+            // the dead node held: file work (5–20 ms, timed once), done after the verdict.
+            self.node.try_cleanup_dead_nodes();
+        }
+    }
+
+    /// The peer missed its deadline: late, and dead if iceoryx2's registry says so where its processes are not
+    /// held (held ones wake the WaitSet themselves when they end).
+    fn on_missed_deadline(&mut self, peers: &PeerProcesses) {
+        self.set(Peer::Late);
+        if peers.held() {
+            return;
+        }
+        if peer_died(self.service, self.node.config()) {
+            self.declare_dead();
+            self.dead_event_due = true;
+        }
+        self.node.try_cleanup_dead_nodes();
     }
 }
 
@@ -423,6 +553,7 @@ mod tests {
             std::thread::sleep(Duration::from_millis(1));
         }
         assert_eq!(watch.peer(), Peer::Alive);
+        assert_eq!(watch.route(), Route::Pidfd, "a peer on this machine is held by pidfd");
         // Silent but alive: late, never dead.
         wait_for(&watch, Peer::Late, Duration::from_secs(2));
         std::thread::sleep(Duration::from_millis(100));

@@ -15,8 +15,8 @@ use std::time::{Duration, Instant};
 use anyhow::Context;
 use mars_engine::{Engine, EngineConfig};
 use mars_hal::profile::Profile;
-use mars_ipc::{HeartbeatThread, Side};
-use tracing::{error, info};
+use mars_ipc::{HeartbeatThread, PeerView, Route, Side};
+use tracing::{error, info, warn};
 
 use crate::chunk::{MAX_ACTION, MAX_CHUNK, TimedChunk};
 use crate::config::DaemonConfig;
@@ -164,7 +164,7 @@ pub fn run(p: Prepared) -> anyhow::Result<Outcome> {
     };
     let servo_ch =
         ServoChannels { chunks: chunk_out, observed: obs_in, requests: requests_out, status: status.clone() };
-    let servo = start_servo(&cfg, tick, servo_ch, servo_rec, loop_cfg)?;
+    let (servo, hal_watch) = start_servo(&cfg, tick, servo_ch, servo_rec, loop_cfg)?;
     let heartbeat = match start_heartbeat(&cfg, &status) {
         Ok(h) => h,
         Err(e) => {
@@ -192,7 +192,7 @@ pub fn run(p: Prepared) -> anyhow::Result<Outcome> {
     // The main thread logs a trip: at the watchers' priority while the loops run, so a busy machine cannot delay
     // the report; back to the normal scheduler for the summary and plots.
     let supervisor_rt = crate::rt::setup_realtime("supervisor", None, Some(cfg.watchdog.priority), false);
-    let no_hal = supervise(&status, &term, &servo, cfg.handshake_timeout());
+    let no_hal = supervise(&status, &term, &servo, &hal_watch, cfg.handshake_timeout());
     crate::rt::back_to_sched_other();
     let servo_joined = servo.join();
     // Stopped once the servo loop has ended (its last command, the hold, is sent): the HAL sees us leave.
@@ -283,23 +283,23 @@ type ServoThread = std::thread::JoinHandle<Option<(ServoReport, RtStatus)>>;
 type PolicyThread = std::thread::JoinHandle<Option<(crate::policy_loop::PolicyReport, RtStatus)>>;
 
 /// Starts the servo thread, which opens the wire itself (iceoryx2's ports stay on the thread that made them);
-/// returns once it is open.
+/// returns once it is open, with a view of its HAL liveness watch.
 fn start_servo(
     cfg: &DaemonConfig,
     tick: ServoTick,
     ch: ServoChannels,
     rec: crate::latency::Recorder,
     loop_cfg: ServoLoopConfig,
-) -> anyhow::Result<ServoThread> {
+) -> anyhow::Result<(ServoThread, PeerView)> {
     let (core, priority, lock) = (cfg.servo.core, cfg.servo.priority, cfg.servo.lock_memory);
     let (robot, watch_priority) = (cfg.robot.clone(), cfg.watchdog.priority);
-    let (opened_tx, opened_rx) = std::sync::mpsc::channel::<anyhow::Result<()>>();
+    let (opened_tx, opened_rx) = std::sync::mpsc::channel::<anyhow::Result<PeerView>>();
     let servo = std::thread::Builder::new()
         .name("marsd-servo".into())
         .spawn(move || {
             let wire = match ServoWire::open(&robot, watch_priority) {
                 Ok(w) => {
-                    let _ = opened_tx.send(Ok(()));
+                    let _ = opened_tx.send(Ok(w.hal.view()));
                     w
                 }
                 Err(e) => {
@@ -311,8 +311,8 @@ fn start_servo(
             Some((run_servo(tick, wire, ch, rec, loop_cfg), rt))
         })
         .context("spawning the servo thread")?;
-    opened_rx.recv().context("the servo thread died while opening the wire")??;
-    Ok(servo)
+    let hal_watch = opened_rx.recv().context("the servo thread died while opening the wire")??;
+    Ok((servo, hal_watch))
 }
 
 /// What the policy thread is started with; it opens the rest (the scene) itself.
@@ -401,12 +401,32 @@ fn record_setup(cfg: &DaemonConfig, profile: &Profile, task: &HilTask, path: &Pa
     }
 }
 
+/// Says once per change how marsd learns that the HAL died: a dead HAL stops the arm either way, but the
+/// registry route names the death only at a missed deadline, milliseconds later.
+fn log_liveness_route(route: Route, logged: &mut Route) {
+    if route == *logged {
+        return;
+    }
+    *logged = route;
+    match route {
+        Route::Unknown => {}
+        Route::Pidfd => {
+            info!("HAL liveness: its process is held by pidfd, its end seen the moment the kernel reports it")
+        }
+        Route::Registry => warn!(
+            "HAL liveness: its process cannot be held by pidfd (another pid namespace?); its death is looked up in \
+             iceoryx2's node registry at each missed heartbeat deadline"
+        ),
+    }
+}
+
 /// The main thread's loop until the servo thread ends: signals, systemd, trip logging, handshake timeout.
 /// Returns true if no HAL ever answered.
 fn supervise(
     status: &Status,
     term: &AtomicBool,
     servo: &std::thread::JoinHandle<Option<(ServoReport, RtStatus)>>,
+    hal_watch: &PeerView,
     handshake_timeout: Duration,
 ) -> bool {
     let started = Instant::now();
@@ -415,6 +435,7 @@ fn supervise(
     let (mut last_ticks, mut last_beats) = (0, 0);
     let (mut ready_sent, mut stop_logged, mut no_hal) = (false, false, false);
     let mut logged_trip = None;
+    let mut logged_route = Route::Unknown;
     while !servo.is_finished() {
         std::thread::sleep(Duration::from_millis(2));
         if term.load(Ordering::Acquire) && !status.stop_requested.load(Ordering::Acquire) {
@@ -431,6 +452,7 @@ fn supervise(
             info!(after_ms = started.elapsed().as_millis() as u64, "HAL handshake done: ready");
             let _ = sd_notify::notify(&[sd_notify::NotifyState::Ready]);
         }
+        log_liveness_route(hal_watch.route(), &mut logged_route);
         if !hal_ready && !no_hal && started.elapsed() > handshake_timeout {
             error!(
                 "no usable state frame from a HAL within {handshake_timeout:?}: is mars-hal running with the same --robot and profile?"
