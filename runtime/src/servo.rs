@@ -256,32 +256,64 @@ impl ServoTick {
         };
     }
 
+    /// One servo period: judge the state frame, the watchdog and the requests, take a chunk, and compute the
+    /// command for the next tick's time (none while waiting, frameless or finished).
     pub fn tick(&mut self, input: &TickInput) -> TickOutput {
-        let now = input.now_ns;
         self.counters.ticks += 1;
         let mut out = TickOutput::default();
         if self.phase == Phase::Finished {
             return out;
         }
+        let Some(usable) = self.take_frame(input, &mut out) else { return out };
+        self.supervise(input, usable);
+        if matches!(self.phase, Phase::WaitingForHal | Phase::Finished) {
+            return out;
+        }
+        if !self.take_chunk(input, &mut out) {
+            return out;
+        }
+        let Some(kin) = self.next_motion(input.now_ns) else { return out };
+        out.command = self.command(&kin, input.now_ns);
+        out
+    }
 
-        // 1. The state frame.
-        let verdict = input.frame.map(|f| self.frames.judge(f, now));
+    /// 1. The state frame: judged, observed, and the handshake on the first usable one. `Some(usable)`, or `None`
+    /// when the tick must end here (no start the smoother can take).
+    fn take_frame(&mut self, input: &TickInput, out: &mut TickOutput) -> Option<bool> {
+        let verdict = input.frame.map(|f| self.frames.judge(f, input.now_ns));
         let usable = matches!(verdict, Some(Ok(())));
         if let Some(Err(r)) = verdict {
             self.refused_for_content |= r.is_content();
         }
-        // A frame refused for its measurements can still say that the HAL stopped following this session (a robot
-        // reflex flags the frame and holds): that is the cause to report, not the gap of usable frames after it —
-        // unless the HAL's hold is the command timeout that marsd's own refusals caused (it had no new frame to
-        // answer, as long as the HAL's timeout and marsd's allowed gap, 20 ms each): then the cause is the unusable
-        // state, whichever of the two limits marsd happens to notice first.
-        if !usable
-            && let Some(f) = input.frame
-            && self.followed
-            && f.session == self.session
-            && f.is(status::HOLDING)
-            && self.phase != Phase::Finished
-        {
+        if !usable && let Some(f) = input.frame {
+            self.note_refused_hold(f);
+        }
+        let Some(f) = input.frame.filter(|_| usable) else { return Some(false) };
+        self.refused_for_content = false;
+        self.last_state = *f;
+        out.observed = Some(self.observed(f));
+        if self.phase == Phase::WaitingForHal && !self.handshake(f) {
+            return None;
+        }
+        if f.session == self.session {
+            if f.is(status::ACTIVE) {
+                self.followed = true;
+                self.resync(f);
+            } else if self.followed && self.phase != Phase::Finished {
+                let reason = HoldReason::from_u32(f.hold_reason).unwrap_or(HoldReason::None);
+                self.stop_with(StopCause::Trip(Trip::HalHolding(reason)));
+            }
+        }
+        Some(true)
+    }
+
+    /// A frame refused for its measurements can still say that the HAL stopped following this session (a robot
+    /// reflex flags the frame and holds): that is the cause to report, not the gap of usable frames after it —
+    /// unless the HAL's hold is the command timeout that marsd's own refusals caused (it had no new frame to
+    /// answer, as long as the HAL's timeout and marsd's allowed gap, 20 ms each): then the cause is the unusable
+    /// state, whichever of the two limits marsd happens to notice first.
+    fn note_refused_hold(&mut self, f: &RobotState) {
+        if self.followed && f.session == self.session && f.is(status::HOLDING) && self.phase != Phase::Finished {
             let reason = HoldReason::from_u32(f.hold_reason).unwrap_or(HoldReason::None);
             let trip = if reason == HoldReason::CommandTimeout && self.refused_for_content {
                 Trip::StaleState
@@ -290,59 +322,52 @@ impl ServoTick {
             };
             self.stop_with(StopCause::Trip(trip));
         }
-        if usable {
-            self.refused_for_content = false;
-            let f = input.frame.expect("usable implies a frame");
-            self.last_state = *f;
-            let mut obs = Observed {
-                seq: f.seq,
-                timestamp_ns: f.timestamp_ns,
-                gripper: f.gripper,
-                status: f.status,
-                fault: f.fault,
-                hold_reason: f.hold_reason,
-                ..Default::default()
-            };
-            obs.position[..self.n].copy_from_slice(&f.position[..self.n]);
-            out.observed = Some(obs);
-            if self.phase == Phase::WaitingForHal {
-                // The handshake: start from the setpoint the HAL applies (as libfranka motion generators start
-                // from the last desired position, not the noisy measurement), so the first command continues
-                // the robot's own setpoint stream exactly. A HAL that reports none gets the measurement.
-                let applied = &f.applied_position[..self.n];
-                let start = if applied.iter().all(|q| q.is_finite()) && applied.iter().any(|q| *q != 0.0) {
-                    applied
-                } else {
-                    &f.position[..self.n]
-                };
-                if self.smoother.reset(start).is_err() {
-                    // A position the smoother cannot start from (beyond any joint's range): command nothing.
-                    self.stop_with(StopCause::Trip(Trip::Smoothing));
-                    return out;
-                }
-                self.pose[..self.n].copy_from_slice(start);
-                self.gripper = f.gripper.clamp(self.g_lo, self.g_hi);
-                self.gripper_target = self.gripper;
-                self.phase = if self.stop.is_some() { Phase::Stopping } else { Phase::Idle };
-                self.hal_counts_at_start = HalCounts::of(f);
-            }
-            if f.session == self.session {
-                if f.is(status::ACTIVE) {
-                    self.followed = true;
-                    self.resync(f);
-                } else if self.followed && self.phase != Phase::Finished {
-                    let reason = HoldReason::from_u32(f.hold_reason).unwrap_or(HoldReason::None);
-                    self.stop_with(StopCause::Trip(Trip::HalHolding(reason)));
-                }
-            }
-        }
+    }
 
-        // 2. Watchdog, requests, signals.
+    fn observed(&self, f: &RobotState) -> Observed {
+        let mut obs = Observed {
+            seq: f.seq,
+            timestamp_ns: f.timestamp_ns,
+            gripper: f.gripper,
+            status: f.status,
+            fault: f.fault,
+            hold_reason: f.hold_reason,
+            ..Default::default()
+        };
+        obs.position[..self.n].copy_from_slice(&f.position[..self.n]);
+        obs
+    }
+
+    /// The handshake: start from the setpoint the HAL applies (as libfranka motion generators start from the last
+    /// desired position, not the noisy measurement), so the first command continues the robot's own setpoint
+    /// stream exactly. A HAL that reports none gets the measurement. False if the smoother cannot start there.
+    fn handshake(&mut self, f: &RobotState) -> bool {
+        let applied = &f.applied_position[..self.n];
+        let start = if applied.iter().all(|q| q.is_finite()) && applied.iter().any(|q| *q != 0.0) {
+            applied
+        } else {
+            &f.position[..self.n]
+        };
+        if self.smoother.reset(start).is_err() {
+            // A position the smoother cannot start from (beyond any joint's range): command nothing.
+            self.stop_with(StopCause::Trip(Trip::Smoothing));
+            return false;
+        }
+        self.pose[..self.n].copy_from_slice(start);
+        self.gripper = f.gripper.clamp(self.g_lo, self.g_hi);
+        self.gripper_target = self.gripper;
+        self.phase = if self.stop.is_some() { Phase::Stopping } else { Phase::Idle };
+        self.hal_counts_at_start = HalCounts::of(f);
+        true
+    }
+
+    /// 2. Watchdog, requests, signals.
+    fn supervise(&mut self, input: &TickInput, usable: bool) {
         if input.hal_gone {
             self.stop_with(StopCause::Trip(Trip::HalDied));
         }
         if self.phase != Phase::WaitingForHal
-            && let Some(trip) = self.watchdog.tick(now, input.missed, usable)
+            && let Some(trip) = self.watchdog.tick(input.now_ns, input.missed, usable)
         {
             self.stop_with(StopCause::Trip(trip));
         }
@@ -368,11 +393,12 @@ impl ServoTick {
         if input.stop_requested {
             self.stop_with(StopCause::Signal);
         }
-        if matches!(self.phase, Phase::WaitingForHal | Phase::Finished) {
-            return out;
-        }
+    }
 
-        // 3. Chunks: keep the newest of this episode; switch to it when the current one is used up.
+    /// 3. Chunks: keep the newest of this episode; switch to it when the current one is used up. False if this
+    /// tick sends nothing (it found no new frame).
+    fn take_chunk(&mut self, input: &TickInput, out: &mut TickOutput) -> bool {
+        let next = input.now_ns + self.dt_ns;
         if let Some(c) = input.chunk
             && c.episode == self.episode
             && c.seq > self.pending.seq.max(self.schedule.current_seq())
@@ -386,89 +412,97 @@ impl ServoTick {
         // on regardless, so that it ends even when frames have stopped coming (the HAL brakes on its own then).
         if input.frame.is_none() && self.seq > 0 && self.phase != Phase::Stopping {
             self.counters.frameless_ticks += 1;
-            return out;
+            return false;
         }
         if matches!(self.phase, Phase::Ready | Phase::Running)
             && self.pending.seq > self.schedule.current_seq()
             && self.pending.episode == self.episode
-            && self.schedule.ready_for(&self.pending, now + self.dt_ns)
+            && self.schedule.ready_for(&self.pending, next)
         {
             // Everything below is evaluated at the next tick's time, the time the command is for.
-            let a = self.schedule.adopt(&self.pending, now + self.dt_ns);
+            let a = self.schedule.adopt(&self.pending, next);
             out.adopted_capture_ns = (self.pending.capture_ns != 0).then_some(self.pending.capture_ns);
             self.counters.chunks_adopted += 1;
             self.counters.actions_dropped += a.dropped as u64;
             self.phase = Phase::Running;
         }
+        true
+    }
 
-        // 4. Motion for the next tick — one per state frame, as libfranka's controller answers each robot packet.
-        let next = now + self.dt_ns;
-        let mut target = [0.0; MAX_JOINTS];
-        let mut target_v = [0.0; MAX_JOINTS];
+    /// 4. Motion for the next tick — one per state frame, as libfranka's controller answers each robot packet.
+    /// `None` if nothing safe can be sent (the HAL's command timeout brakes).
+    fn next_motion(&mut self, now: u64) -> Option<Kinematics> {
         let motion = match self.phase {
-            Phase::Idle => self.smoother.track(&self.pose[..self.n], &target_v[..self.n]).copied(),
-            Phase::Resetting => {
-                // The gripper is a target the HAL moves to at its own rate: sent as it is, awaited in `settled`.
-                self.gripper = self.gripper_target;
-                let r = self.smoother.track(&self.pose[..self.n], &target_v[..self.n]).copied();
-                if r.is_ok() && self.settled() {
-                    let mut hold = [0.0; MAX_ACTION];
-                    match &mut self.effector {
-                        None => {
-                            hold[..self.n].copy_from_slice(&self.pose[..self.n]);
-                            hold[self.n] = self.gripper;
-                        }
-                        Some(e) => {
-                            // The policy's first reference is where the flange is: IK continues from this pose.
-                            e.seed(&self.pose[..self.n]);
-                            hold[..2].copy_from_slice(&e.xy(&self.pose[..self.n]));
-                        }
-                    }
-                    self.schedule.hold(now, &hold);
-                    self.phase = Phase::Ready;
-                    self.smoother.set_speed(1.0).expect("1.0 is a valid speed");
-                }
-                r
-            }
-            Phase::Ready | Phase::Running => {
-                let r = self.schedule.sample(next);
-                if r.exhausted && self.phase == Phase::Running {
-                    self.counters.starved_ticks += 1;
-                }
-                let (mut q_ref, mut v_ref) = (r.position, r.velocity);
-                if let Some(e) = &mut self.effector {
-                    // (x, y) on the table → joints; the gripper keeps its target.
-                    let (xy, v) = ([r.position[0], r.position[1]], [r.velocity[0], r.velocity[1]]);
-                    e.joints(xy, v, &mut q_ref[..self.n], &mut v_ref[..self.n]);
-                    q_ref[self.n] = self.gripper;
-                }
-                for j in 0..self.n {
-                    target[j] = q_ref[j].clamp(self.q_lo[j], self.q_hi[j]);
-                    if target[j] != q_ref[j] {
-                        self.counters.clamped_targets += 1;
-                    } else {
-                        target_v[j] = v_ref[j];
-                    }
-                }
-                let g = q_ref[self.n];
-                self.gripper = if g.is_finite() { g.clamp(self.g_lo, self.g_hi) } else { self.gripper };
-                self.smoother.track(&target[..self.n], &target_v[..self.n]).copied()
-            }
+            Phase::Idle => self.smoother.track(&self.pose[..self.n], &[0.0; MAX_JOINTS][..self.n]).copied(),
+            Phase::Resetting => self.reset_motion(now),
+            Phase::Ready | Phase::Running => self.chunk_motion(now + self.dt_ns),
             Phase::Stopping => self.smoother.brake().copied(),
-            Phase::WaitingForHal | Phase::Finished => return out,
+            Phase::WaitingForHal | Phase::Finished => return None,
         };
-        let kin = match motion {
-            Ok(k) => k,
+        match motion {
+            Ok(k) => Some(k),
             Err(_) => {
                 self.stop_with(StopCause::Trip(Trip::Smoothing));
-                match self.smoother.brake() {
-                    Ok(k) => *k,
-                    Err(_) => return out, // nothing safe to send: the HAL's command timeout brakes
+                self.smoother.brake().ok().copied()
+            }
+        }
+    }
+
+    /// Towards the episode's start pose; once settled there, the schedule holds it and the phase is `Ready`.
+    fn reset_motion(&mut self, now: u64) -> Result<Kinematics, SmoothingError> {
+        // The gripper is a target the HAL moves to at its own rate: sent as it is, awaited in `settled`.
+        self.gripper = self.gripper_target;
+        let r = self.smoother.track(&self.pose[..self.n], &[0.0; MAX_JOINTS][..self.n]).copied();
+        if r.is_ok() && self.settled() {
+            let mut hold = [0.0; MAX_ACTION];
+            match &mut self.effector {
+                None => {
+                    hold[..self.n].copy_from_slice(&self.pose[..self.n]);
+                    hold[self.n] = self.gripper;
+                }
+                Some(e) => {
+                    // The policy's first reference is where the flange is: IK continues from this pose.
+                    e.seed(&self.pose[..self.n]);
+                    hold[..2].copy_from_slice(&e.xy(&self.pose[..self.n]));
                 }
             }
-        };
+            self.schedule.hold(now, &hold);
+            self.phase = Phase::Ready;
+            self.smoother.set_speed(1.0).expect("1.0 is a valid speed");
+        }
+        r
+    }
 
-        // 5. The command, after the last check.
+    /// The schedule's reference at `next` (through the effector's IK if actions are planar), clamped inside the
+    /// joint limits' margin, smoothed.
+    fn chunk_motion(&mut self, next: u64) -> Result<Kinematics, SmoothingError> {
+        let r = self.schedule.sample(next);
+        if r.exhausted && self.phase == Phase::Running {
+            self.counters.starved_ticks += 1;
+        }
+        let (mut q_ref, mut v_ref) = (r.position, r.velocity);
+        if let Some(e) = &mut self.effector {
+            // (x, y) on the table → joints; the gripper keeps its target.
+            let (xy, v) = ([r.position[0], r.position[1]], [r.velocity[0], r.velocity[1]]);
+            e.joints(xy, v, &mut q_ref[..self.n], &mut v_ref[..self.n]);
+            q_ref[self.n] = self.gripper;
+        }
+        let (mut target, mut target_v) = ([0.0; MAX_JOINTS], [0.0; MAX_JOINTS]);
+        for j in 0..self.n {
+            target[j] = q_ref[j].clamp(self.q_lo[j], self.q_hi[j]);
+            if target[j] != q_ref[j] {
+                self.counters.clamped_targets += 1;
+            } else {
+                target_v[j] = v_ref[j];
+            }
+        }
+        let g = q_ref[self.n];
+        self.gripper = if g.is_finite() { g.clamp(self.g_lo, self.g_hi) } else { self.gripper };
+        self.smoother.track(&target[..self.n], &target_v[..self.n]).copied()
+    }
+
+    /// 5. The command, after the last check; `None` (and finished) if it would leave the limits.
+    fn command(&mut self, kin: &Kinematics, now: u64) -> Option<JointCommand> {
         if let Err(v) = self.limits.admit(&kin.position[..self.n]) {
             self.counters.limit_violations += 1;
             self.first_violation.get_or_insert(v);
@@ -476,7 +510,7 @@ impl ServoTick {
             // No command this controller computes can be trusted now: send nothing more, and the HAL brakes to
             // rest on command loss (its own safety) within its timeout.
             self.phase = Phase::Finished;
-            return out;
+            return None;
         }
         let stopping_done = self.phase == Phase::Stopping && self.smoother.is_at_rest();
         self.seq += 1;
@@ -492,8 +526,7 @@ impl ServoTick {
         }
         self.counters.commands_sent += 1;
         self.timeliness.sent(cmd.state_seq, cmd.seq);
-        out.command = Some(cmd);
-        out
+        Some(cmd)
     }
 
     /// Re-attributes a stale-state stop to the HAL's death, found out after the loop had already stopped.

@@ -156,6 +156,73 @@ fn phase_lock(ticker: &mut Ticker, frame_ns: u64, deadline_ns: u64, period_ns: u
 /// commanded meanwhile: the HAL, if alive, holds on its own `command_timeout_ms` after the last command.
 const LIVENESS_GRACE: Duration = Duration::from_millis(500);
 
+/// State frames the loop could not read: another schema version, or a port error.
+#[derive(Default)]
+struct ReceiveRefusals {
+    schema: u64,
+    port_errors: u64,
+}
+
+/// The newest state frame: older ones queued behind it are superseded.
+fn newest_state(wire: &impl ServoPorts, tick: &mut ServoTick, refusals: &mut ReceiveRefusals) -> Option<RobotState> {
+    let mut newest = None;
+    loop {
+        match wire.receive_state() {
+            Ok(Some(s)) => {
+                tick.note_frame_timing(&s);
+                newest = Some(s);
+            }
+            Ok(None) => return newest,
+            // A frame of another schema version is refused and the next one read; a port error ends this tick's
+            // reading (the stale-state watchdog trips if it persists).
+            Err(FrameReceiveError::Schema(_)) => refusals.schema += 1,
+            Err(FrameReceiveError::Port(_)) => {
+                refusals.port_errors += 1;
+                return newest;
+            }
+        }
+    }
+}
+
+/// Sends a command; true if it went out. The only place the servo thread may allocate: iceoryx2's one block per
+/// sample, from the RT pool.
+fn send(wire: &impl ServoPorts, cmd: &JointCommand) -> bool {
+    let _pool = crate::alloc_count::RtPoolScope::enter();
+    wire.send_command(cmd).is_ok()
+}
+
+/// What the other threads read of the loop: phase, episode, ticks, missed periods, the trip, the handshake.
+fn publish_status(st: &Status, tick: &ServoTick, missed_periods: u64, observed: bool) {
+    use std::sync::atomic::Ordering;
+    st.set_phase(tick.phase());
+    st.episode.store(tick.episode(), Ordering::Release);
+    st.ticks.store(tick.counters.ticks, Ordering::Release);
+    st.missed_periods.store(missed_periods, Ordering::Relaxed);
+    if let Some(StopCause::Trip(t)) = tick.stop_cause() {
+        st.set_trip(t);
+    }
+    if observed && !st.hal_ready.load(Ordering::Relaxed) {
+        st.hal_ready.store(true, Ordering::Release);
+    }
+}
+
+/// Frames stop 20 ms after a HAL dies, but its liveness verdict can take as long: if the loop stopped on stale
+/// state, give the watch a moment (outside the loop, nothing is commanded any more) to say whether the HAL died —
+/// the report should name the cause, not the symptom.
+fn await_liveness_verdict(tick: &mut ServoTick, wire: &impl ServoPorts, st: &Status, losses_at_start: u64) {
+    if !matches!(tick.stop_cause(), Some(StopCause::Trip(crate::watchdog::Trip::StaleState))) {
+        return;
+    }
+    let until = std::time::Instant::now() + LIVENESS_GRACE;
+    while std::time::Instant::now() < until && wire.hal_losses() == losses_at_start {
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    if wire.hal_losses() != losses_at_start {
+        tick.blame_hal_death();
+        st.set_trip(crate::watchdog::Trip::HalDied);
+    }
+}
+
 pub fn run_servo(
     mut tick: ServoTick,
     wire: impl ServoPorts,
@@ -168,7 +235,7 @@ pub fn run_servo(
     let losses_at_start = wire.hal_losses();
     let interval_ns = cfg.interval.as_nanos() as u64;
     let mut next_interval = monotonic_ns() + interval_ns;
-    let (mut schema_refusals, mut receive_port_errors) = (0u64, 0u64);
+    let mut refusals = ReceiveRefusals::default();
     let mut sends = SendWatch::new(cfg.max_consecutive_send_errors);
     // (allocation counts, samples sent, ticks) when the warm-up ended.
     let mut allocs_at_warmup: Option<(crate::alloc_count::Counts, u64, u64)> = None;
@@ -179,24 +246,7 @@ pub fn run_servo(
         let t0 = monotonic_ns();
         rec.record(Channel::WakeJitter, wake.late_ns);
 
-        // Newest state frame: older ones queued behind it are superseded.
-        let mut newest: Option<RobotState> = None;
-        loop {
-            match wire.receive_state() {
-                Ok(Some(s)) => {
-                    tick.note_frame_timing(&s);
-                    newest = Some(s);
-                }
-                Ok(None) => break,
-                // A frame of another schema version is refused and the next one read; a port error ends this
-                // tick's reading (the stale-state watchdog trips if it persists).
-                Err(FrameReceiveError::Schema(_)) => schema_refusals += 1,
-                Err(FrameReceiveError::Port(_)) => {
-                    receive_port_errors += 1;
-                    break;
-                }
-            }
-        }
+        let newest = newest_state(&wire, &mut tick, &mut refusals);
         if let Some(s) = &newest {
             rec.record(Channel::StateAge, t0.saturating_sub(s.timestamp_ns));
             phase_lock(&mut ticker, s.timestamp_ns, wake.deadline_ns, period_ns);
@@ -214,36 +264,21 @@ pub fn run_servo(
         let out = tick.tick(&input);
 
         if let Some(cmd) = &out.command {
-            // The only place the servo thread may allocate: iceoryx2's one block per sample, from the RT pool.
-            let sent = {
-                let _pool = crate::alloc_count::RtPoolScope::enter();
-                wire.send_command(cmd)
-            };
-            if let Some(trip) = sends.record(sent.is_ok()) {
+            let sent = send(&wire, cmd);
+            if let Some(trip) = sends.record(sent) {
                 tick.trip(trip);
             }
-            if sent.is_ok() && newest.is_some() {
+            if sent && newest.is_some() {
                 rec.record(Channel::StateToCommand, monotonic_ns().saturating_sub(t0));
             }
-            if let (true, Some(capture)) = (sent.is_ok(), out.adopted_capture_ns) {
+            if let (true, Some(capture)) = (sent, out.adopted_capture_ns) {
                 rec.record(Channel::CaptureToCommand, monotonic_ns().saturating_sub(capture));
             }
         }
         if let Some(obs) = out.observed {
             ch.observed.write(obs);
         }
-
-        let st = &ch.status;
-        st.set_phase(tick.phase());
-        st.episode.store(tick.episode(), std::sync::atomic::Ordering::Release);
-        st.ticks.store(tick.counters.ticks, std::sync::atomic::Ordering::Release);
-        st.missed_periods.store(ticker.missed_total(), std::sync::atomic::Ordering::Relaxed);
-        if let Some(StopCause::Trip(t)) = tick.stop_cause() {
-            st.set_trip(t);
-        }
-        if out.observed.is_some() && !st.hal_ready.load(std::sync::atomic::Ordering::Relaxed) {
-            st.hal_ready.store(true, std::sync::atomic::Ordering::Release);
-        }
+        publish_status(&ch.status, &tick, ticker.missed_total(), out.observed.is_some());
 
         let done = monotonic_ns();
         rec.record(Channel::TickCompute, done.saturating_sub(t0));
@@ -259,19 +294,7 @@ pub fn run_servo(
             break;
         }
     }
-    // Frames stop 20 ms after a HAL dies, but its liveness verdict can take as long: if the loop stopped on
-    // stale state, give the watch a moment (outside the loop, nothing is commanded any more) to say whether the
-    // HAL died — the report should name the cause, not the symptom.
-    if matches!(tick.stop_cause(), Some(StopCause::Trip(crate::watchdog::Trip::StaleState))) {
-        let until = std::time::Instant::now() + LIVENESS_GRACE;
-        while std::time::Instant::now() < until && wire.hal_losses() == losses_at_start {
-            std::thread::sleep(Duration::from_millis(1));
-        }
-        if wire.hal_losses() != losses_at_start {
-            tick.blame_hal_death();
-            ch.status.set_trip(crate::watchdog::Trip::HalDied);
-        }
-    }
+    await_liveness_verdict(&mut tick, &wire, &ch.status, losses_at_start);
     let allocations_after_warmup = allocs_at_warmup.zip(crate::alloc_count::loop_ended()).map(|((start, ..), end)| {
         crate::alloc_count::Counts { system: end.system - start.system, pooled: end.pooled - start.pooled }
     });
@@ -283,8 +306,8 @@ pub fn run_servo(
         counters: tick.counters,
         frames: tick.frames().counts,
         missed_periods: ticker.missed_total(),
-        schema_refusals,
-        receive_port_errors,
+        schema_refusals: refusals.schema,
+        receive_port_errors: refusals.port_errors,
         send_errors: sends.errors(),
         hal: tick.hal_counts(),
         first_violation: tick.first_violation,
