@@ -277,7 +277,7 @@ impl ServoTick {
         out
     }
 
-    /// 1. The state frame: judged, observed, and the handshake on the first usable one. `Some(usable)`, or `None`
+    /// Step 1, the state frame: judged, observed, and the handshake on the first usable one. `Some(usable)`, or `None`
     /// when the tick must end here (no start the smoother can take).
     fn take_frame(&mut self, input: &TickInput, out: &mut TickOutput) -> Option<bool> {
         let verdict = input.frame.map(|f| self.frames.judge(f, input.now_ns));
@@ -361,7 +361,7 @@ impl ServoTick {
         true
     }
 
-    /// 2. Watchdog, requests, signals.
+    /// Step 2: watchdog, requests, signals.
     fn supervise(&mut self, input: &TickInput, usable: bool) {
         if input.hal_gone {
             self.stop_with(StopCause::Trip(Trip::HalDied));
@@ -395,7 +395,7 @@ impl ServoTick {
         }
     }
 
-    /// 3. Chunks: keep the newest of this episode; switch to it when the current one is used up. False if this
+    /// Step 3, chunks: keep the newest of this episode; switch to it when the current one is used up. False if this
     /// tick sends nothing (it found no new frame).
     fn take_chunk(&mut self, input: &TickInput, out: &mut TickOutput) -> bool {
         let next = input.now_ns + self.dt_ns;
@@ -429,7 +429,7 @@ impl ServoTick {
         true
     }
 
-    /// 4. Motion for the next tick — one per state frame, as libfranka's controller answers each robot packet.
+    /// Step 4, motion for the next tick — one per state frame, as libfranka's controller answers each robot packet.
     /// `None` if nothing safe can be sent (the HAL's command timeout brakes).
     fn next_motion(&mut self, now: u64) -> Option<Kinematics> {
         let motion = match self.phase {
@@ -501,7 +501,7 @@ impl ServoTick {
         self.smoother.track(&target[..self.n], &target_v[..self.n]).copied()
     }
 
-    /// 5. The command, after the last check; `None` (and finished) if it would leave the limits.
+    /// Step 5, the command after the last check; `None` (and finished) if it would leave the limits.
     fn command(&mut self, kin: &Kinematics, now: u64) -> Option<JointCommand> {
         if let Err(v) = self.limits.admit(&kin.position[..self.n]) {
             self.counters.limit_violations += 1;
