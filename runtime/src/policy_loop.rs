@@ -150,6 +150,57 @@ struct InForce {
     image: Vec<u8>,
 }
 
+/// One episode's state, carried from one policy period to the next.
+struct EpisodeRun {
+    episode: u64,
+    /// When the episode started (CLOCK_MONOTONIC ns): period k is due at t0 + k periods.
+    t0: u64,
+    /// Actions per chunk, and numbers per action.
+    c: usize,
+    d: usize,
+    period_ns: u64,
+    /// The engine's observation input, written by each call's observation.
+    obs: Vec<f32>,
+    /// The engine's history input: the last chunk published (at the start, the rest pose).
+    history: Vec<f32>,
+    /// The recording's state column.
+    state: Vec<f32>,
+    /// A replay's chunk (empty unless replaying).
+    replayed: Vec<f32>,
+    in_force: InForce,
+    trace: crate::plots::EpisodeTrace,
+    /// Chunks published this episode (`seq` of the last), the sum of their K, how many were late.
+    seq: u64,
+    chunks: u64,
+    k_sum: u64,
+    late: u64,
+    /// max |w| of the last call, traced with the arm's position.
+    w_inf: f32,
+    missed_at_start: u64,
+}
+
+impl EpisodeRun {
+    /// The arm's measured position (and the last call's max |w|) into the plots' trace, while it has room.
+    fn trace_position(&mut self, o: &Observed, n: usize) {
+        if self.trace.q.len() < TRACE_CAPACITY {
+            let mut q = [0.0; MAX_JOINTS];
+            q[..n].copy_from_slice(&o.position[..n]);
+            self.trace.q.push(q);
+            self.trace.w_inf.push(self.w_inf);
+        }
+    }
+}
+
+/// One engine call of an episode: the period it is made in, when it woke, when its chunk is needed, and the
+/// capture time of the camera frame it sees (0 without a camera).
+#[derive(Clone, Copy)]
+struct Call {
+    k: u64,
+    now: u64,
+    need_ns: u64,
+    capture_ns: u64,
+}
+
 impl PolicyLoop {
     pub fn run(mut self, cfg: &DaemonConfig) -> PolicyReport {
         let mut report = PolicyReport {
@@ -276,39 +327,10 @@ impl PolicyLoop {
         traces: &mut TraceRing,
         report: &mut PolicyReport,
     ) -> Option<EpisodeResult> {
-        let (c, d) = (self.engine.chunk_len(), self.engine.action_dim());
-        let period_ns = cfg.policy_period_ns();
-        let lead_ns = (cfg.policy.lead_ms * 1e6) as u64;
-        let margin_ns = (cfg.policy.handoff_margin_ms * 1e6) as u64;
-        let mut obs = vec![0.0f32; self.engine.obs_dim()];
-        let mut history: Vec<f32> = rest.iter().copied().cycle().take(c * d).collect();
-        let mut judge = match &self.task {
-            HilTask::Pick(t) => Judge::Arm(t.monitor()),
-            HilTask::PushT(t) => {
-                Judge::Scene { timeout_s: t.cfg.timeout_s, silent_limit_ns: (t.cfg.scene_timeout_s * 1e9) as u64 }
-            }
-        };
+        let mut judge = self.judge();
         let n = self.engine_joints();
-        let mut in_force = InForce {
-            actions: history.clone(),
-            first_k: 0,
-            w_inf: 0.0,
-            k: [0.0; 2],
-            latency_ms: [0.0; 2],
-            image: vec![0; self.image_len()],
-        };
-        let mut state = vec![0.0f32; self.state_dim()];
-        let mut replayed = vec![0.0f32; if self.replay.is_some() { c * d } else { 0 }];
-        if self.recording.is_some() && self.last_image.len() != self.image_len() {
-            self.last_image = vec![0; self.image_len()];
-            self.view_image = vec![0; self.image_len()];
-        }
-        let mut trace = traces.start();
-        let (mut chunks, mut k_sum, mut ep_late, mut w_inf) = (0u64, 0u64, 0u64, 0.0f32);
-        let t0 = monotonic_ns();
-        let missed_at_start = self.ch.status.missed_periods.load(Ordering::Relaxed);
-        let mut ticker = Ticker::starting_at(t0, Duration::from_nanos(period_ns));
-        let mut seq = 0u64;
+        let mut run = self.start_episode(cfg, episode, rest, traces);
+        let mut ticker = Ticker::starting_at(run.t0, Duration::from_nanos(run.period_ns));
         for k in 0u64.. {
             let wake = ticker.wait();
             self.ch.status.policy_beats.fetch_add(1, Ordering::Relaxed);
@@ -317,154 +339,226 @@ impl PolicyLoop {
             }
             let now = wake.now_ns();
             let o = *self.ch.observed.read();
-            let t_s = (now - t0) as f64 * 1e-9;
+            let t_s = (now - run.t0) as f64 * 1e-9;
             let progress = match &mut judge {
                 Judge::Arm(m) => m.update(&o.position[..n], o.gripper, t_s),
                 Judge::Scene { timeout_s, silent_limit_ns } => {
                     self.scene_progress(episode, t_s, *timeout_s, *silent_limit_ns)?
                 }
             };
-            if trace.q.len() < TRACE_CAPACITY {
-                let mut q = [0.0; MAX_JOINTS];
-                q[..n].copy_from_slice(&o.position[..n]);
-                trace.q.push(q);
-                trace.w_inf.push(w_inf);
-            }
+            run.trace_position(&o, n);
             if let Progress::Done { success, mode, reason } = progress {
                 self.end_recorded_episode(episode, k, success, mode, rest);
-                trace.mode = mode;
-                trace.success = success;
-                // The scene as the episode ended, for the camera strip (the policy's last view can be 0.8 s older).
-                if let Some(frame) = self.scene.as_mut().and_then(|s| s.camera.newest_for_display()) {
-                    trace.keep_frame(frame.pixels());
-                }
-                traces.push(trace);
-                return Some(EpisodeResult {
-                    episode,
-                    success,
-                    mode,
-                    reason: Some(reason),
-                    duration_s: (now - t0) as f64 * 1e-9,
-                    chunks,
-                    mean_k_used: if chunks > 0 { k_sum as f64 / chunks as f64 } else { 0.0 },
-                    late_chunks: ep_late,
-                    servo_missed_periods: self
-                        .ch
-                        .status
-                        .missed_periods
-                        .load(Ordering::Relaxed)
-                        .saturating_sub(missed_at_start),
-                });
+                return Some(self.end_episode(run, now, success, mode, reason, traces));
             }
             if self.recording.is_some() {
-                self.state_of(&o, &mut state);
+                self.state_of(&o, &mut run.state);
                 if let Some(scene) = self.scene.as_mut() {
                     scene.newest_for_recording(&mut self.view_image);
                 }
             }
-            if k % c as u64 != 0 {
-                self.record_period(episode, k, false, &state, &o, t0, &in_force, d);
+            if k % run.c as u64 != 0 {
+                self.record_period(&run, k, false, &o);
                 continue;
             }
-            // Inference for chunk k / C.
-            let need_ns = t0 + lead_ns + k * period_ns;
-            if let Some(published) = self.replay.as_ref().map(|r| r.chunk_at(k, &mut replayed)) {
-                // A replay: the run's own chunk, or none where the run made none.
-                if published {
-                    seq += 1;
-                    let ready_ns = monotonic_ns();
-                    let first_due_ns = need_ns + period_ns;
-                    let stamp = ChunkStamp { episode, seq, period_ns, first_due_ns, ready_ns, capture_ns: ready_ns };
-                    Self::publish(&mut self.ch.chunks, &stamp, &replayed, d);
-                    history.copy_from_slice(&replayed);
-                    if self.recording.is_some() {
-                        in_force.actions.copy_from_slice(&replayed);
-                        in_force.first_k = k;
-                        in_force.image.copy_from_slice(&self.view_image);
-                    }
-                    chunks += 1;
-                }
-                self.record_period(episode, k, published, &state, &o, t0, &in_force, d);
+            // Chunk k / C is due: the lead before its first action, in periods from the episode's start.
+            let need_ns = run.t0 + (cfg.policy.lead_ms * 1e6) as u64 + k * run.period_ns;
+            if self.replay.is_some() {
+                self.replay_chunk(&mut run, k, need_ns, &o);
                 continue;
             }
-            let capture_ns = match self.observe(&o, &mut obs, &mut trace, report) {
+            let capture_ns = match self.observe(&o, &mut run.obs, &mut run.trace, report) {
                 Ok(c) => {
                     faults.no_frame.good();
                     c
                 }
                 Err(()) => {
                     // No usable image: keep executing the previous chunk, as for a call over budget.
-                    self.record_period(episode, k, false, &state, &o, t0, &in_force, d);
-                    if faults.no_frame.bad() {
-                        self.request(Request::Trip(Trip::NoCameraFrame));
-                        return None;
-                    }
+                    self.record_period(&run, k, false, &o);
+                    self.trip_if(faults.no_frame.bad(), Trip::NoCameraFrame)?;
                     continue;
                 }
             };
-            let budget = Duration::from_nanos((need_ns - margin_ns).saturating_sub(monotonic_ns()));
-            let started = monotonic_ns();
-            // A seed per call: `marsd replay` reproduces any one call from the recording alone.
-            self.engine.reseed(crate::record::call_seed(cfg.seed, episode, k));
-            let result = self.engine.infer(&obs, &history, budget);
-            let ready = monotonic_ns();
-            self.rec.record(Channel::Inference, ready - started);
-            report.inferences += 1;
-            let out = match result {
-                Ok(out) => out,
-                Err(_) => {
-                    report.engine_errors += 1;
-                    self.request(Request::Trip(Trip::EngineError));
-                    return None;
-                }
-            };
-            let interval_ns = (cfg.histograms.interval_s * 1e9) as u64;
-            let call = (out.encode.as_nanos() as u64, out.k_requested, out.k_used);
-            record_call(&mut self.rec, &mut self.next_interval_ns, interval_ns, call, ready);
-            if out.capped {
-                report.capped += 1;
-            }
-            if out.over_budget {
-                // Not even one step fitted: keep executing the previous chunk.
-                report.over_budget += 1;
-                self.record_period(episode, k, false, &state, &o, t0, &in_force, d);
-                if faults.over.bad() {
-                    self.request(Request::Trip(Trip::InferenceOverBudget));
-                    return None;
-                }
-                continue;
-            }
-            faults.over.good();
-            w_inf = out.w.iter().fold(0.0f32, |m, w| m.max(w.abs()));
-            self.rec.record(Channel::WInf, Channel::w_inf_units(w_inf));
-            seq += 1;
-            let stamp =
-                ChunkStamp { episode, seq, period_ns, first_due_ns: need_ns + period_ns, ready_ns: ready, capture_ns };
-            Self::publish(&mut self.ch.chunks, &stamp, out.chunk, d);
-            history.copy_from_slice(out.chunk);
-            if self.recording.is_some() {
-                in_force.actions.copy_from_slice(out.chunk);
-                in_force.first_k = k;
-                in_force.w_inf = w_inf;
-                in_force.k = [out.k_requested as f32, out.k_used as f32];
-                in_force.latency_ms = [(ready - started) as f32 * 1e-6, out.encode.as_secs_f32() * 1e3];
-            }
-            chunks += 1;
-            k_sum += out.k_used as u64;
-            let late = LateChunk { woke_ns: now, need_ns, ready_ns: ready };
-            ep_late += u64::from(ready > need_ns);
-            if count_late(late, report, faults) {
-                self.request(Request::Trip(Trip::LateChunks));
-                return None;
-            }
-            if self.recording.is_some() {
-                if let Some(pixels) = self.last_pixels() {
-                    in_force.image.copy_from_slice(pixels);
-                }
-                self.record_period(episode, k, true, &state, &o, t0, &in_force, d);
-            }
+            let call = Call { k, now, need_ns, capture_ns };
+            self.infer_chunk(cfg, &mut run, call, &o, faults, report)?;
         }
         unreachable!("the episode loop only ends by returning")
+    }
+
+    /// How this task's episodes end.
+    fn judge(&self) -> Judge {
+        match &self.task {
+            HilTask::Pick(t) => Judge::Arm(t.monitor()),
+            HilTask::PushT(t) => {
+                Judge::Scene { timeout_s: t.cfg.timeout_s, silent_limit_ns: (t.cfg.scene_timeout_s * 1e9) as u64 }
+            }
+        }
+    }
+
+    /// An episode's state at its start: the rest pose as the chunk in force, nothing called yet.
+    fn start_episode(&mut self, cfg: &DaemonConfig, episode: u64, rest: &[f32], traces: &mut TraceRing) -> EpisodeRun {
+        let (c, d) = (self.engine.chunk_len(), self.engine.action_dim());
+        let history: Vec<f32> = rest.iter().copied().cycle().take(c * d).collect();
+        let in_force = InForce {
+            actions: history.clone(),
+            first_k: 0,
+            w_inf: 0.0,
+            k: [0.0; 2],
+            latency_ms: [0.0; 2],
+            image: vec![0; self.image_len()],
+        };
+        if self.recording.is_some() && self.last_image.len() != self.image_len() {
+            self.last_image = vec![0; self.image_len()];
+            self.view_image = vec![0; self.image_len()];
+        }
+        let trace = traces.start();
+        let t0 = monotonic_ns();
+        EpisodeRun {
+            episode,
+            t0,
+            c,
+            d,
+            period_ns: cfg.policy_period_ns(),
+            obs: vec![0.0; self.engine.obs_dim()],
+            history,
+            state: vec![0.0; self.state_dim()],
+            replayed: vec![0.0; if self.replay.is_some() { c * d } else { 0 }],
+            in_force,
+            trace,
+            seq: 0,
+            chunks: 0,
+            k_sum: 0,
+            late: 0,
+            w_inf: 0.0,
+            missed_at_start: self.ch.status.missed_periods.load(Ordering::Relaxed),
+        }
+    }
+
+    /// The episode's result, its trace kept for the plots.
+    fn end_episode(
+        &mut self,
+        mut run: EpisodeRun,
+        now: u64,
+        success: bool,
+        mode: Option<usize>,
+        reason: DoneReason,
+        traces: &mut TraceRing,
+    ) -> EpisodeResult {
+        run.trace.mode = mode;
+        run.trace.success = success;
+        // The scene as the episode ended, for the camera strip (the policy's last view can be 0.8 s older).
+        if let Some(frame) = self.scene.as_mut().and_then(|s| s.camera.newest_for_display()) {
+            run.trace.keep_frame(frame.pixels());
+        }
+        traces.push(run.trace);
+        let missed = self.ch.status.missed_periods.load(Ordering::Relaxed);
+        EpisodeResult {
+            episode: run.episode,
+            success,
+            mode,
+            reason: Some(reason),
+            duration_s: (now - run.t0) as f64 * 1e-9,
+            chunks: run.chunks,
+            mean_k_used: if run.chunks > 0 { run.k_sum as f64 / run.chunks as f64 } else { 0.0 },
+            late_chunks: run.late,
+            servo_missed_periods: missed.saturating_sub(run.missed_at_start),
+        }
+    }
+
+    /// A replay: the run's own chunk for period `k`, or none where the run made none.
+    fn replay_chunk(&mut self, run: &mut EpisodeRun, k: u64, need_ns: u64, o: &Observed) {
+        let published = self.replay.as_ref().is_some_and(|r| r.chunk_at(k, &mut run.replayed));
+        if published {
+            run.seq += 1;
+            let ready_ns = monotonic_ns();
+            let (episode, seq, period_ns) = (run.episode, run.seq, run.period_ns);
+            let first_due_ns = need_ns + period_ns;
+            let stamp = ChunkStamp { episode, seq, period_ns, first_due_ns, ready_ns, capture_ns: ready_ns };
+            Self::publish(&mut self.ch.chunks, &stamp, &run.replayed, run.d);
+            run.history.copy_from_slice(&run.replayed);
+            if self.recording.is_some() {
+                run.in_force.actions.copy_from_slice(&run.replayed);
+                run.in_force.first_k = k;
+                run.in_force.image.copy_from_slice(&self.view_image);
+            }
+            run.chunks += 1;
+        }
+        self.record_period(run, k, published, o);
+    }
+
+    /// The engine's call for chunk `call.k / C`, within what is left of its budget, and the chunk published. `None`
+    /// if the loop must stop (a trip was asked for).
+    fn infer_chunk(
+        &mut self,
+        cfg: &DaemonConfig,
+        run: &mut EpisodeRun,
+        call: Call,
+        o: &Observed,
+        faults: &mut ChunkFaults,
+        report: &mut PolicyReport,
+    ) -> Option<()> {
+        let Call { k, now, need_ns, capture_ns } = call;
+        let margin_ns = (cfg.policy.handoff_margin_ms * 1e6) as u64;
+        let budget = Duration::from_nanos((need_ns - margin_ns).saturating_sub(monotonic_ns()));
+        let started = monotonic_ns();
+        // A seed per call: `marsd replay` reproduces any one call from the recording alone.
+        self.engine.reseed(crate::record::call_seed(cfg.seed, run.episode, k));
+        let result = self.engine.infer(&run.obs, &run.history, budget);
+        let ready = monotonic_ns();
+        self.rec.record(Channel::Inference, ready - started);
+        report.inferences += 1;
+        let Ok(out) = result else {
+            report.engine_errors += 1;
+            return self.trip_if(true, Trip::EngineError);
+        };
+        let interval_ns = (cfg.histograms.interval_s * 1e9) as u64;
+        let counts = (out.encode.as_nanos() as u64, out.k_requested, out.k_used);
+        record_call(&mut self.rec, &mut self.next_interval_ns, interval_ns, counts, ready);
+        report.capped += u64::from(out.capped);
+        if out.over_budget {
+            // Not even one step fitted: keep executing the previous chunk.
+            report.over_budget += 1;
+            self.record_period(run, k, false, o);
+            return self.trip_if(faults.over.bad(), Trip::InferenceOverBudget);
+        }
+        faults.over.good();
+        run.w_inf = out.w.iter().fold(0.0f32, |m, w| m.max(w.abs()));
+        self.rec.record(Channel::WInf, Channel::w_inf_units(run.w_inf));
+        run.seq += 1;
+        let (episode, seq, period_ns) = (run.episode, run.seq, run.period_ns);
+        let stamp =
+            ChunkStamp { episode, seq, period_ns, first_due_ns: need_ns + period_ns, ready_ns: ready, capture_ns };
+        Self::publish(&mut self.ch.chunks, &stamp, out.chunk, run.d);
+        run.history.copy_from_slice(out.chunk);
+        if self.recording.is_some() {
+            let f = &mut run.in_force;
+            f.actions.copy_from_slice(out.chunk);
+            f.first_k = k;
+            f.w_inf = run.w_inf;
+            f.k = [out.k_requested as f32, out.k_used as f32];
+            f.latency_ms = [(ready - started) as f32 * 1e-6, out.encode.as_secs_f32() * 1e3];
+        }
+        run.chunks += 1;
+        run.k_sum += out.k_used as u64;
+        run.late += u64::from(ready > need_ns);
+        let late = LateChunk { woke_ns: now, need_ns, ready_ns: ready };
+        self.trip_if(count_late(late, report, faults), Trip::LateChunks)?;
+        if self.recording.is_some() {
+            if let Some(pixels) = self.last_pixels() {
+                run.in_force.image.copy_from_slice(pixels);
+            }
+            self.record_period(run, k, true, o);
+        }
+        Some(())
+    }
+
+    /// Asks the servo loop for `trip` if `tripped`; then `None`, so that the policy loop stops.
+    fn trip_if(&mut self, tripped: bool, trip: Trip) -> Option<()> {
+        if tripped {
+            self.request(Request::Trip(trip));
+            return None;
+        }
+        Some(())
     }
 
     /// Push-T's referee's verdict on `episode` at `t_s` into it; `None`, after asking for a trip, if the referee
@@ -524,19 +618,9 @@ impl PolicyLoop {
 
     /// Hands period `k` to the recording (if any): the state, the action of the chunk in force for it (its last
     /// once the chunk has run out, as the servo holds it), our columns. Wait-free and allocation-free.
-    #[allow(clippy::too_many_arguments)]
-    fn record_period(
-        &mut self,
-        episode: u64,
-        k: u64,
-        call: bool,
-        state: &[f32],
-        o: &Observed,
-        t0: u64,
-        f: &InForce,
-        d: usize,
-    ) {
+    fn record_period(&mut self, run: &EpisodeRun, k: u64, call: bool, o: &Observed) {
         let Some(r) = &mut self.recording else { return };
+        let (f, d, episode, t0, state) = (&run.in_force, run.d, run.episode, run.t0, &run.state);
         let c = f.actions.len() / d;
         let i = ((k - f.first_k) as usize).min(c - 1);
         r.record(|frame| {
