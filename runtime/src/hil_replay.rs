@@ -11,7 +11,8 @@ use anyhow::Context;
 use mars_lerobot::{Keys, LeRobotDataset};
 use serde::Serialize;
 
-use crate::cli::{DemoArgs, DemoRobot, MarsdArgs};
+use crate::cli::MarsdArgs;
+use crate::demo::{DemoArgs, DemoRobot};
 use crate::recorded_actions::RunMeta;
 
 #[derive(clap::Args, Debug, Clone)]
@@ -204,7 +205,7 @@ pub fn run(args: &HilReplayArgs) -> anyhow::Result<(Option<HilReplayReport>, u8)
         ..MarsdArgs::new(config)
     };
     let demo = DemoArgs { backend: args.backend, ..DemoArgs::new(marsd) };
-    let code = crate::cli::demo(demo)?;
+    let code = crate::demo::demo(demo)?;
     if code != 0 {
         return Ok((None, code));
     }

@@ -15,6 +15,7 @@ pub mod chunk;
 pub mod cli;
 pub mod config;
 pub mod daemon;
+pub mod demo;
 pub mod doctor;
 pub mod effector;
 pub mod faults;

@@ -12,7 +12,7 @@ use anyhow::Context;
 use serde_json::Value;
 
 use crate::bench::backends::demo_child_pid;
-use crate::cli::DemoRobot;
+use crate::demo::DemoRobot;
 use crate::faults::Backends;
 
 #[derive(clap::Args, Debug, Clone)]

@@ -15,7 +15,8 @@ use std::time::Duration;
 use anyhow::Context;
 use serde_json::Value;
 
-use crate::cli::{DemoArgs, DemoRobot, MarsdArgs};
+use crate::cli::MarsdArgs;
+use crate::demo::{DemoArgs, DemoRobot};
 
 #[derive(clap::Args, Debug, Clone)]
 pub struct BackendBenchArgs {
@@ -39,7 +40,7 @@ pub struct BackendBenchArgs {
     #[arg(long)]
     pub no_noise: bool,
     /// franka-sim's virtual environment (made by `.ci/franka-sim-venv`).
-    #[arg(long, default_value = crate::cli::FRANKA_SIM_VENV)]
+    #[arg(long, default_value = crate::demo::FRANKA_SIM_VENV)]
     pub franka_sim_venv: PathBuf,
 }
 
@@ -167,7 +168,7 @@ fn run_one(args: &BackendBenchArgs, backend: DemoRobot, noisy: bool) -> Run {
         let ms = |v: f64| Duration::from_secs_f64(v / 1e3);
         Noise::start(robot, ms(args.stall_ms), ms(args.stall_every_ms))
     });
-    let result = crate::cli::demo(demo);
+    let result = crate::demo::demo(demo);
     let stalls = noise.map(Noise::finish);
     let (exit, error) = match result {
         Ok(code) => (Some(code), None),

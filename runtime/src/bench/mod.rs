@@ -19,7 +19,8 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, bail};
 use serde_json::Value;
 
-use crate::cli::{DemoArgs, MarsdArgs};
+use crate::cli::MarsdArgs;
+use crate::demo::DemoArgs;
 
 pub mod backends;
 mod cyclictest;
@@ -197,7 +198,7 @@ fn run_policy(args: &BenchArgs, name: &str, robot: &str) -> PolicyRun {
     };
     let demo = DemoArgs { hal_core: args.hal_core.unwrap_or_else(demo_hal_core), ..DemoArgs::new(marsd) };
     let probe = LoadProbe::start();
-    let teed = tee_stderr(|| crate::cli::demo(demo));
+    let teed = tee_stderr(|| crate::demo::demo(demo));
     let load = probe.finish();
     let mut run = PolicyRun {
         name: name.to_string(),

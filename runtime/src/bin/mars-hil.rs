@@ -33,7 +33,7 @@ enum Command {
     /// histogram logs.
     Demo {
         #[command(flatten)]
-        args: mars_runtime::cli::DemoArgs,
+        args: mars_runtime::demo::DemoArgs,
     },
     /// A recorded episode's commands through the HAL again (marsd runs the recording's chunks from the same
     /// start pose, recorded in turn): how closely the plant's trajectory and the episode's outcome come back.
@@ -169,7 +169,7 @@ fn main() -> std::process::ExitCode {
     let args = Args::parse();
     mars_policy::cli::init_runtime_env(1);
     let result = match args.command {
-        Command::Demo { args } => match mars_runtime::cli::demo(args) {
+        Command::Demo { args } => match mars_runtime::demo::demo(args) {
             Ok(code) => return std::process::ExitCode::from(code),
             Err(e) => Err(e),
         },

@@ -19,7 +19,7 @@ use std::time::Duration;
 use anyhow::Context;
 use rand::{Rng, SeedableRng};
 
-use crate::cli::DemoRobot;
+use crate::demo::DemoRobot;
 use trial::{Fault, Plan};
 
 /// Set by SIGTERM or SIGINT: no further trial starts.
@@ -52,7 +52,7 @@ pub struct FaultArgs {
     #[arg(long)]
     pub checker: Option<PathBuf>,
     /// franka-sim's virtual environment (made by `.ci/franka-sim-venv`, run first when it is missing).
-    #[arg(long, default_value = crate::cli::FRANKA_SIM_VENV)]
+    #[arg(long, default_value = crate::demo::FRANKA_SIM_VENV)]
     pub franka_sim_venv: PathBuf,
 }
 

@@ -10,7 +10,7 @@ use anyhow::Context;
 use mars_hal::fci::franka_sim::FrankaSim;
 
 use super::watch::StateWatch;
-use crate::cli::{DemoRobot, FRANKA_SIM_STATE_GAP_MS, hal_command, start_franka_sim};
+use crate::demo::{DemoRobot, FRANKA_SIM_STATE_GAP_MS, hal_command, start_franka_sim};
 
 pub struct Rig {
     pub robot: String,

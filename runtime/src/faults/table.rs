@@ -8,7 +8,7 @@ use serde_json::Value;
 use super::rig::HalEnd;
 use super::trial::Outcome;
 use super::{FaultArgs, backend_name};
-use crate::cli::DemoRobot;
+use crate::demo::DemoRobot;
 
 pub struct BackendResult {
     pub backend: DemoRobot,
