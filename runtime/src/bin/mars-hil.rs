@@ -70,10 +70,11 @@ enum Command {
         #[command(flatten)]
         args: mars_runtime::soak::SoakArgs,
     },
-    /// The controller daemon (the same as the `marsd` binary; the demo starts it this way).
+    /// The controller daemon and its tools (the same as the `marsd` binary; the demo starts it this way).
+    #[command(args_conflicts_with_subcommands = true)]
     Marsd {
         #[command(flatten)]
-        args: mars_runtime::cli::MarsdArgs,
+        args: mars_runtime::cli::MarsdCommandLine,
     },
     /// The mock HAL process (the same as the `mars-hal` binary; the demo starts it this way).
     Hal {
@@ -192,7 +193,7 @@ fn main() -> std::process::ExitCode {
             Ok(clean) => return std::process::ExitCode::from(if clean { 0 } else { 1 }),
             Err(e) => Err(e),
         },
-        Command::Marsd { args } => return mars_runtime::cli::marsd(args),
+        Command::Marsd { args } => return mars_runtime::cli::run_command_line(args),
         Command::Hal { args } => {
             let code = mars_hal::cli::report_and_exit_code(mars_hal::cli::run_hal(args));
             return std::process::ExitCode::from(code as u8);
