@@ -1,5 +1,5 @@
 //! The command line of `marsd`, as library code: the `marsd` binary and `mars-hil marsd` run the very same
-//! daemon (the demo, [`crate::demo`], spawns it as a separate process from its own executable, so one
+//! daemon (the demo, `mars_hil::demo`, spawns it as a separate process from its own executable, so one
 //! `cargo run` builds everything the demo needs).
 
 use std::path::PathBuf;

@@ -5,22 +5,19 @@
 //! loop's time-stamped chunk ([`chunk`]) comes back the same way; [`servo`] turns it into a reference, smooths
 //! it with ruckig ([`smoothing`]), checks it ([`limits`]) and the command leaves in [`servo_loop`]. Around
 //! them: [`watchdog`], [`daemon`] (setup, signals, systemd), the liveness heartbeat (`mars_ipc::heartbeat_thread`, off the RT thread), [`latency`] + [`plots`] + [`traces`] + [`report`], [`rt`]
-//! (pinning, SCHED_FIFO, the ticker), [`alloc_count`], the HIL [`task`], and the `mars-hil` tools ([`cli`],
-//! [`bench`]).
+//! (pinning, SCHED_FIFO, the ticker), [`alloc_count`], the HIL [`task`] as marsd runs it, and marsd's command line
+//! ([`cli`]). The HIL rig around it (`mars-hil`: the demo, benchmarks, faults, soak, the Push-T scene) is the
+//! crate `mars-hil` (folder `hil/`).
 
-pub mod bench;
 pub mod camera;
 pub mod camera_watch;
 pub mod chunk;
 pub mod cli;
 pub mod config;
 pub mod daemon;
-pub mod demo;
 pub mod doctor;
 pub mod effector;
-pub mod faults;
 pub mod frame;
-pub mod hil_replay;
 pub mod latency;
 pub mod limits;
 pub mod live;
@@ -30,16 +27,12 @@ pub mod record;
 pub mod recorded_actions;
 pub mod replay;
 pub mod report;
-pub mod scene;
 pub mod scene_link;
 pub mod servo;
 pub mod servo_loop;
 pub mod shared;
 pub mod smoothing;
-pub mod soak;
 pub mod stall;
-pub mod stall_watch;
-pub mod standin;
 pub mod tally;
 pub mod task;
 pub mod timeliness;

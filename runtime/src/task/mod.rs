@@ -2,17 +2,11 @@
 //! the R1 Lite's Pick Vegetable) and Push-T on the table (around the block by the upper or the lower route).
 //!
 //! The pick task itself (TOML, start poses, observations, the [`pick::EpisodeMonitor`]) lives with the other tasks
-//! in `mars_tasks::pick`, checked against the profile's facts ([`arm`]); its world is the arm, so here are
-//! [`expert`] (balanced demos on the sim plant), [`eval`] (a checkpoint rolled out in-process) and [`sim_arm`] (the
-//! plant behind the servo both use); [`cli`] is what `mars-hil demos` / `eval-sim` run. [`push_t`] is Push-T as
-//! marsd sees it (the world is the scene process, `crate::scene`).
+//! in `mars_tasks::pick`, checked against the profile's facts ([`arm`]). Its expert demos and in-process evaluation
+//! on the sim plant are the HIL rig's (`mars_hil::task`). [`push_t`] is Push-T as marsd sees it (the world is the
+//! scene process, `mars_hil::scene`).
 
-pub mod cli;
-pub mod eval;
-pub mod expert;
 pub mod push_t;
-pub mod push_t_cli;
-pub mod sim_arm;
 
 use std::path::Path;
 

@@ -1,6 +1,6 @@
 //! Push-T on the FR3 (the paper's FR3 task): the flange, pointing down at a fixed height, is the pusher; a fixed
 //! top-down camera sees the table; the policy acts in (x, y) on the table. The world itself (the T block, its
-//! physics, the camera) is the scene process (`mars-hil scene`, [`crate::scene`]); marsd sees only the camera
+//! physics, the camera) is the scene process (`mars-hil scene`, `mars_hil::scene`); marsd sees only the camera
 //! and the arm, and asks the scene to reset the block between episodes and whether the push succeeded.
 //!
 //! Read from TOML (`configs/push_t.toml`), which the scene reads too, and checked against the robot profile

@@ -19,8 +19,8 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, bail};
 use serde_json::Value;
 
-use crate::cli::MarsdArgs;
 use crate::demo::DemoArgs;
+use mars_runtime::cli::MarsdArgs;
 
 pub mod backends;
 mod cyclictest;
@@ -263,7 +263,7 @@ fn read_trim(path: &str) -> Option<String> {
 
 /// Whether a fresh thread of this process may use SCHED_FIFO at `priority` (the thread ends right after).
 fn probe_sched_fifo(priority: i32) -> String {
-    std::thread::spawn(move || format!("{:?}", crate::rt::try_sched_fifo(priority)))
+    std::thread::spawn(move || format!("{:?}", mars_runtime::rt::try_sched_fifo(priority)))
         .join()
         .unwrap_or_else(|_| "?".into())
 }
@@ -275,9 +275,9 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         args.policies.iter().any(|p| p == "mars"),
         "--policies must include mars (its run is the one measured against cyclictest)"
     );
-    let cfg = crate::config::DaemonConfig::load(&args.config)?;
+    let cfg = mars_runtime::config::DaemonConfig::load(&args.config)?;
     // One real-time rig at a time: cyclictest and the demo rigs measured here must not share the cores.
-    let _rig = crate::rt::rig_lock::rt_rig_lock().context("taking the real-time rig lock")?;
+    let _rig = mars_runtime::rt::rig_lock::rt_rig_lock().context("taking the real-time rig lock")?;
     let profile = mars_hal::profile::Profile::load(&cfg.profile)?;
     let period_us = (profile.period_s() * 1e6).round() as u64;
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
@@ -331,7 +331,7 @@ mod tests {
 
     #[test]
     fn reads_the_real_time_setup_from_the_summary() {
-        use crate::rt::{Outcome, RtStatus};
+        use mars_runtime::rt::{Outcome, RtStatus};
         let threads = [
             RtStatus {
                 thread: "servo".into(),

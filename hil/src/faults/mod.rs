@@ -42,7 +42,7 @@ pub struct FaultArgs {
     #[arg(long, default_value_t = 300.0)]
     pub stop_max_ms: f64,
     /// Daemon configuration (TOML): the task, the profile whose limits the checker judges with.
-    #[arg(long, default_value = crate::cli::DEFAULT_CONFIG)]
+    #[arg(long, default_value = mars_runtime::cli::DEFAULT_CONFIG)]
     pub config: PathBuf,
     /// Each trial's recording, logs and verdict go to <out>/<backend>/trial-<n>/; the table to <out>/results.md.
     #[arg(long, default_value = "runs/faults")]

@@ -32,7 +32,7 @@ pub struct SoakArgs {
     #[arg(long, default_value_t = 1.0)]
     pub sample_every_s: f64,
     /// Daemon configuration (TOML).
-    #[arg(long, default_value = crate::cli::DEFAULT_CONFIG)]
+    #[arg(long, default_value = mars_runtime::cli::DEFAULT_CONFIG)]
     pub config: PathBuf,
     /// Each backend's demo output (summary.json, hal.json, logs, rss.csv) goes to <out>/<backend>/.
     #[arg(long, default_value = "runs/soak")]

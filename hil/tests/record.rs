@@ -257,7 +257,7 @@ fn recorded_demo(attempt: u32) -> Attempt {
     }
     // The comparison tells episodes apart: the replay against the other recorded episode is far off.
     if written >= 2 {
-        let other = mars_runtime::hil_replay::compare(&path, 1, &out.join("replayed"), 0).unwrap();
+        let other = mars_hil::hil_replay::compare(&path, 1, &out.join("replayed"), 0).unwrap();
         eprintln!("the replay of episode 0 against episode 1: worst {:.3}", other.worst);
         assert!(other.worst > 5.0 * worst.max(tolerance / 10.0), "{other:?}");
     }

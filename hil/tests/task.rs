@@ -7,8 +7,8 @@ use std::cell::Cell;
 use std::path::{Path, PathBuf};
 
 use mars_hal::profile::Profile;
-use mars_runtime::task::eval::evaluate;
-use mars_runtime::task::expert::generate_demos;
+use mars_hil::task::eval::evaluate;
+use mars_hil::task::expert::generate_demos;
 use mars_runtime::task::{DoneReason, Pick, Progress, TaskError, arm};
 
 /// Counts this thread's heap allocations, so a test can assert that a call makes none.

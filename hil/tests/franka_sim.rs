@@ -19,8 +19,8 @@ use std::time::Duration;
 use common::*;
 use mars_hal::fci::franka_sim::FrankaSim;
 use mars_hal::profile::Profile;
+use mars_hil::bench::backends::ProcessStops;
 use mars_ipc::{HoldReason, RobotState, status};
-use mars_runtime::bench::backends::ProcessStops;
 use reflex::reflex_excuse;
 
 /// franka-sim serves one client on fixed ports: the machine-wide simulator lock hal/tests/support/franka_sim.rs

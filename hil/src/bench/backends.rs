@@ -15,8 +15,8 @@ use std::time::Duration;
 use anyhow::Context;
 use serde_json::Value;
 
-use crate::cli::MarsdArgs;
 use crate::demo::{DemoArgs, DemoRobot};
+use mars_runtime::cli::MarsdArgs;
 
 #[derive(clap::Args, Debug, Clone)]
 pub struct BackendBenchArgs {

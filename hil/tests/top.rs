@@ -2,13 +2,12 @@
 
 mod common;
 
-use std::process::Command;
 use std::time::Duration;
 
 use common::*;
 
 fn top(robot: &str, extra: &[&str], logs: &TempDir) -> Proc {
-    let mut cmd = Command::new(env!("CARGO_BIN_EXE_marsd"));
+    let mut cmd = marsd_command();
     cmd.args(["top", "--robot", robot, "--plain"]).args(extra);
     // Not a real-time process: an ordinary child, as a user's terminal would run it.
     Proc::spawn(cmd, "top", logs.path())

@@ -50,9 +50,9 @@ fn ready_after_the_hal_handshake_watchdog_pings_and_stopping_on_sigterm() {
     let robot = format!("notify{}", std::process::id());
 
     let marsd = Proc(
-        Command::new(env!("CARGO_BIN_EXE_marsd"))
+        Command::new(env!("CARGO_BIN_EXE_mars-hil"))
             .current_dir(root())
-            .args(["--config", "configs/marsd.toml", "--robot", &robot, "--episodes", "0", "--out"])
+            .args(["marsd", "--config", "configs/marsd.toml", "--robot", &robot, "--episodes", "0", "--out"])
             .arg(dir.join("out"))
             .env("NOTIFY_SOCKET", &sock_path)
             .env("WATCHDOG_USEC", "400000")

@@ -1,6 +1,6 @@
 //! `mars-hil replay DATASET --episode N`: a recorded episode's commands through the mock HAL again — the demo's
 //! rig (HAL process, marsd) with marsd running the recording's chunks instead of the policy's
-//! ([`crate::recorded_actions`]), from the same start pose, through the same servo smoothing and safety filter —
+//! ([`mars_runtime::recorded_actions`]), from the same start pose, through the same servo smoothing and safety filter —
 //! recorded in turn, and the two trajectories compared period by period. The plant is deterministic; what
 //! differs is the live run's timing (which servo tick a chunk reached, the machine's stalls), so the answer is
 //! how closely the plant's trajectory comes back, and whether the episode ends the same way.
@@ -11,9 +11,9 @@ use anyhow::Context;
 use mars_lerobot::{Keys, LeRobotDataset};
 use serde::Serialize;
 
-use crate::cli::MarsdArgs;
 use crate::demo::{DemoArgs, DemoRobot};
-use crate::recorded_actions::RunMeta;
+use mars_runtime::cli::MarsdArgs;
+use mars_runtime::recorded_actions::RunMeta;
 
 #[derive(clap::Args, Debug, Clone)]
 pub struct HilReplayArgs {
@@ -261,7 +261,7 @@ pub fn compare(a: &Path, a_ep: usize, b: &Path, b_ep: usize) -> anyhow::Result<T
     Ok(TrajectoryComparison::of(&names, &sa, &sb, times))
 }
 
-/// Our column with each period's state time (see [`crate::record::RecordFrame::state_time_s`]).
+/// Our column with each period's state time (see [`mars_runtime::record::RecordFrame::state_time_s`]).
 const TIME_KEY: &str = "mars.state_time_s";
 
 #[cfg(test)]

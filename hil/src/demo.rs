@@ -8,8 +8,8 @@ use std::time::{Duration, Instant};
 
 use anyhow::Context;
 
-use crate::cli::{DEFAULT_CONFIG, MarsdArgs};
-use crate::daemon::exit;
+use mars_runtime::cli::{DEFAULT_CONFIG, MarsdArgs};
+use mars_runtime::daemon::exit;
 
 #[derive(clap::Args, Debug, Clone)]
 pub struct DemoArgs {
@@ -124,19 +124,19 @@ fn choose_demo_config(args: &mut DemoArgs) -> anyhow::Result<()> {
 pub fn demo(mut args: DemoArgs) -> anyhow::Result<u8> {
     let exe = std::env::current_exe().context("locating this executable")?;
     choose_demo_config(&mut args)?;
-    let cfg = crate::config::DaemonConfig::load(&args.marsd.config)?;
+    let cfg = mars_runtime::config::DaemonConfig::load(&args.marsd.config)?;
     // A camera task has a scene (the world, the camera, the referee) as a process of its own.
     let profile = mars_hal::profile::Profile::load(&cfg.profile)?;
-    let task =
-        crate::task::HilTask::load(&cfg.task, &profile).with_context(|| format!("task {}", cfg.task.display()))?;
+    let task = mars_runtime::task::HilTask::load(&cfg.task, &profile)
+        .with_context(|| format!("task {}", cfg.task.display()))?;
     // One real-time rig at a time on this machine (a second demo, the benchmark or the HIL tests would take this
     // rig's cores): wait for the one running, if any.
-    let _rig = crate::rt::rig_lock::rt_rig_lock().context("taking the real-time rig lock")?;
+    let _rig = mars_runtime::rt::rig_lock::rt_rig_lock().context("taking the real-time rig lock")?;
     // A namespace of its own, so a demo never meets another run's HAL or controller.
     let robot = args.marsd.robot.clone().unwrap_or_else(|| format!("{}-demo-{}", cfg.robot, std::process::id()));
     let out = args.marsd.out.clone().unwrap_or_else(|| cfg.out.clone());
     // The preflight: what this machine can do, before anything runs on it (it never stops the demo).
-    match crate::doctor::run(&args.marsd.config, 2.0, Some(&out)) {
+    match mars_runtime::doctor::run(&args.marsd.config, 2.0, Some(&out)) {
         Ok(report) => print!("{report}"),
         Err(e) => eprintln!("doctor: could not measure this machine: {e:#}"),
     }
@@ -166,12 +166,12 @@ pub fn demo(mut args: DemoArgs) -> anyhow::Result<u8> {
     }
     let mut hal = Reaped(hal.spawn().context("starting the HAL process")?);
     let mut scene = match &task {
-        crate::task::HilTask::PushT(_) => {
+        mars_runtime::task::HilTask::PushT(_) => {
             let mut scene = Command::new(&exe);
             scene.args(["scene", "--task"]).arg(&cfg.task).arg("--profile").arg(&cfg.profile).args(["--robot", &robot]);
             Some(Reaped(scene.spawn().context("starting the scene process")?))
         }
-        crate::task::HilTask::Pick(_) => None,
+        mars_runtime::task::HilTask::Pick(_) => None,
     };
     let watch = crate::stall_watch::StallWatch::start(&robot, profile.period_s() * 1e3)?;
     let marsd = marsd_command(&exe, &args.marsd, &robot, args.backend);
@@ -322,18 +322,18 @@ fn explain_trip(out: &Path, trip_line: Option<&str>, watched: &crate::stall_watc
         .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok());
     let Some(trip) = summary.as_ref().and_then(|s| s["trip"].as_str().map(str::to_owned)) else { return };
     let Some(line) = trip_line else { return };
-    let Some(trip_ns) = crate::stall::trip_time_from_log(line) else { return };
+    let Some(trip_ns) = mars_runtime::stall::trip_time_from_log(line) else { return };
     let gaps: Vec<_> = watched.gaps.iter().copied().collect();
     let steal: Vec<_> = watched.steal.iter().copied().collect();
-    let evidence = crate::stall::around_trip(trip_ns, &gaps, period_ms, &steal);
+    let evidence = mars_runtime::stall::around_trip(trip_ns, &gaps, period_ms, &steal);
     let clock = line.get(11..23).unwrap_or("the trip");
-    if let Some(m) = crate::stall::demo_message(&trip, clock, &evidence) {
+    if let Some(m) = mars_runtime::stall::demo_message(&trip, clock, &evidence) {
         eprintln!("{m}");
     }
     let record = serde_json::json!({
         "trip": trip,
         "logged_at": clock,
-        "timing_check": crate::stall::is_timing_trip(&trip),
+        "timing_check": mars_runtime::stall::is_timing_trip(&trip),
         "machine_stalled": evidence.is_stall(),
         "evidence": evidence,
         "said": evidence.to_string(),

@@ -327,6 +327,14 @@ pub fn spawn_named(mut cmd: Command, name: &str, logs: &TempDir) -> Proc {
     Proc::spawn(cmd, name, logs.path())
 }
 
+/// marsd as the demo starts it: `mars-hil marsd` runs the `marsd` binary's very command line (its daemon and
+/// its tools), from the executable this package builds.
+pub fn marsd_command() -> Command {
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_mars-hil"));
+    cmd.arg("marsd");
+    cmd
+}
+
 /// `marsd --config <config> --robot <robot> --episodes <n> --out <logs>/out [extra]`.
 pub fn spawn_marsd(robot: &str, config: &Path, episodes: usize, extra: &[&str], logs: &TempDir) -> Proc {
     spawn_marsd_named("marsd", robot, config, episodes, extra, logs)
@@ -341,7 +349,7 @@ pub fn spawn_marsd_named(
     logs: &TempDir,
 ) -> Proc {
     assert_rig_locked("marsd");
-    let mut cmd = Command::new(env!("CARGO_BIN_EXE_marsd"));
+    let mut cmd = marsd_command();
     cmd.arg("--config")
         .arg(config)
         .args(["--robot", robot, "--episodes", &episodes.to_string()])

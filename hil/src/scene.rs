@@ -24,8 +24,8 @@ use mars_tasks::push_t::expert::route_taken;
 use mars_tasks::push_t::render::Camera;
 use mars_tasks::push_t::{PushT, PushTState};
 
-use crate::rt::Ticker;
-use crate::task::PushTHil;
+use mars_runtime::rt::Ticker;
+use mars_runtime::task::PushTHil;
 
 /// A robot state older than this and the scene says so in its frames (the pusher stays where it was seen).
 const STALE_ROBOT_NS: u64 = 100_000_000;

@@ -8,7 +8,7 @@ use clap::{Parser, Subcommand};
 // Counts heap allocations per thread, so every run reports that the servo tick made none.
 #[global_allocator]
 static ALLOC: mars_runtime::alloc_count::CountingAlloc = mars_runtime::alloc_count::CountingAlloc;
-use mars_runtime::task::cli;
+use mars_hil::task::cli;
 
 #[derive(Parser)]
 #[command(name = "mars-hil", version, about = "MARS on the FR3 HIL task: the demo, demos, in-process evaluation")]
@@ -33,27 +33,27 @@ enum Command {
     /// histogram logs.
     Demo {
         #[command(flatten)]
-        args: mars_runtime::demo::DemoArgs,
+        args: mars_hil::demo::DemoArgs,
     },
     /// A recorded episode's commands through the HAL again (marsd runs the recording's chunks from the same
     /// start pose, recorded in turn): how closely the plant's trajectory and the episode's outcome come back.
     /// Exit status 0 when reproduced within --tolerance, 2 when not, marsd's when the run failed.
     Replay {
         #[command(flatten)]
-        args: mars_runtime::hil_replay::HilReplayArgs,
+        args: mars_hil::hil_replay::HilReplayArgs,
     },
     /// The benchmark, in one run: servo wake-up jitter next to cyclictest, tick compute and allocations per
     /// tick, MARS vs FM on the task; prints a markdown table and writes it to <out>/results.md.
     Bench {
         #[command(flatten)]
-        args: mars_runtime::bench::BenchArgs,
+        args: mars_hil::bench::BenchArgs,
     },
     /// The HAL's backends side by side in one run: the mock plant and the fci backend on franka-sim, on a quiet
     /// machine and under noise (busy cores, the HAL stopped for milliseconds again and again); prints a markdown
     /// table and writes it to <out>/results.md.
     BenchBackends {
         #[command(flatten)]
-        args: mars_runtime::bench::backends::BackendBenchArgs,
+        args: mars_hil::bench::backends::BackendBenchArgs,
     },
     /// marsd killed (SIGKILL) or stopped (SIGSTOP 1–300 ms) at a random moment of Pick Cup, trial after trial, on
     /// the mock HAL and on franka-sim; each trial's applied stream judged by `mars-checker` (a program of its own:
@@ -61,14 +61,14 @@ enum Command {
     /// the table (and writes <out>/results.md); exit status 1 on any violation, reflex or arm not left at rest.
     Faults {
         #[command(flatten)]
-        args: mars_runtime::faults::FaultArgs,
+        args: mars_hil::faults::FaultArgs,
     },
     /// The demo loop for a long time (default 1 h per backend; Pick Cup until stopped) on the mock HAL and on
     /// franka-sim, with marsd's and the HAL's RSS sampled: prints RSS after warm-up (start / end / max), the loops'
     /// allocations after warm-up and any trip; exit status 1 on a trip or an allocation.
     Soak {
         #[command(flatten)]
-        args: mars_runtime::soak::SoakArgs,
+        args: mars_hil::soak::SoakArgs,
     },
     /// The controller daemon and its tools (the same as the `marsd` binary; the demo starts it this way).
     #[command(args_conflicts_with_subcommands = true)]
@@ -85,7 +85,7 @@ enum Command {
     /// the robot's flange is, the top-down camera published on mars/<robot>/camera/<name>, the episode's referee.
     Scene {
         #[command(flatten)]
-        args: mars_runtime::scene::SceneArgs,
+        args: mars_hil::scene::SceneArgs,
     },
     /// Train a Push-T vision policy: expert demos made in process from their seed (half by each route), then the
     /// trainer `mars train` runs, then a checkpoint marsd and the engine load.
@@ -100,7 +100,7 @@ enum Command {
         profile: PathBuf,
         #[arg(long, default_value_t = 40)]
         demos: usize,
-        #[arg(long, default_value_t = mars_runtime::task::push_t_cli::DEMO_SEED)]
+        #[arg(long, default_value_t = mars_hil::task::push_t_cli::DEMO_SEED)]
         seed: u64,
         /// Override the config's `train.epochs`.
         #[arg(long)]
@@ -170,11 +170,11 @@ fn main() -> std::process::ExitCode {
     let args = Args::parse();
     mars_policy::cli::init_runtime_env(1);
     let result = match args.command {
-        Command::Demo { args } => match mars_runtime::demo::demo(args) {
+        Command::Demo { args } => match mars_hil::demo::demo(args) {
             Ok(code) => return std::process::ExitCode::from(code),
             Err(e) => Err(e),
         },
-        Command::Replay { args } => match mars_runtime::hil_replay::run(&args) {
+        Command::Replay { args } => match mars_hil::hil_replay::run(&args) {
             Ok((report, code)) => {
                 if let Some(r) = report {
                     print!("{r}");
@@ -183,13 +183,13 @@ fn main() -> std::process::ExitCode {
             }
             Err(e) => Err(e),
         },
-        Command::Bench { args } => mars_runtime::bench::run(args),
-        Command::BenchBackends { args } => mars_runtime::bench::backends::run(args),
-        Command::Faults { args } => match mars_runtime::faults::run(&args) {
+        Command::Bench { args } => mars_hil::bench::run(args),
+        Command::BenchBackends { args } => mars_hil::bench::backends::run(args),
+        Command::Faults { args } => match mars_hil::faults::run(&args) {
             Ok(clean) => return std::process::ExitCode::from(if clean { 0 } else { 1 }),
             Err(e) => Err(e),
         },
-        Command::Soak { args } => match mars_runtime::soak::run(&args) {
+        Command::Soak { args } => match mars_hil::soak::run(&args) {
             Ok(clean) => return std::process::ExitCode::from(if clean { 0 } else { 1 }),
             Err(e) => Err(e),
         },
@@ -199,7 +199,7 @@ fn main() -> std::process::ExitCode {
             return std::process::ExitCode::from(code as u8);
         }
         Command::PushTTrain { policy, config, task, profile, demos, seed, epochs, out } => {
-            mars_runtime::task::push_t_cli::train(&config, &task, &profile, policy, demos, seed, epochs, &out)
+            mars_hil::task::push_t_cli::train(&config, &task, &profile, policy, demos, seed, epochs, &out)
         }
         Command::PushTEval { checkpoint, task, profile, episodes, seed, exec_horizon } => (|| {
             println!(
@@ -207,12 +207,12 @@ fn main() -> std::process::ExitCode {
             );
             println!("|---|---:|---:|---:|---:|---:|---:|");
             for c in &checkpoint {
-                let e = mars_runtime::task::push_t_cli::eval(c, &task, &profile, episodes, seed, exec_horizon)?;
+                let e = mars_hil::task::push_t_cli::eval(c, &task, &profile, episodes, seed, exec_horizon)?;
                 println!("{e}");
             }
             Ok(())
         })(),
-        Command::Scene { args } => mars_runtime::scene::run(&args).map(|_| ()),
+        Command::Scene { args } => mars_hil::scene::run(&args).map(|_| ()),
         Command::Demos { task, n, seed, out } => cli::demos(&task.task, &task.profile, n, seed, &out),
         Command::Curve { args, task, in_process } => curve(&args, &task, in_process),
         Command::EvalSim { checkpoint, task, episodes, seed, out } => {

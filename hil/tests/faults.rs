@@ -9,7 +9,7 @@ fn root() -> PathBuf {
     Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/..")).canonicalize().expect("workspace root")
 }
 
-/// franka-sim serves one client on fixed ports: the lock runtime/tests/franka_sim.rs and hal/tests take too. (The
+/// franka-sim serves one client on fixed ports: the lock hil/tests/franka_sim.rs and hal/tests take too. (The
 /// real-time rig lock is taken by the fault runner itself, a process of its own.)
 fn franka_sim_lock() -> std::fs::File {
     let path = std::env::temp_dir().join("mars-franka-sim.lock");

@@ -39,7 +39,7 @@ impl Rig {
     /// Starts the rig in `dir`: franka-sim (from `venv`) when `backend` is franka-sim, then the HAL on `config`'s
     /// profile, and waits for its first frame. Takes the machine's real-time rig lock for its whole life.
     pub fn start(exe: &Path, config: &Path, backend: DemoRobot, venv: &Path, dir: &Path) -> anyhow::Result<Self> {
-        let cfg = crate::config::DaemonConfig::load(config)?;
+        let cfg = mars_runtime::config::DaemonConfig::load(config)?;
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
         let lock = mars_rt::rig_lock::rt_rig_lock().context("taking the real-time rig lock")?;
         let robot =
