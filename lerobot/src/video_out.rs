@@ -7,6 +7,16 @@
 //! FFmpeg does the work in builds with the `video` feature; a build without it writes state-only datasets and
 //! refuses a camera when the writer is created, before any frame ([`crate::video::NO_VIDEO`]).
 
+/// SVT-AV1, the AV1 encoder a recording uses, prints a 16-line banner to stderr for every file it encodes (one
+/// per recorded episode): warnings and errors only, unless the user set `SVT_LOG`. Call from main before any
+/// thread exists (it sets an environment variable).
+pub fn quiet_encoder() {
+    if std::env::var_os("SVT_LOG").is_none() {
+        // SAFETY: called from main before any thread exists (see above).
+        unsafe { std::env::set_var("SVT_LOG", "2") };
+    }
+}
+
 #[cfg(feature = "video")]
 mod ffmpeg_encode;
 #[cfg(feature = "video")]

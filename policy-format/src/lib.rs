@@ -5,7 +5,7 @@
 //! kind, network sizes, training settings), the [`normalize`] statistics and the training log. The real-time
 //! engine (crate `mars_engine`) and the trainer's own evaluation read it back through this crate, size their
 //! networks from [`config::ModelConfig`] (the image encoder's shape from [`encoder`]) and pick their Euler
-//! steps with [`steps::steps_for`].
+//! steps with [`steps::steps_for`]; a camera frame becomes observation values by [`observation`].
 //!
 //! Nothing here depends on candle, a plotting, dataset or command-line crate: the engine, and so `marsd`,
 //! links only serde and this.
@@ -14,6 +14,7 @@ pub mod checkpoint;
 pub mod config;
 pub mod encoder;
 pub mod normalize;
+pub mod observation;
 pub mod steps;
 
 pub use checkpoint::{CheckpointError, CheckpointMeta, EpochLog};

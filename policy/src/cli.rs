@@ -37,14 +37,10 @@ pub fn init_runtime_env(jobs: usize) {
     quiet_video_encoder();
 }
 
-/// SVT-AV1, the AV1 encoder a recording uses, prints a 16-line banner to stderr for every file it encodes (one
-/// per recorded episode): warnings and errors only, unless the user set `SVT_LOG`. Called from main before any
-/// thread exists (it sets an environment variable).
+/// The video encoder quiet ([`mars_lerobot::video_out::quiet_encoder`]) and the log set up. Called from main
+/// before any thread exists (it sets an environment variable).
 pub fn quiet_video_encoder() {
-    if std::env::var_os("SVT_LOG").is_none() {
-        // SAFETY: called from main before any thread exists (see above).
-        unsafe { std::env::set_var("SVT_LOG", "2") };
-    }
+    mars_lerobot::video_out::quiet_encoder();
     // RustDDS (the HAL's ros2 backend, which `mars-hil hal` runs) warns tens of times a second against a peer on
     // loopback: only its errors by default, as `mars-hal` does.
     let default = "info,rustdds=error,ros2_client=error";

@@ -5,14 +5,10 @@
 //! fonts are needed.
 
 use std::path::Path;
-use std::sync::OnceLock;
 
-use anyhow::{Context, anyhow};
 use plotters::coord::ranged1d::{AsRangedCoord, ValueFormatter};
 use plotters::coord::types::RangedCoordf32;
-use plotters::coord::{CoordTranslate, Shift};
 use plotters::prelude::*;
-use plotters::style::register_font;
 
 use mars_tasks::demo::Demo;
 use mars_tasks::nav2d::env::clip_norm;
@@ -24,77 +20,8 @@ pub const MAP_SIZE: (u32, u32) = (1000, 640);
 /// Pixel size of the line plots (K per step, losses).
 pub const LINE_SIZE: (u32, u32) = (900, 520);
 
-const FONT_BYTES: &[u8] = include_bytes!("../../assets/DejaVuSansMono.ttf");
-pub(crate) const FONT: &str = "sans-serif";
-
-pub(crate) type Area<'a> = DrawingArea<BitMapBackend<'a>, Shift>;
-
-/// Registers the bundled font once. plotters' default label styles ask for "sans-serif", so that name (and
-/// the other generic families, in case a style asks for them) all map to the bundled font.
-pub fn ensure_font() -> anyhow::Result<()> {
-    static REGISTERED: OnceLock<Result<(), String>> = OnceLock::new();
-    REGISTERED
-        .get_or_init(|| {
-            for family in ["sans-serif", "serif", "monospace"] {
-                register_font(family, FontStyle::Normal, FONT_BYTES)
-                    .map_err(|_| "the bundled font assets/DejaVuSansMono.ttf is not a valid font".to_string())?;
-            }
-            Ok(())
-        })
-        .clone()
-        .map_err(|e| anyhow!(e))
-}
-
-/// Renders with `draw` into a PNG at `path`.
-pub(crate) fn to_png(
-    path: &Path,
-    size: (u32, u32),
-    draw: impl FnOnce(&Area) -> anyhow::Result<()>,
-) -> anyhow::Result<()> {
-    ensure_font()?;
-    let root = BitMapBackend::new(path, size).into_drawing_area();
-    draw(&root).with_context(|| format!("drawing {}", path.display()))?;
-    root.present().with_context(|| format!("writing {}", path.display()))?;
-    Ok(())
-}
-
-pub(crate) fn plot_err<E: std::error::Error + Send + Sync>(e: DrawingAreaErrorKind<E>) -> anyhow::Error {
-    anyhow!("plotting failed: {e}")
-}
-
-/// Distinct colours for modes / series (Tableau 10).
-pub fn palette(i: usize) -> RGBColor {
-    const P: [(u8, u8, u8); 10] = [
-        (31, 119, 180),
-        (255, 127, 14),
-        (44, 160, 44),
-        (214, 39, 40),
-        (148, 103, 189),
-        (140, 86, 75),
-        (227, 119, 194),
-        (127, 127, 127),
-        (188, 189, 34),
-        (23, 190, 207),
-    ];
-    let (r, g, b) = P[i % P.len()];
-    RGBColor(r, g, b)
-}
-
-/// Colour for ‖w‖∞ ∈ [0, 1]: the plasma colormap, stopped short of its pale yellow end so w = 1 stays
-/// visible on white. Out-of-range values clamp; NaN is grey.
-pub fn w_color(w: f32) -> RGBColor {
-    const STOPS: [(f32, f32, f32); 5] =
-        [(13.0, 8.0, 135.0), (126.0, 3.0, 168.0), (204.0, 71.0, 120.0), (240.0, 130.0, 60.0), (235.0, 190.0, 20.0)];
-    if w.is_nan() {
-        return RGBColor(128, 128, 128);
-    }
-    let x = w.clamp(0.0, 1.0) * (STOPS.len() - 1) as f32;
-    let i = (x.floor() as usize).min(STOPS.len() - 2);
-    let t = x - i as f32;
-    let (a, b) = (STOPS[i], STOPS[i + 1]);
-    let mix = |u: f32, v: f32| (u + t * (v - u)).round() as u8;
-    RGBColor(mix(a.0, b.0), mix(a.1, b.1), mix(a.2, b.2))
-}
+pub(crate) use mars_plots::{Area, FONT, legend, plot_err, to_png};
+pub use mars_plots::{ensure_font, palette, w_color};
 
 /// Short tick labels: integers without a decimal point, otherwise at most 3 decimals, scientific outside
 /// [1e-3, 1e4). Also keeps '.' rare, which plotters' ab_glyph renderer places badly in a monospace font.
@@ -157,21 +84,6 @@ fn world_chart<'a, 'b>(area: &'a Area<'b>, layout: &Layout, title: &str) -> anyh
     let s = layout.agent.start;
     chart.draw_series(std::iter::once(Circle::new((s[0], s[1]), 4, BLACK.filled()))).map_err(plot_err)?;
     Ok(chart)
-}
-
-/// The series' legend at `position`, on a light box, in the plots' font.
-pub(crate) fn legend<'a, 'b: 'a, CT: CoordTranslate>(
-    chart: &mut ChartContext<'a, BitMapBackend<'b>, CT>,
-    position: SeriesLabelPosition,
-) -> anyhow::Result<()> {
-    chart
-        .configure_series_labels()
-        .position(position)
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK)
-        .label_font((FONT, 14))
-        .draw()
-        .map_err(plot_err)
 }
 
 /// Expert demos over the layout, coloured by mode (paper Fig. 1(b)).
@@ -254,37 +166,7 @@ fn draw_rollouts(root: &Area, layout: &Layout, episodes: &[Episode], title: &str
         .label(format!("success {ok}/{}", episodes.len()))
         .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], w_color(1.0).stroke_width(3)));
     legend(&mut chart, SeriesLabelPosition::UpperRight)?;
-    draw_colorbar(&bar)
-}
-
-/// A vertical 0..1 bar of [`w_color`].
-fn draw_colorbar(area: &Area) -> anyhow::Result<()> {
-    let mut chart = ChartBuilder::on(area)
-        .caption("‖w‖∞", (FONT, 18))
-        .margin_top(18)
-        .margin_bottom(52)
-        .margin_left(10)
-        .margin_right(40)
-        .y_label_area_size(40)
-        .build_cartesian_2d(0f32..1f32, 0f32..1f32)
-        .map_err(plot_err)?;
-    chart
-        .configure_mesh()
-        .disable_mesh()
-        .disable_x_axis()
-        .y_labels(6)
-        .y_label_formatter(&|v| tick_label(*v))
-        .label_style((FONT, 14))
-        .draw()
-        .map_err(plot_err)?;
-    let n = 100;
-    chart
-        .draw_series((0..n).map(|i| {
-            let (lo, hi) = (i as f32 / n as f32, (i + 1) as f32 / n as f32);
-            Rectangle::new([(0.0, lo), (1.0, hi)], w_color((lo + hi) / 2.0).filled())
-        }))
-        .map_err(plot_err)?;
-    Ok(())
+    mars_plots::draw_w_colorbar(&bar, &tick_label)
 }
 
 /// ODE steps K per env step along one episode, one line per policy (paper Fig. 1(f)).

@@ -61,9 +61,4 @@ impl ObsEncoder for VisionEncoder {
     }
 }
 
-/// A camera's RGB8 bytes (row-major H, W, RGB) as the observation's image values: each byte / 255.
-pub fn pixels_to_observation(rgb: &[u8], out: &mut [f32]) {
-    for (o, &p) in out.iter_mut().zip(rgb) {
-        *o = f32::from(p) / 255.0;
-    }
-}
+pub use mars_policy_format::observation::pixels_to_observation;

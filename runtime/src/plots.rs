@@ -1,13 +1,12 @@
 //! PNG plots of a daemon run: latency percentile distributions, K requested vs used, joint-space episodes.
 //!
-//! Text uses the policy crate's bundled font (no fontconfig or system fonts on the robot computer).
+//! Text uses mars-plots' bundled font (no fontconfig or system fonts on the robot computer).
 
 use std::ops::Range;
 use std::path::Path;
 
-use anyhow::{anyhow, ensure};
-use mars_policy::plots::{ensure_font, palette, w_color};
-use plotters::coord::Shift;
+use anyhow::ensure;
+use mars_plots::{Area, FONT, legend, palette, plot_err as err, to_png, w_color};
 use plotters::prelude::*;
 
 use mars_ipc::MAX_JOINTS;
@@ -17,10 +16,6 @@ use crate::latency::{Channel, K_MAX, Totals};
 pub const LATENCY_SIZE: (u32, u32) = (1000, 600);
 pub const K_SIZE: (u32, u32) = (900, 520);
 pub const EPISODES_SIZE: (u32, u32) = (1000, 700);
-
-const FONT: &str = "sans-serif";
-
-type Area<'a> = DrawingArea<BitMapBackend<'a>, Shift>;
 
 /// One episode of the HIL demo, sampled at the policy rate.
 #[derive(Debug, Clone, Default)]
@@ -45,32 +40,6 @@ impl EpisodeTrace {
         slot.clear();
         slot.extend_from_slice(rgb);
     }
-}
-
-fn to_png(path: &Path, size: (u32, u32), draw: impl FnOnce(&Area) -> anyhow::Result<()>) -> anyhow::Result<()> {
-    ensure_font()?;
-    let root = BitMapBackend::new(path, size).into_drawing_area();
-    root.fill(&WHITE).map_err(err)?;
-    draw(&root).map_err(|e| e.context(format!("drawing {}", path.display())))?;
-    root.present().map_err(|e| anyhow!("writing {}: {e}", path.display()))
-}
-
-fn err<E: std::error::Error + Send + Sync>(e: DrawingAreaErrorKind<E>) -> anyhow::Error {
-    anyhow!("plotting failed: {e}")
-}
-
-fn legend<'a, 'b: 'a, CT: plotters::coord::CoordTranslate>(
-    chart: &mut ChartContext<'a, BitMapBackend<'b>, CT>,
-    position: SeriesLabelPosition,
-) -> anyhow::Result<()> {
-    chart
-        .configure_series_labels()
-        .position(position)
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK)
-        .label_font((FONT, 14))
-        .draw()
-        .map_err(err)
 }
 
 /// Latency against percentile, one line per time channel, on the HdrHistogram "1/(1−q)" axis: equal
@@ -289,7 +258,7 @@ fn draw_episodes(
     }
     let (x, y) = (chart.x_range(), chart.y_range());
     legend(&mut chart, emptiest_corner(pts(), x, y))?;
-    draw_colorbar(&bar)
+    mars_plots::draw_w_colorbar(&bar, &|v| short(f64::from(v)))
 }
 
 /// The corner of the plot with the fewest points in it, for the legend (episodes end in corners too).
@@ -306,37 +275,6 @@ fn emptiest_corner(pts: impl Iterator<Item = (f64, f64)>, x: Range<f64>, y: Rang
     // Ties go to the first: upper right, where legends usually are.
     let corners = [(n[1], UpperRight), (n[0], UpperLeft), (n[3], LowerRight), (n[2], LowerLeft)];
     corners.into_iter().min_by_key(|c| c.0).map_or(UpperRight, |c| c.1)
-}
-
-/// A vertical 0..1 bar of `w_color`.
-fn draw_colorbar(area: &Area) -> anyhow::Result<()> {
-    // The title is drawn by hand above the bar: as a chart caption it collides with the top tick label.
-    area.draw(&Text::new("‖w‖∞", (25, 12), (FONT, 18).into_font())).map_err(err)?;
-    let mut chart = ChartBuilder::on(area)
-        .margin_top(45)
-        .margin_bottom(55)
-        .margin_left(10)
-        .margin_right(35)
-        .y_label_area_size(40)
-        .build_cartesian_2d(0f32..1f32, 0f32..1f32)
-        .map_err(err)?;
-    chart
-        .configure_mesh()
-        .disable_mesh()
-        .disable_x_axis()
-        .y_labels(6)
-        .y_label_formatter(&|v| short(*v as f64))
-        .label_style((FONT, 14))
-        .draw()
-        .map_err(err)?;
-    let n = 100;
-    chart
-        .draw_series((0..n).map(|i| {
-            let (lo, hi) = (i as f32 / n as f32, (i + 1) as f32 / n as f32);
-            Rectangle::new([(0.0, lo), (1.0, hi)], w_color((lo + hi) / 2.0).filled())
-        }))
-        .map_err(err)?;
-    Ok(())
 }
 
 /// Push-T's camera strip: one row per episode (the last `rows` kept), the first frame the policy saw and the

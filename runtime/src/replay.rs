@@ -160,7 +160,10 @@ pub fn run(args: &ReplayArgs) -> anyhow::Result<ReplayReport> {
         let mut at = state_dim;
         for frames in &e.images {
             let len = frames.len() / e.len;
-            mars_policy::vision::pixels_to_observation(&frames[t * len..(t + 1) * len], &mut obs[at..at + len]);
+            mars_policy_format::observation::pixels_to_observation(
+                &frames[t * len..(t + 1) * len],
+                &mut obs[at..at + len],
+            );
             at += len;
         }
         let k = x.action[t * 2 + 1];

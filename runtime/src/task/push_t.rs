@@ -164,7 +164,7 @@ impl PushTHil {
         let [x, y] = self.effector.xy(q);
         out[0] = x as f32;
         out[1] = y as f32;
-        mars_policy::vision::pixels_to_observation(rgb, &mut out[2..]);
+        mars_policy_format::observation::pixels_to_observation(rgb, &mut out[2..]);
     }
 }
 
