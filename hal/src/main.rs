@@ -32,17 +32,7 @@ enum Command {
 }
 
 fn main() {
-    // RustDDS (the ros2 backend) logs each discovery step at info and warns on every heartbeat to a peer that
-    // advertises only loopback locators (tens a second against Cyclone DDS on `lo`): only its errors by default.
-    let default_filter = "info,rustdds=error,ros2_client=error";
-    tracing_subscriber::fmt()
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| default_filter.into()),
-        )
-        .with_writer(std::io::stderr)
-        // Colour only on a terminal: a log file or journald gets plain text (as marsd's).
-        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
-        .init();
+    mars_hal::cli::init_logging();
     let matches = Args::command().get_matches();
     std::process::exit(if matches.subcommand().is_some() {
         match Command::from_arg_matches(&matches).unwrap_or_else(|e| e.exit()) {

@@ -268,7 +268,7 @@ impl PeerWatch {
         self.shared.route()
     }
 
-    /// A read-only handle on the verdicts, for another thread (the watch itself stays with its owner).
+    /// A read-only handle on how the watch reaches its verdict, for another thread (the watch stays with its owner).
     pub fn view(&self) -> PeerView {
         PeerView { shared: self.shared.clone() }
     }
@@ -284,18 +284,13 @@ impl PeerWatch {
     }
 }
 
-/// What another thread may read of a [`PeerWatch`]: the verdict and how it is reached.
+/// What another thread may read of a [`PeerWatch`]: how it reaches its verdict (marsd's supervisor logs it).
 #[derive(Clone)]
 pub struct PeerView {
     shared: Arc<Shared>,
 }
 
 impl PeerView {
-    /// The current verdict (one atomic load).
-    pub fn peer(&self) -> Peer {
-        self.shared.peer()
-    }
-
     /// How the watch learns of the peer's death, as decided when it last saw a new peer.
     pub fn route(&self) -> Route {
         self.shared.route()
@@ -398,17 +393,16 @@ fn watch_loop(
         };
         match change {
             Change::Stop => return,
-            Change::Exited => peers.drop_exited(),
-            Change::Notifiers | Change::Unattachable => {
-                if matches!(change, Change::Notifiers) {
-                    peers.follow::<ipc::Service>(&watch.nodes, node.config());
-                } else {
-                    peers.release();
-                }
-                let route = if peers.held() { Route::Pidfd } else { Route::Registry };
-                shared.route.store(route as u8, Ordering::Release);
+            // The route stays: the peer was held, and a new one is resolved at its first heartbeat.
+            Change::Exited => {
+                peers.drop_exited();
+                continue;
             }
+            Change::Notifiers => peers.follow::<ipc::Service>(&watch.nodes, node.config()),
+            Change::Unattachable => peers.release(),
         }
+        let route = if peers.held() { Route::Pidfd } else { Route::Registry };
+        shared.route.store(route as u8, Ordering::Release);
     }
 }
 

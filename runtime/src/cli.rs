@@ -67,16 +67,11 @@ impl MarsdArgs {
     }
 }
 
-/// marsd's logging, and its environment (the video encoder quiet: [`mars_lerobot::video_out::quiet_encoder`]);
-/// from main, before any thread exists.
+/// marsd's logging, the HAL's ([`mars_hal::cli::init_logging`]), and its environment (the video encoder quiet:
+/// [`mars_lerobot::video_out::quiet_encoder`]); from main, before any thread exists.
 pub fn init_logging() {
     mars_lerobot::video_out::quiet_encoder();
-    // RustDDS (the HAL's ros2 backend, which `mars-hil hal` runs) warns tens of times a second against a peer on
-    // loopback: only its errors by default, as `mars-hal` does.
-    let default = "info,rustdds=error,ros2_client=error";
-    let filter = tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| default.into());
-    let ansi = std::io::IsTerminal::is_terminal(&std::io::stderr());
-    let _ = tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).with_ansi(ansi).try_init();
+    mars_hal::cli::init_logging();
 }
 
 /// `marsd`'s main: exit status per [`daemon::exit`].
