@@ -9,8 +9,14 @@ use std::time::Duration;
 
 use crate::monotonic_ns;
 
-/// How often the witness wakes: the HAL's period on an FR3, so a missed period of the rig is a late wake-up here.
-pub const PERIOD_NS: u64 = 1_000_000;
+/// How often the witness wakes: half the HAL's period on an FR3. A stall between two wake-ups shows only if one
+/// of its deadlines falls at least [`LATE_NS`] before the stall's end, so a stall of [`LATE_NS`] + `PERIOD_NS` (1
+/// ms, the HAL's whole period) is seen wherever it falls. At a 1 ms period a 1 ms absence of the virtual CPU that
+/// fell between two wake-ups went unseen while the HAL's thread clock charged it to a tick (CI, 2026-11-29: a tick
+/// of 1 024 µs of "CPU"). Not shorter: what the witness costs the core it watches (`absence_probe 10 1` with and
+/// without `--witness`, 2026-11-29: time taken from a spinner at SCHED_FIFO 80, charged and not) was 3.6 % at 1
+/// ms, 7.7 % at 500 µs, 15 % at 250 µs.
+pub const PERIOD_NS: u64 = 500_000;
 /// A wake-up at least this late is recorded (the witness's own wake-up lateness on an idle VM is tens of µs). Not
 /// lower: on a kernel that does not preempt itself (`preempt=none`) a thread of the rig in a system call on this
 /// core delays the witness too — a neighbour mapping and unmapping 1 GB made a waker at [`crate::PRIORITY`] ≥ 100
@@ -47,9 +53,10 @@ pub struct LatenessSeen {
 
 struct Shared {
     setup: OnceLock<Result<(), String>>,
-    /// When the watch began (0 until then) and its latest wake-up.
+    /// When the watch began (0 until then), and its latest wake-up whose lateness, if any, is in `late` already
+    /// (a reader that saw only the wake-up could miss the late stretch it ended).
     started_ns: AtomicU64,
-    last_wake_ns: AtomicU64,
+    recorded_ns: AtomicU64,
     late: Mutex<VecDeque<Late>>,
 }
 
@@ -65,7 +72,7 @@ impl CoreWatch {
         let shared = Arc::new(Shared {
             setup: OnceLock::new(),
             started_ns: AtomicU64::new(0),
-            last_wake_ns: AtomicU64::new(0),
+            recorded_ns: AtomicU64::new(0),
             late: Mutex::new(VecDeque::with_capacity(CAPACITY)),
         });
         let s = shared.clone();
@@ -118,15 +125,15 @@ impl CoreWatch {
             return None;
         }
         // Give the witness the time to wake once past the window (it may be in a stall right now).
-        let patience = monotonic_ns() + 4 * PERIOD_NS;
-        while self.shared.last_wake_ns.load(Ordering::Acquire) < to && monotonic_ns() < patience {
+        let patience = monotonic_ns() + 4_000_000;
+        while self.shared.recorded_ns.load(Ordering::Acquire) < to && monotonic_ns() < patience {
             std::thread::sleep(Duration::from_micros(200));
         }
         let mut late: Vec<Late> = {
             let g = self.shared.late.lock().unwrap_or_else(|e| e.into_inner());
             g.iter().filter(|l| l.overlap_ns((from, to)) > 0).copied().collect()
         };
-        let last = self.shared.last_wake_ns.load(Ordering::Acquire);
+        let last = self.shared.recorded_ns.load(Ordering::Acquire);
         if last < to && last + PERIOD_NS < to {
             late.push(Late { due_ns: last + PERIOD_NS, woke_ns: to });
         }
@@ -152,7 +159,6 @@ fn watch(core: usize, shared: &Shared) {
     loop {
         sleep_until(due);
         let woke = monotonic_ns();
-        shared.last_wake_ns.store(woke, Ordering::Release);
         if woke.saturating_sub(due) >= LATE_NS && pending.len() < PENDING {
             pending.push(Late { due_ns: due, woke_ns: woke });
         }
@@ -165,6 +171,10 @@ fn watch(core: usize, shared: &Shared) {
                 }
                 record.push_back(l);
             }
+        }
+        // Published only once this wake-up's lateness is in the record (or it had none): a reader waits for it.
+        if pending.is_empty() {
+            shared.recorded_ns.store(woke, Ordering::Release);
         }
         // The next deadline after this wake-up: periods missed in a stall are not made up in a burst.
         due += PERIOD_NS;

@@ -2,7 +2,7 @@
 
 use std::time::Duration;
 
-use stall_witness::hog::take_core;
+use stall_witness::hog::{take_core, take_core_for};
 use stall_witness::{core_watch, monotonic_ns, witness};
 
 #[test]
@@ -35,6 +35,31 @@ fn a_core_taken_for_40_ms_is_witnessed_on_that_core_and_excuses_a_failure_there(
     assert!(after.lateness.unwrap().ms < 30.0, "{after}");
     assert!(w.excuse("a failure", from, to, 30.0).is_some());
     assert!(w.excuse("a failure", from, to, 1e9).is_none(), "an excuse needs as long a stall as asked for");
+}
+
+/// A stall about the HAL's 1 ms period is seen wherever it falls between the witness's wake-ups: one of 1.1 ms
+/// (what the VM's unseen absences charged to a HAL tick were), 20 times at phases spread over a period. A witness
+/// waking every 1 ms sees such a stall only when one of its deadlines falls ≥ 500 µs before the stall's end (6
+/// times in 10), so this fails there.
+#[test]
+fn a_core_taken_for_1100_us_is_seen_wherever_it_falls_between_wake_ups() {
+    let w = witness();
+    if let Some(why) = w.unable() {
+        eprintln!("the witness cannot witness here: {why}");
+        return;
+    }
+    std::thread::sleep(Duration::from_millis(5));
+    let mut unseen = Vec::new();
+    for i in 0..20u64 {
+        std::thread::sleep(Duration::from_micros(2_000 + i * 97));
+        let from = monotonic_ns();
+        assert!(take_core_for(0, Duration::from_micros(1100)), "a root test run can take SCHED_FIFO 99");
+        let to = monotonic_ns();
+        if w.stall_on(Some(0), from, to, 0.45).is_none() {
+            unseen.push(w.seen_in(from, to).map_or("not watched".into(), |e| e.to_string()));
+        }
+    }
+    assert!(unseen.is_empty(), "{} of 20 stalls of 1.1 ms unseen: {}", unseen.len(), unseen.join("; "));
 }
 
 #[test]
