@@ -1,10 +1,10 @@
 //! The checker's FR3 velocity formula (written from Franka's documentation) and the HAL's
-//! (`mars_hal::velocity_limits`, which keeps libfranka's 1e-3 rad/s tolerance inside it) are two independent copies:
+//! (`mars_profile::velocity_limits`, which keeps libfranka's 1e-3 rad/s tolerance inside it) are two independent copies:
 //! on a fine grid over every joint's range they must say the same bound, to that tolerance.
 
 use mars_checker::fr3_velocity;
 use mars_checker::limits::Limits;
-use mars_hal::velocity_limits::{JointVelocityBound, VelocityLimits};
+use mars_profile::velocity_limits::{JointVelocityBound, VelocityLimits};
 
 #[test]
 fn the_checker_and_the_hal_agree_on_the_fr3_velocity_bounds_everywhere() {

@@ -5,11 +5,11 @@ use std::time::Duration;
 
 use anyhow::Context;
 
-use crate::fault::FaultConfig;
 use crate::fci::{LateCommands, Realtime};
-use crate::profile::{BackendKind, Profile};
 use crate::runner::{Report, RunOptions, run};
 use crate::sim::SimBackend;
+use mars_profile::faults::FaultConfig;
+use mars_profile::{BackendKind, Profile};
 
 /// The `mars-hal` command line (also flattened into `mars-hil hal`, which runs the same HAL process).
 #[derive(clap::Args)]
@@ -145,17 +145,6 @@ pub struct FciStatusArgs {
     /// Give up after this many seconds (connecting and reading together).
     #[arg(long, default_value_t = 5.0)]
     pub timeout_s: f64,
-}
-
-/// The HAL's log (and marsd's): to stderr, coloured only on a terminal (a log file or journald gets plain text),
-/// `RUST_LOG` if set. RustDDS (the ros2 backend) logs each discovery step at info and warns on every heartbeat to
-/// a peer that advertises only loopback locators (tens a second against Cyclone DDS on `lo`): only its errors by
-/// default. From main, before any thread logs.
-pub fn init_logging() {
-    let default_filter = "info,rustdds=error,ros2_client=error";
-    let filter = tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| default_filter.into());
-    let ansi = std::io::IsTerminal::is_terminal(&std::io::stderr());
-    let _ = tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).with_ansi(ansi).try_init();
 }
 
 /// Runs `mars-hal fci-status`, prints the robot's state (stdout) or why it could not be read (stderr), and returns

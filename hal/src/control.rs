@@ -22,11 +22,11 @@ use mars_ipc::{
 use crate::backend::{BackendError, Measurement};
 use crate::events::{EventSender, LoopEvent};
 use crate::gripper::{GripperMove, GripperTarget};
-use crate::profile::Profile;
 use crate::safety::SafetyFilter;
 use crate::session::{Decision, LoopClock, Mode, Supervisor};
 use crate::takeover::check_takeover;
 pub use crate::takeover::{START_MAX_SPEED, StartError};
+use mars_profile::Profile;
 
 /// After a fatal error, this many failed `apply` calls in a row mean nothing can be commanded any more: the
 /// process exits without waiting for rest (the robot's own reflex brakes it; e.g. the FR3's on lost packets).

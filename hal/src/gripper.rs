@@ -7,7 +7,7 @@
 //! a policy's interpolated closing, is sent as it stands when the interval ends). The speed is the command's
 //! `gripper_speed`, capped by the profile's `gripper_speed_max` (0 asks for the cap).
 
-use crate::profile::Profile;
+use mars_profile::Profile;
 
 /// One move for the backend: go to `width` (m) at `speed` (m/s).
 #[derive(Debug, Clone, Copy, PartialEq)]

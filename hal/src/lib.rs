@@ -1,10 +1,11 @@
-//! The robot side of the MARS runtime: robot profiles, the safety filter, the backend interface with its sim
-//! implementation, and the `mars-hal` process loop.
+//! The robot side of the MARS runtime: the safety filter, the backend interface with its sim implementation, the
+//! drivers of real robots, and the `mars-hal` process loop. The robot's profile (limits, rates, each driver's
+//! table) is the crate `mars-profile`, which marsd reads too without linking any of this.
 //!
 //! Data flow of one tick: the backend is read ([`backend`], [`sim`]) → commands arrive over iceoryx2 →
-//! [`control`] judges them ([`safety`], [`session`], [`gripper`]; [`takeover`] decides whether it may start at all) → the setpoint goes to the backend → the state
-//! frame leaves ([`runner`] does the I/O). [`profile`] and [`velocity_limits`] hold the robot's limits. [`fci`] drives
-//! a Franka robot over its Control Interface (the HAL's tick inside the robot's 1 kHz callback, the Franka Hand,
+//! [`control`] judges them ([`safety`], [`session`], [`gripper`]; [`takeover`] decides whether it may start at
+//! all) → the setpoint goes to the backend → the state frame leaves ([`runner`] does the I/O). [`fci`] drives a
+//! Franka robot over its Control Interface (the HAL's tick inside the robot's 1 kHz callback, the Franka Hand,
 //! reflex recovery; `mars-hal fci-status` reads a state and commands nothing); [`ros2`] a robot over ROS 2 topics
 //! (the Galaxea R1 Lite).
 
@@ -15,7 +16,6 @@ pub mod events;
 pub mod fault;
 pub mod fci;
 pub mod gripper;
-pub mod profile;
 pub mod report_json;
 pub mod ros2;
 pub mod runner;
@@ -23,4 +23,3 @@ pub mod safety;
 pub mod session;
 pub mod sim;
 pub mod takeover;
-pub mod velocity_limits;

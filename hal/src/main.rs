@@ -32,7 +32,7 @@ enum Command {
 }
 
 fn main() {
-    mars_hal::cli::init_logging();
+    mars_rt::logging::init_logging();
     let matches = Args::command().get_matches();
     std::process::exit(if matches.subcommand().is_some() {
         match Command::from_arg_matches(&matches).unwrap_or_else(|e| e.exit()) {

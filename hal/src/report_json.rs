@@ -24,22 +24,7 @@ pub fn to_json(r: &Report) -> Value {
         Ended::BackendFailed(e) => format!("backend failed: {e}"),
         Ended::ConnectionLost => "connection lost".to_string(),
     };
-    let robot = r.robot.as_ref().map(|rb| {
-        json!({
-            "addr": rb.addr,
-            "cycles": rb.cycles,
-            "lost_states": rb.lost_states,
-            "bunched_states": rb.bunched_states,
-            "resyncs": rb.resyncs,
-            "resyncs_thrown_away": rb.resyncs_thrown_away,
-            "judged_twice": rb.judged_twice,
-            "min_success_rate": rb.min_success_rate,
-            "last_success_rate": rb.last_success_rate,
-            "reflexes": rb.reflexes,
-            "recoveries": rb.recoveries,
-            "connection_lost": rb.connection_lost,
-        })
-    });
+    let robot = r.robot.as_ref().map(|rb| rb.to_json());
     json!({
         "ticks": r.ticks,
         "ended": ended,

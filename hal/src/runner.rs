@@ -25,7 +25,7 @@ use tracing::{info, warn};
 use crate::backend::{Backend, BackendError, Measurement};
 use crate::control::{ErrorCounts, HalControl};
 use crate::events::{EventLogger, EventSender};
-use crate::profile::Profile;
+use mars_profile::Profile;
 
 /// Ticks before the allocation count starts (iceoryx2 and the histograms settle in the first ones) — counted again
 /// from the first command when a controller connects later: iceoryx2 sets up its connection to the controller's
@@ -109,8 +109,14 @@ pub struct Report {
     /// The loop thread's allocations between ticks while the robot had stopped itself (a reflex: the driver's
     /// report of it, the robot's error recovery, a new motion's start), after warm-up; nothing is commanded then.
     pub allocations_while_robot_stopped: Counts,
-    /// The robot's own side (the fci backend).
-    pub robot: Option<crate::fci::RobotLoopReport>,
+    /// The robot's own side, from a driver that paced the loop (the fci backend's).
+    pub robot: Option<Box<dyn DriverReport>>,
+}
+
+/// What a driver whose robot paced the loop adds to the HAL's exit report: lines printed under it, and a JSON
+/// object under `robot` in `--report-json`. The loop knows no driver; each driver says what its robot saw.
+pub trait DriverReport: std::fmt::Display + Send {
+    fn to_json(&self) -> serde_json::Value;
 }
 
 impl std::fmt::Display for Report {
@@ -500,7 +506,7 @@ impl HalLoop {
     }
 
     /// Ends the run: stops the logger and the heartbeat (the controller sees this HAL leave) and reports.
-    pub fn finish(mut self, ended: Ended, overruns: u64, robot: Option<crate::fci::RobotLoopReport>) -> Report {
+    pub fn finish(mut self, ended: Ended, overruns: u64, robot: Option<Box<dyn DriverReport>>) -> Report {
         self.ticks_timed.finish();
         alloc_count::loop_ended();
         let apart = self.while_robot_stopped;

@@ -18,15 +18,15 @@
 //! 2. [`SafetyFilter::step`] moves the applied setpoint one tick toward the admitted target (or to rest when
 //!    braking) with a jerk-, acceleration- and velocity-bounded law, so even a clamped jump is reached smoothly.
 //!
-//! Velocity bounds may depend on position (the FR3's, see [`crate::velocity_limits`]). The filter plans with
+//! Velocity bounds may depend on position (the FR3's, see [`mars_profile::velocity_limits`]). The filter plans with
 //! their braking *envelope*, less the profile's `velocity_headroom`, tightened by the most its velocity law can
 //! lag a falling bound (A²/J: it follows a bound that drops at A/2 from A²/(2J) above, and twice that covers the
 //! transients), so the applied velocity meets the robot's bound at every position it reaches.
 
 use mars_ipc::{CommandMode, JointCommand, MAX_JOINTS};
 
-use crate::profile::{LimitPolicy, Profile};
-use crate::velocity_limits::{JointVelocityBound, VelocityLimits};
+use mars_profile::velocity_limits::{JointVelocityBound, VelocityLimits};
+use mars_profile::{LimitPolicy, Profile};
 
 /// Relative slack for floating-point rounding when comparing against a limit.
 const EPS: f64 = 1e-9;

@@ -9,7 +9,7 @@ use mars_ipc::MAX_JOINTS;
 use crate::backend::{Backend, BackendError, Measurement};
 use crate::fault::{FaultConfig, FaultInjector, LoopFaults};
 use crate::gripper::GripperMove;
-use crate::profile::Profile;
+use mars_profile::Profile;
 
 /// Longest latency the plant models (the profile refuses more).
 const MAX_LATENCY: usize = 1000;

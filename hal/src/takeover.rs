@@ -2,8 +2,8 @@
 //! position range, at rest, the gripper within its range — and otherwise says why and commands nothing.
 
 use crate::backend::{BackendError, Measurement};
-use crate::profile::Profile;
 use crate::safety::SafetyFilter;
+use mars_profile::Profile;
 
 /// Above this measured joint speed (rad/s) the arm is moving: the HAL does not take it over.
 pub const START_MAX_SPEED: f64 = 0.05;

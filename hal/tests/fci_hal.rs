@@ -14,9 +14,9 @@ use std::sync::atomic::{AtomicU32, Ordering};
 use std::time::{Duration, Instant};
 
 use iceoryx2::prelude::*;
-use mars_hal::profile::Profile;
 use mars_ipc::node::create_node;
 use mars_ipc::*;
+use mars_profile::Profile;
 use mars_rt::rig_lock::{RtRigLock, rt_rig_lock};
 use support::franka_sim::FrankaSim;
 use support::reflex::{Attempt, at_most_one_rerun, reflex_excuse, witness};

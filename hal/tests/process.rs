@@ -10,9 +10,9 @@ use std::sync::atomic::{AtomicU32, Ordering};
 use std::time::{Duration, Instant};
 
 use iceoryx2::prelude::*;
-use mars_hal::profile::Profile;
 use mars_ipc::node::create_node;
 use mars_ipc::*;
+use mars_profile::Profile;
 
 // One real-time rig at a time on this machine, across test binaries (see `mars_rt::rig_lock`).
 use mars_rt::rig_lock::{RtRigLock, rt_rig_lock};

@@ -15,10 +15,10 @@ use std::sync::atomic::{AtomicU32, Ordering};
 use std::time::{Duration, Instant};
 
 use iceoryx2::prelude::*;
-use mars_hal::profile::Profile;
 use mars_hal::ros2::backend::STOP_REPEATS;
 use mars_ipc::node::create_node;
 use mars_ipc::*;
+use mars_profile::Profile;
 use mars_rt::rig_lock::{RtRigLock, rt_rig_lock};
 use stall_witness::{Attempt, at_most_one_rerun, witness};
 use support::standin::{StandIn, StandInOptions};

@@ -126,7 +126,7 @@ pub fn demo(mut args: DemoArgs) -> anyhow::Result<u8> {
     choose_demo_config(&mut args)?;
     let cfg = mars_runtime::config::DaemonConfig::load(&args.marsd.config)?;
     // A camera task has a scene (the world, the camera, the referee) as a process of its own.
-    let profile = mars_hal::profile::Profile::load(&cfg.profile)?;
+    let profile = mars_profile::Profile::load(&cfg.profile)?;
     let task = mars_runtime::task::HilTask::load(&cfg.task, &profile)
         .with_context(|| format!("task {}", cfg.task.display()))?;
     // One real-time rig at a time on this machine (a second demo, the benchmark or the HIL tests would take this
@@ -298,7 +298,7 @@ pub(crate) fn start_franka_sim(
     venv: &Path,
     out: &Path,
     hal_core: usize,
-) -> anyhow::Result<mars_hal::fci::franka_sim::FrankaSim> {
+) -> anyhow::Result<crate::franka_sim::FrankaSim> {
     let installer = Path::new(".ci/franka-sim-venv");
     if !venv.join("bin/run-franka-sim-server").exists() && installer.exists() {
         eprintln!("installing franka-sim into {} ({})", venv.display(), installer.display());
@@ -308,8 +308,8 @@ pub(crate) fn start_franka_sim(
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     let log = out.join("franka-sim.log");
     let args = ["--enforce-comm-constraints", "--enforce-motion-limits", "--gripper-object-width", "0.03"];
-    let sim = mars_hal::fci::franka_sim::FrankaSim::start(venv, &args, &log, Duration::from_secs(60), Some(hal_core))?;
-    eprintln!("franka-sim listening on 127.0.0.1:{} (log {})", mars_hal::fci::franka_sim::ROBOT_PORT, log.display());
+    let sim = crate::franka_sim::FrankaSim::start(venv, &args, &log, Duration::from_secs(60), Some(hal_core))?;
+    eprintln!("franka-sim listening on 127.0.0.1:{} (log {})", crate::franka_sim::ROBOT_PORT, log.display());
     Ok(sim)
 }
 

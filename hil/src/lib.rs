@@ -11,6 +11,7 @@
 pub mod bench;
 pub mod demo;
 pub mod faults;
+pub mod franka_sim;
 pub mod hil_replay;
 pub mod scene;
 pub mod soak;

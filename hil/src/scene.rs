@@ -14,12 +14,12 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
 use anyhow::Context;
-use mars_hal::profile::Profile;
 use mars_ipc::clock::monotonic_ns;
 use mars_ipc::{
     ImageEncoding, ImageHeader, ImageWriter, RobotNamespace, SceneAction, ScenePhase, SceneRequestReader, SceneState,
     SceneStateWriter, StateReader,
 };
+use mars_profile::Profile;
 use mars_tasks::push_t::expert::route_taken;
 use mars_tasks::push_t::render::Camera;
 use mars_tasks::push_t::{PushT, PushTState};

@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 
 use anyhow::Context;
-use mars_hal::profile::Profile;
+use mars_profile::Profile;
 
 /// The stand-in's script and its environment (made by `.ci/dds-venv`), from the repository's root.
 pub const SCRIPT: &str = "tests/peers/r1_lite_standin.py";

@@ -12,9 +12,9 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
-use mars_hal::profile::Profile;
 use mars_hal::runner::RunOptions;
 use mars_hal::sim::SimBackend;
+use mars_profile::Profile;
 use mars_runtime::alloc_count::{self, CountingAlloc, Counts};
 use mars_runtime::config::DaemonConfig;
 use mars_runtime::daemon;

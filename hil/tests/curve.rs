@@ -4,6 +4,8 @@
 use std::path::PathBuf;
 use std::process::Command;
 
+use mars_policy::config::PolicyConfig;
+
 fn repo(path: &str) -> PathBuf {
     PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/..")).join(path)
 }
@@ -13,16 +15,10 @@ fn pick_cup_curve_scores_every_snapshot() {
     let dir = std::env::temp_dir().join(format!("mars-hil-curve-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
-    let text = std::fs::read_to_string(repo("configs/fr3_policy.toml")).unwrap();
-    let tiny = text
-        .replace("dit_width = 64", "dit_width = 16")
-        .replace("hidden = 64", "hidden = 16")
-        .replace("obs_embed_dim = 64", "obs_embed_dim = 16")
-        .replace("scheduler_hidden = 64", "scheduler_hidden = 16")
-        .replace("knn_m = 20", "knn_m = 4");
-    assert_ne!(tiny, text, "the tiny config must shrink the shipped one");
+    let mut tiny = PolicyConfig::load(&repo("configs/fr3_policy.toml")).unwrap().shrunk(16, 2);
+    tiny.train.knn_m = 4;
     let cfg = dir.join("tiny.toml");
-    std::fs::write(&cfg, tiny).unwrap();
+    std::fs::write(&cfg, tiny.to_toml()).unwrap();
     let out = Command::new(env!("CARGO_BIN_EXE_mars-hil"))
         .current_dir(repo(""))
         .args(["curve", "--in-process", "--config", cfg.to_str().unwrap(), "--out", dir.to_str().unwrap()])

@@ -774,7 +774,7 @@ fn a_finish_request_in_the_tick_that_sees_the_signal_still_reports_the_signal() 
     use mars_runtime::servo::{ServoTick, StopCause, TickInput};
     use mars_runtime::shared::Request;
     let cfg = mars_runtime::config::DaemonConfig::load(&shipped_config()).unwrap();
-    let profile = mars_hal::profile::Profile::load(&root().join("configs/fr3.toml")).unwrap();
+    let profile = mars_profile::Profile::load(&root().join("configs/fr3.toml")).unwrap();
     let mut tick = ServoTick::new(&cfg, &profile, 7).unwrap();
     let frame = |seq: u64| {
         let mut f = RobotState { seq, timestamp_ns: monotonic_ns(), num_joints: 7, ..Default::default() };

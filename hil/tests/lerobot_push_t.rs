@@ -5,9 +5,9 @@
 
 use std::path::Path;
 
-use mars_hal::profile::Profile;
 use mars_policy::config::PolicyConfig;
 use mars_policy::from_dataset::{DatasetInput, load};
+use mars_profile::Profile;
 use mars_runtime::task::PushTHil;
 use mars_tasks::push_t::episode::expert_demos;
 

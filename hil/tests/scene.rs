@@ -9,12 +9,12 @@ use std::process::Command;
 use std::time::{Duration, Instant};
 
 use common::*;
-use mars_hal::profile::Profile;
 use mars_ipc::node::create_node;
 use mars_ipc::{
     ImageEncoding, ImageReader, RobotNamespace, RobotState, SceneAction, ScenePhase, SceneRequest, SceneRequestWriter,
     SceneState, SceneStateReader, StateWriter,
 };
+use mars_profile::Profile;
 use mars_runtime::task::PushTHil;
 use mars_tasks::push_t::render::Camera;
 

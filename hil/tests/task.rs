@@ -6,9 +6,9 @@ use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
 use std::path::{Path, PathBuf};
 
-use mars_hal::profile::Profile;
 use mars_hil::task::eval::evaluate;
 use mars_hil::task::expert::generate_demos;
+use mars_profile::Profile;
 use mars_runtime::task::{DoneReason, Pick, Progress, TaskError, arm};
 
 /// Counts this thread's heap allocations, so a test can assert that a call makes none.

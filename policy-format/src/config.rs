@@ -334,6 +334,24 @@ impl PolicyConfig {
         Ok(cfg)
     }
 
+    /// The config as TOML, as [`Self::load`] reads it back (a run writes the config it used beside its output).
+    pub fn to_toml(&self) -> String {
+        toml::to_string(self).expect("a PolicyConfig is plain TOML data")
+    }
+
+    /// The same policy with a model `width` wide (the encoder's hidden layer, the observation embedding, the
+    /// scheduler and the DiT) and `depth` DiT blocks: what a test or a smoke run trains in seconds on 2 cores. The
+    /// task's sizes, chunk, history, K and training stay as they are.
+    pub fn shrunk(mut self, width: usize, depth: usize) -> Self {
+        let m = &mut self.model;
+        match &mut m.encoder {
+            EncoderConfig::StateMlp { hidden } => *hidden = width,
+            EncoderConfig::Vision(v) => v.hidden = width,
+        }
+        (m.obs_embed_dim, m.scheduler_hidden, m.dit_width, m.dit_depth) = (width, width, width, depth);
+        self
+    }
+
     pub fn validate(&self) -> Result<(), ConfigError> {
         self.model.validate()?;
         self.train.validate()?;

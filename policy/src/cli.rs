@@ -67,16 +67,31 @@ pub enum TrainInput {
     Dataset(crate::from_dataset::DatasetInput),
 }
 
+/// `mars train`: the config from `config`, or with none given the dataset's features on the shipped defaults
+/// (printed), else configs/policy.toml; trains, and writes the checkpoint and the config it used (config.toml)
+/// to `out`.
 pub fn train(
     kind: PolicyKind,
-    config: &Path,
+    config: Option<&Path>,
     input: &TrainInput,
     out: &Path,
     epochs: Option<usize>,
     seed: Option<u64>,
     snapshot_every: Option<usize>,
 ) -> anyhow::Result<Trained> {
-    let mut cfg = PolicyConfig::load(config)?;
+    let mut cfg = match (config, input) {
+        (Some(path), _) => PolicyConfig::load(path)?,
+        (None, TrainInput::Dataset(d)) => {
+            let cfg = crate::dataset_features::config_for(d)?;
+            println!(
+                "no --config: the policy's features from {}, the rest the shipped defaults:\n{}",
+                d.dir.join("meta/info.json").display(),
+                cfg.to_toml()
+            );
+            cfg
+        }
+        (None, TrainInput::Demos(_)) => PolicyConfig::load(Path::new("configs/policy.toml"))?,
+    };
     cfg.kind = kind;
     cfg.train.epochs = epochs.unwrap_or(cfg.train.epochs);
     cfg.train.seed = seed.unwrap_or(cfg.train.seed);
@@ -93,7 +108,10 @@ pub fn train(
             (demos, given)
         }
     };
-    train_on_normalised(&cfg, &demos, given.as_ref(), out, snapshot_every)
+    let trained = train_on_normalised(&cfg, &demos, given.as_ref(), out, snapshot_every)?;
+    let written = out.join("config.toml");
+    std::fs::write(&written, cfg.to_toml()).with_context(|| format!("writing {}", written.display()))?;
+    Ok(trained)
 }
 
 /// `mars train` on demos already in memory (a task that makes its own, e.g. Push-T's with camera images): trains

@@ -16,6 +16,7 @@ pub mod cli;
 pub use mars_policy_format::config;
 pub mod curve;
 pub mod dataset;
+pub mod dataset_features;
 pub mod demo_file;
 pub mod diagnose;
 pub mod encoder;

@@ -3,6 +3,7 @@
 mod mars_cli;
 
 use mars_cli::mars;
+use mars_policy::config::PolicyConfig;
 use std::path::{Path, PathBuf};
 
 fn tmp(name: &str) -> PathBuf {
@@ -12,17 +13,13 @@ fn tmp(name: &str) -> PathBuf {
     d
 }
 
+/// The shipped config shrunk to train in seconds, written to `dir` for the command line.
 fn tiny_config(dir: &Path) -> PathBuf {
-    let text = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/../configs/policy.toml")).unwrap();
-    let text = text
-        .replace("dit_width = 128", "dit_width = 16")
-        .replace("dit_depth = 4", "dit_depth = 1")
-        .replace("hidden = 128", "hidden = 16")
-        .replace("obs_embed_dim = 128", "obs_embed_dim = 16")
-        .replace("scheduler_hidden = 128", "scheduler_hidden = 16")
-        .replace("knn_m = 20", "knn_m = 4");
+    let shipped = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../configs/policy.toml"));
+    let mut cfg = PolicyConfig::load(shipped).unwrap().shrunk(16, 1);
+    cfg.train.knn_m = 4;
     let path = dir.join("tiny.toml");
-    std::fs::write(&path, text).unwrap();
+    std::fs::write(&path, cfg.to_toml()).unwrap();
     path
 }
 
@@ -291,7 +288,9 @@ fn curve_trains_through_the_mars_binary_and_reports_its_failures() {
     assert!(dir.join("cmd/seed0/mars/train.log").exists());
 
     let broken = dir.join("broken.toml");
-    std::fs::write(&broken, std::fs::read_to_string(&cfg).unwrap().replace("lr = 3e-4", "lr = -1.0")).unwrap();
+    let mut bad_lr = PolicyConfig::load(&cfg).unwrap();
+    bad_lr.train.lr = -1.0;
+    std::fs::write(&broken, bad_lr.to_toml()).unwrap();
     let err = run(&dir.join("bad"), &broken, &opts, &task, &mars_bin, "test").unwrap_err();
     assert!(format!("{err:#}").contains("train.lr"), "the config is checked before any training: {err:#}");
     let failing = Trainer::Command(PathBuf::from("/bin/false"));

@@ -9,18 +9,11 @@ use mars_tasks::demo::Demo;
 pub fn tiny_config(kind: PolicyKind) -> PolicyConfig {
     let mut cfg =
         PolicyConfig::load(std::path::Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../configs/policy.toml")))
-            .expect("shipped config loads");
+            .expect("shipped config loads")
+            .shrunk(32, 2);
     cfg.kind = kind;
-    cfg.model.encoder = mars_policy::config::EncoderConfig::StateMlp { hidden: 32 };
-    cfg.model.obs_embed_dim = 32;
-    cfg.model.scheduler_hidden = 32;
-    cfg.model.dit_width = 32;
-    cfg.model.dit_depth = 2;
-    cfg.model.dit_heads = 2;
-    cfg.model.dit_mlp_ratio = 2;
-    cfg.train.epochs = 3;
-    cfg.train.knn_m = 5;
-    cfg.train.lr = 1e-3;
+    (cfg.model.dit_heads, cfg.model.dit_mlp_ratio) = (2, 2);
+    (cfg.train.epochs, cfg.train.knn_m, cfg.train.lr) = (3, 5, 1e-3);
     cfg
 }
 

@@ -162,3 +162,71 @@ fn without_video_support_a_camera_is_refused_with_the_remedy_and_nothing_is_writ
     assert!(!out.status.success() && err.contains("--features video"), "{err}");
     assert!(!ckpt.exists(), "a checkpoint was written");
 }
+
+/// `mars train --dataset` with no `--config`, on the LeRobot-written fixture: the policy's features come from its
+/// meta/info.json (the state's 2 values and the 64 × 64 camera in, 2 actions out), the rest from the shipped vision
+/// defaults; the config is printed and written beside the checkpoint, and it is what the checkpoint holds.
+#[cfg(feature = "video")] // it reads the fixture's camera
+#[test]
+fn with_no_config_the_policys_features_come_from_the_lerobot_dataset() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("ckpt");
+    let args = ["train", "--dataset", FIXTURE, "--epochs", "1", "--out", out.to_str().unwrap()];
+    let run = mars_with_env(&args, &[("MARS_CACHE_DIR", &dir.path().join("cache"))]);
+    let stdout = String::from_utf8_lossy(&run.stdout);
+    assert!(run.status.success(), "{stdout}\n{}", String::from_utf8_lossy(&run.stderr));
+    assert!(
+        stdout.contains("no --config: the policy's features from") && stdout.contains("obs_dim = 12290"),
+        "{stdout}"
+    );
+    let written = mars_policy::config::PolicyConfig::load(&out.join("config.toml")).unwrap();
+    assert_eq!((written.model.obs_dim, written.model.action_dim), (2 + 64 * 64 * 3, 2));
+    let mars_policy::config::EncoderConfig::Vision(v) = &written.model.encoder else { panic!("{written:?}") };
+    assert_eq!((v.cameras, v.image_height, v.image_width), (1, 64, 64));
+    // The checkpoint's is the same but for k_full_w, which training measures (a quantile of ‖w‖∞).
+    let mut trained = mars_policy::checkpoint::load_meta(&out).unwrap().model;
+    trained.k_full_w = written.model.k_full_w;
+    assert_eq!(trained, written.model);
+}
+
+/// The same with a dataset of another shape and no camera (an FR3 recording's: 9 state values, 8 actions, as
+/// `marsd --record` writes it), which the nav2d defaults refused before ("the dataset's `action` has 8 values, the
+/// policy's model.action_dim is 2"): a state policy of those sizes trains.
+#[test]
+fn with_no_config_a_state_dataset_of_any_size_trains() {
+    use mars_lerobot::writer::{DatasetSpec, DatasetWriter, VectorSpec};
+    let dir = tempfile::tempdir().unwrap();
+    let root = dir.path().join("fr3_rec");
+    let names = |n: usize, p: &str| (0..n).map(|i| format!("{p}{i}")).collect::<Vec<_>>();
+    let spec = DatasetSpec {
+        fps: 10,
+        robot_type: "fr3".into(),
+        vectors: vec![
+            VectorSpec { key: "observation.state".into(), names: names(9, "s") },
+            VectorSpec { key: "action".into(), names: names(8, "a") },
+        ],
+        cameras: vec![],
+    };
+    let mut w = DatasetWriter::create(&root, spec).unwrap();
+    for e in 0..3 {
+        for t in 0..12 {
+            let state: Vec<f32> = (0..9).map(|i| (e * 12 + t + i) as f32 * 0.01).collect();
+            let action: Vec<f32> = (0..8).map(|i| (e * 12 + t + i + 1) as f32 * 0.01).collect();
+            w.add_frame(&[&state, &action], &[]).unwrap();
+        }
+        w.end_episode("pick cup").unwrap();
+    }
+    w.finish().unwrap();
+    let out = dir.path().join("ckpt");
+    let run = mars_with_env(
+        &["train", "--dataset", root.to_str().unwrap(), "--epochs", "1", "--out", out.to_str().unwrap()],
+        &[],
+    );
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let written = mars_policy::config::PolicyConfig::load(&out.join("config.toml")).unwrap();
+    assert_eq!((written.model.obs_dim, written.model.action_dim), (9, 8));
+    assert!(matches!(written.model.encoder, mars_policy::config::EncoderConfig::StateMlp { .. }), "{written:?}");
+    let mut meta = mars_policy::checkpoint::load_meta(&out).unwrap();
+    meta.model.k_full_w = written.model.k_full_w; // measured by training
+    assert_eq!((meta.kind, &meta.model, &meta.train), (written.kind, &written.model, &written.train));
+}

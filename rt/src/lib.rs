@@ -1,12 +1,14 @@
 //! The real-time discipline both loops keep, the HAL's and marsd's servo: setup of a loop thread (core pinning,
 //! SCHED_FIFO, locked memory), the absolute-deadline [`Ticker`] it runs on, per-thread allocation counting
-//! ([`alloc_count`]) and the machine-wide lock that keeps two real-time rigs apart ([`rig_lock`]).
+//! ([`alloc_count`]), the machine-wide lock that keeps two real-time rigs apart ([`rig_lock`]), and how both
+//! daemons log ([`logging`]).
 //!
 //! Setup is best-effort by design: a container or an unprivileged user is refused SCHED_FIFO and mlockall,
 //! and a loop must still run there (tests, CI, a laptop). But a refusal is never silent: it is logged once,
 //! at setup, from the thread concerned, saying what was refused, why, and which setting allows it.
 
 pub mod alloc_count;
+pub mod logging;
 pub mod overlong;
 pub mod rig_lock;
 

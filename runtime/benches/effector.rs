@@ -9,7 +9,7 @@ use std::hint::black_box;
 use std::path::Path;
 use std::time::Instant;
 
-use mars_hal::profile::Profile;
+use mars_profile::Profile;
 use mars_runtime::alloc_count::{CountingAlloc, thread_counts};
 use mars_runtime::smoothing::{Limits, Smoother};
 use mars_runtime::task::PushTHil;

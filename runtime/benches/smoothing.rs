@@ -13,7 +13,7 @@ use std::path::Path;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant;
 
-use mars_hal::profile::Profile;
+use mars_profile::Profile;
 use mars_runtime::smoothing::{DEFAULT_SAFETY_FACTOR, Limits, Smoother};
 
 const TICKS: usize = 20_000;

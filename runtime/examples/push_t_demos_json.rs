@@ -6,7 +6,7 @@
 
 use std::path::Path;
 
-use mars_hal::profile::Profile;
+use mars_profile::Profile;
 use mars_runtime::task::PushTHil;
 use mars_tasks::push_t::episode::expert_demos;
 

@@ -67,11 +67,11 @@ impl MarsdArgs {
     }
 }
 
-/// marsd's logging, the HAL's ([`mars_hal::cli::init_logging`]), and its environment (the video encoder quiet:
+/// marsd's logging, the HAL's ([`mars_rt::logging::init_logging`]), and its environment (the video encoder quiet:
 /// [`mars_lerobot::video_out::quiet_encoder`]); from main, before any thread exists.
 pub fn init_logging() {
     mars_lerobot::video_out::quiet_encoder();
-    mars_hal::cli::init_logging();
+    mars_rt::logging::init_logging();
 }
 
 /// `marsd`'s main: exit status per [`daemon::exit`].

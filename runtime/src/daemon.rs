@@ -14,8 +14,8 @@ use std::time::{Duration, Instant};
 
 use anyhow::Context;
 use mars_engine::{Engine, EngineConfig};
-use mars_hal::profile::Profile;
 use mars_ipc::{HeartbeatThread, PeerView, Route, Side};
+use mars_profile::Profile;
 use tracing::{error, info, warn};
 
 use crate::chunk::{MAX_ACTION, MAX_CHUNK, TimedChunk};

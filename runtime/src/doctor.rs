@@ -313,7 +313,7 @@ fn rlimit_text(resource: libc::__rlimit_resource_t) -> String {
 /// Measures for `seconds` at the servo's settings of `config`, judges, and writes `doctor.json` into `out`.
 pub fn run(config: &Path, seconds: f64, out: Option<&Path>) -> anyhow::Result<Report> {
     let cfg = crate::config::DaemonConfig::load(config)?;
-    let profile = mars_hal::profile::Profile::load(&cfg.profile)
+    let profile = mars_profile::Profile::load(&cfg.profile)
         .with_context(|| format!("loading the profile {}", cfg.profile.display()))?;
     let budget = Budget {
         period_ms: profile.period_s() * 1e3,

@@ -1,12 +1,12 @@
 //! The last check before a command leaves: inside the position limits, and — by finite differences over the
 //! commands actually sent, the way the robot sees the stream — inside the velocity, acceleration and jerk
 //! limits. The velocity bound is the robot's at the commanded position (the FR3's depends on it: see
-//! `mars_hal::velocity_limits`). The smoother is built never to fail this; if it ever does, the command is not
+//! `mars_profile::velocity_limits`). The smoother is built never to fail this; if it ever does, the command is not
 //! sent and the watchdog trips.
 
-use mars_hal::profile::Profile;
-use mars_hal::velocity_limits::{JointVelocityBound, VelocityLimits};
 use mars_ipc::MAX_JOINTS;
+use mars_profile::Profile;
+use mars_profile::velocity_limits::{JointVelocityBound, VelocityLimits};
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Violation {

@@ -5,8 +5,8 @@
 //! Phases: waiting for the HAL → idle (holding) → resetting to an episode's start pose → ready → running the
 //! policy's chunks → … → stopping (jerk-limited brake) → finished (a hold command sent to the HAL).
 
-use mars_hal::profile::Profile;
 use mars_ipc::{CommandMode, HoldReason, JointCommand, MAX_JOINTS, RobotState, status};
+use mars_profile::Profile;
 
 use crate::chunk::{MAX_ACTION, Schedule, TimedChunk};
 use crate::config::DaemonConfig;

@@ -10,7 +10,7 @@
 //!
 //! Storage is `Ruckig<MAX_JOINTS>` with the joints beyond `n` disabled, so one type serves 6- and 7-joint robots.
 //!
-//! Position-dependent velocity bounds (the FR3's, `mars_hal::velocity_limits`): ruckig takes constant limits, so
+//! Position-dependent velocity bounds (the FR3's, `mars_profile::velocity_limits`): ruckig takes constant limits, so
 //! before every step the smoother hands it the bounds at the current position, from their braking envelope
 //! (which falls no faster than half the acceleration limit, so ruckig, braking at up to 90 % of it, keeps up)
 //! tightened by A²/J for ruckig's jerk-limited lag, scaled like every other limit. All velocity limits are the
@@ -21,9 +21,9 @@
 //! allocate, on that error path alone. With time synchronisation such failures did occur (see `Smoother::new`);
 //! without it none is seen in the randomized tests here and in `tests/servo_hal_timing.rs`.
 
-use mars_hal::profile::Profile;
-use mars_hal::velocity_limits::JointVelocityBound;
 use mars_ipc::MAX_JOINTS;
+use mars_profile::Profile;
+use mars_profile::velocity_limits::JointVelocityBound;
 use rsruckig::prelude::*;
 
 /// Fraction of the robot's limits handed to ruckig. Ruckig meets its limits only up to floating-point rounding and

@@ -1,5 +1,6 @@
 //! What runs beside the robot links no trainer: marsd links the engine (the checkpoint format and its kernels),
-//! never candle, the trainer, or the HIL rig around it; the engine, inside marsd's real-time process, not even
+//! never candle, the trainer, or the HIL rig around it, and reads the robot's profile without linking the HAL or a
+//! robot driver (the HAL is the robot's process); the engine, inside marsd's real-time process, not even
 //! plotting, the command line or datasets. Checked on the resolved dependency trees, so a dependency added back by
 //! anyone (directly or through another crate) turns this red.
 
@@ -24,10 +25,22 @@ fn forbidden_in<'a>(tree: &'a BTreeSet<String>, forbidden: &[&str]) -> Vec<&'a S
 }
 
 #[test]
-fn marsd_links_no_trainer_candle_or_hil_rig() {
+fn marsd_links_no_trainer_candle_hil_rig_or_robot_driver() {
     let tree = normal_tree("mars-runtime");
     assert!(tree.iter().any(|l| l.starts_with("mars-engine ")), "the tree is not marsd's:\n{tree:?}");
-    let found = forbidden_in(&tree, &["mars-policy ", "candle-core ", "candle-nn ", "indicatif ", "mars-hil "]);
+    assert!(tree.iter().any(|l| l.starts_with("mars-profile ")), "marsd reads no profile:\n{tree:?}");
+    let forbidden = [
+        "mars-policy ",
+        "candle-core ",
+        "candle-nn ",
+        "indicatif ",
+        "mars-hil ",
+        "mars-hal ",
+        "franka-rs ",
+        "ros2-client ",
+        "rustdds ",
+    ];
+    let found = forbidden_in(&tree, &forbidden);
     assert!(found.is_empty(), "marsd's normal dependencies include {found:?}");
     println!("{} crates in marsd's normal dependency tree", tree.len());
 }

@@ -9,8 +9,8 @@ use std::sync::Arc;
 use std::sync::atomic::Ordering;
 use std::time::Duration;
 
-use mars_hal::profile::Profile;
 use mars_ipc::{FrameReceiveError, FrameSendError, JointCommand, RobotState, SchemaMismatch, status};
+use mars_profile::Profile;
 use mars_runtime::chunk::TimedChunk;
 use mars_runtime::config::DaemonConfig;
 use mars_runtime::latency::{Channel, Collector};

@@ -6,8 +6,8 @@ use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
 use std::path::Path;
 
-use mars_hal::profile::Profile;
 use mars_ipc::MAX_JOINTS;
+use mars_profile::Profile;
 use mars_runtime::smoothing::{DEFAULT_SAFETY_FACTOR, Kinematics, Limits, Smoother, SmoothingError};
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
@@ -58,7 +58,7 @@ fn allocations_in(f: impl FnOnce()) -> usize {
 /// tests here, plan with constant limits. The FR3's position-dependent bounds have a test of their own below.
 fn fr3() -> Profile {
     let mut p = fr3_position_dependent();
-    p.velocity_limits = mars_hal::velocity_limits::VelocityLimits::Constant;
+    p.velocity_limits = mars_profile::velocity_limits::VelocityLimits::Constant;
     p.velocity_headroom = 0.0;
     p
 }

@@ -207,4 +207,27 @@ fn main() {
         unexplained.iter().max().copied().unwrap_or(0) as f64 * 1e-3,
         irq.iter().filter(|(_, ns)| ns.is_none()).count()
     );
+    if with_witness {
+        witness_caught(cpu, &t.long);
+    }
+}
+
+/// Of the charged stretches (the guest absent, charged to the spinner), how many the stall witness saw, by length:
+/// as a stall (a wake-up ≥ 500 µs late in it) and in a tick's account (≥ 150 µs late: what
+/// `Witness::machine_time_in_ticks` takes off a loop tick) — what it misses of the absences a loop's thread clock
+/// would count as work.
+fn witness_caught(cpu: usize, long: &[(u64, u64)]) {
+    let w = stall_witness::witness();
+    let mut rows = Vec::new();
+    for (lo, hi) in [(300, 500), (500, 750), (750, 1000), (1000, u64::MAX)] {
+        let of_len: Vec<&(u64, u64)> = long.iter().filter(|(_, len)| (lo * 1000..hi * 1000).contains(len)).collect();
+        let stall = |&&&(from, len): &&&(u64, u64)| {
+            w.seen_on(Some(cpu), from, from + len).is_some_and(|e| e.stalled_ms() > 0.0)
+        };
+        let in_tick = |&&&(from, len): &&&(u64, u64)| w.taken_from_tick(cpu, from, from + len).late_ns > 0;
+        let (stalls, ticks) = (of_len.iter().filter(stall).count(), of_len.iter().filter(in_tick).count());
+        let hi = if hi == u64::MAX { "∞".to_string() } else { hi.to_string() };
+        rows.push(format!("{lo}–{hi} µs: {stalls} / {ticks} of {}", of_len.len()));
+    }
+    println!("charged stretches the stall witness saw (as a stall / in a tick's account): {}", rows.join(", "));
 }

@@ -1,6 +1,6 @@
 //! One core watched: a thread pinned to it at SCHED_FIFO [`crate::PRIORITY`] that wakes every [`PERIOD_NS`] on an
-//! absolute deadline and records every wake-up at least [`LATE_NS`] late — a stretch in which its core ran
-//! nothing below it.
+//! absolute deadline and records every wake-up at least [`FINE_LATE_NS`] late — a stretch in which its core ran
+//! nothing below it. A stall is one of at least [`LATE_NS`]; the shorter ones count only inside a loop's tick.
 
 use std::collections::VecDeque;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -22,8 +22,15 @@ pub const PERIOD_NS: u64 = 500_000;
 /// core delays the witness too — a neighbour mapping and unmapping 1 GB made a waker at [`crate::PRIORITY`] ≥ 100
 /// µs late several times as often (`examples/absence_probe.rs --churn`) — and that is no stall of the machine.
 pub const LATE_NS: u64 = 500_000;
-/// Late wake-ups kept per core (the oldest go first): hours of a noisy machine.
-const CAPACITY: usize = 1 << 16;
+/// A wake-up at least this late is recorded too, but counts only where the core ran one known thread all along: a
+/// loop tick whose own CPU clock charged the time to itself ([`CoreWatch::stretches_in`], what
+/// `Witness::machine_time_in_ticks` takes off such a tick). The hypervisor's absences come in pieces shorter than
+/// [`LATE_NS`] too, back to back: `absence_probe 30 1 --witness` (2026-11-29, spinner at SCHED_FIFO 80) found
+/// charged stretches of 765–850 µs with no wake-up [`LATE_NS`] late in them. Inside a tick the only other way to
+/// delay the witness is the loop's own system call, which a few µs of UDP or clock reads do not make 150 µs.
+pub const FINE_LATE_NS: u64 = 150_000;
+/// Late wake-ups kept per core (the oldest go first): an hour of a noisy machine.
+const CAPACITY: usize = 1 << 18;
 /// Late wake-ups held in the thread while a reader holds the record: the witness never waits for a reader.
 const PENDING: usize = 256;
 
@@ -95,31 +102,32 @@ impl CoreWatch {
         self.shared.setup.get().and_then(|r| r.clone().err())
     }
 
-    /// Its late stretches inside `window`; `None` if it did not watch the window from its start.
+    /// Its late stretches (at least [`LATE_NS`]) inside `window`; `None` if it did not watch the window from its
+    /// start.
     pub fn lateness_in(&self, window: (u64, u64)) -> Option<LatenessSeen> {
-        let late = self.late_in(window)?;
+        let late = self.late_in(window, LATE_NS)?;
         let overlaps = late.iter().map(|l| l.overlap_ns(window) as f64 * 1e-6);
         let (ms, longest_ms) = overlaps.fold((0.0, 0.0), |(sum, max): (f64, f64), o| (sum + o, max.max(o)));
         Some(LatenessSeen { core: self.core, ms, longest_ms, count: late.len() })
     }
 
-    /// Its late stretches clipped to `window` (CLOCK_MONOTONIC ns from, to); `None` if it did not watch the window
-    /// from its start.
+    /// Its late stretches of at least [`FINE_LATE_NS`] clipped to `window` (CLOCK_MONOTONIC ns from, to): for a
+    /// window in which one loop thread ran by its own clock; `None` if it did not watch the window from its start.
     pub fn stretches_in(&self, window: (u64, u64)) -> Option<Vec<(u64, u64)>> {
-        let late = self.late_in(window)?;
+        let late = self.late_in(window, FINE_LATE_NS)?;
         Some(late.iter().map(|l| (l.due_ns.max(window.0), l.woke_ns.min(window.1))).filter(|(a, b)| b > a).collect())
     }
 
     /// Periods of `period_ns` its late stretches inside `window` could have cost a loop on this core: each
     /// stretch rounded up to whole periods.
     pub fn lost_periods(&self, window: (u64, u64), period_ns: u64) -> u64 {
-        let late = self.late_in(window).unwrap_or_default();
+        let late = self.late_in(window, LATE_NS).unwrap_or_default();
         late.iter().map(|l| l.overlap_ns(window).div_ceil(period_ns.max(1))).sum()
     }
 
-    /// The late stretches overlapping `window`, the one still going on at `window`'s end included (so a stall the
-    /// witness is still in counts); `None` if the watch began after the window did.
-    fn late_in(&self, (from, to): (u64, u64)) -> Option<Vec<Late>> {
+    /// The late stretches of at least `late_ns` overlapping `window`, the one still going on at `window`'s end
+    /// included (so a stall the witness is still in counts); `None` if the watch began after the window did.
+    fn late_in(&self, (from, to): (u64, u64), late_ns: u64) -> Option<Vec<Late>> {
         let started = self.shared.started_ns.load(Ordering::Acquire);
         if started == 0 || started > from {
             return None;
@@ -131,10 +139,11 @@ impl CoreWatch {
         }
         let mut late: Vec<Late> = {
             let g = self.shared.late.lock().unwrap_or_else(|e| e.into_inner());
-            g.iter().filter(|l| l.overlap_ns((from, to)) > 0).copied().collect()
+            let late_enough = |l: &&Late| l.woke_ns - l.due_ns >= late_ns;
+            g.iter().filter(|l| l.overlap_ns((from, to)) > 0).filter(late_enough).copied().collect()
         };
         let last = self.shared.recorded_ns.load(Ordering::Acquire);
-        if last < to && last + PERIOD_NS < to {
+        if last < to && last + PERIOD_NS + late_ns <= to {
             late.push(Late { due_ns: last + PERIOD_NS, woke_ns: to });
         }
         Some(late)
@@ -159,7 +168,7 @@ fn watch(core: usize, shared: &Shared) {
     loop {
         sleep_until(due);
         let woke = monotonic_ns();
-        if woke.saturating_sub(due) >= LATE_NS && pending.len() < PENDING {
+        if woke.saturating_sub(due) >= FINE_LATE_NS && pending.len() < PENDING {
             pending.push(Late { due_ns: due, woke_ns: woke });
         }
         if !pending.is_empty()

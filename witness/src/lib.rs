@@ -170,43 +170,43 @@ impl Witness {
         excuses.into_iter().max_by(|a, b| a.stalled_ms().total_cmp(&b.stalled_ms()))
     }
 
-    /// An [`Excuse`] for a loop on `core` whose ticks `ticks` (each: CLOCK_MONOTONIC start ns, wall ns, the tick's CPU
-    /// time ns by the thread's own clock) reached its `period_ns` of CPU: if, for every one, what the machine took
-    /// in the tick's window leaves less than the period to the loop — the kernel's trace of interrupt handlers on
-    /// the core (a kernel without IRQ time accounting charges them to the thread's clock) and the witness's late
-    /// wake-ups on it (the hypervisor's absences, which this VM's clock charges to the thread that was running),
-    /// each moment counted once ([`TickTaken::ns`]). The evidence given is the tick the machine took most from.
-    /// `None` if a tick is not so explained.
-    pub fn excuse_computing_ticks(
+    /// What the machine took from each tick of a loop on `core` whose own CPU clock put it at `period_ns` or more
+    /// (`ticks`: CLOCK_MONOTONIC start ns, wall ns, CPU ns by the thread's clock): the kernel's trace of interrupt
+    /// handlers on the core (a kernel without IRQ time accounting charges them to the thread's clock) and the
+    /// witness's late wake-ups on it (the hypervisor's absences, which this VM's clock charges to the thread that
+    /// was running), each moment counted once ([`TickTaken::ns`]). `Ok` when every tick's clock time less that stays
+    /// under the period — the loop's own work fitted, the clock was wrong; otherwise `Err` with the first tick that
+    /// did not (its index and what was taken from it). This measures, it does not rerun: a tick no evidence
+    /// explains is the loop's, however often the machine was seen elsewhere.
+    pub fn machine_time_in_ticks(
         &self,
-        failure: impl Into<String>,
         core: usize,
         ticks: &[(u64, u64, u64)],
         period_ns: u64,
-    ) -> Option<Excuse> {
-        let mut most: Option<(u64, TickTaken)> = None;
-        for &(start, wall, cpu) in ticks {
-            let taken = self.taken_from_tick(core, start, start + wall);
-            let ns = taken.ns();
-            if cpu.saturating_sub(ns) >= period_ns {
-                return None;
+    ) -> Result<Vec<TickTaken>, Box<(usize, TickTaken)>> {
+        let mut taken = Vec::with_capacity(ticks.len());
+        for (i, &(start, wall, cpu)) in ticks.iter().enumerate() {
+            let t = self.taken_from_tick(core, start, start + wall);
+            if cpu.saturating_sub(t.ns()) >= period_ns {
+                return Err(Box::new((i, t)));
             }
-            if most.as_ref().is_none_or(|(m, _)| ns > *m) {
-                most = Some((ns, taken));
-            }
+            taken.push(t);
         }
-        most.map(|(_, taken)| Excuse::by_kernel(failure.into(), taken))
+        Ok(taken)
     }
 
     /// What the machine took from `core` within `[from_ns, to_ns]`: interrupts by the kernel's trace, and the
-    /// witness's stall (for a test's log, and [`Self::excuse_computing_ticks`]).
+    /// witness's stall (for a test's log, and [`Self::machine_time_in_ticks`]).
     pub fn taken_from_tick(&self, core: usize, from_ns: u64, to_ns: u64) -> TickTaken {
         let stall = self.seen_on(Some(core), from_ns, to_ns);
         let late = self.cores.iter().find(|c| c.core() == core).and_then(|c| c.stretches_in((from_ns, to_ns)));
-        let in_late = late.iter().flatten().filter_map(|&(from, to)| self.irq.time_in(core, from, to));
+        let late = late.unwrap_or_default();
+        let in_late = late.iter().filter_map(|&(from, to)| self.irq.time_in(core, from, to));
         TickTaken {
             interrupts: self.irq.time_in(core, from_ns, to_ns),
             stall,
+            late: late.len(),
+            late_ns: late.iter().map(|(from, to)| to - from).sum(),
             interrupts_while_late_ns: in_late.map(|t| t.ns).sum(),
         }
     }
@@ -249,7 +249,13 @@ impl Witness {
 #[derive(Debug, Clone, PartialEq)]
 pub struct TickTaken {
     pub interrupts: Option<InterruptTime>,
+    /// What the witness saw of the window as it would for any failure (stalls of at least `LATE_NS`, steal), and
+    /// whether something outranked it.
     pub stall: Option<Evidence>,
+    /// Its wake-ups at least [`core_watch::FINE_LATE_NS`] late in the window, and their time in it (ns): inside a
+    /// tick the loop's clock charged to itself, nothing of the loop's could have made them late.
+    pub late: usize,
+    pub late_ns: u64,
     /// The part of `interrupts` inside the witness's late stretches: a handler that made the witness late is in
     /// both accounts.
     pub interrupts_while_late_ns: u64,
@@ -265,8 +271,7 @@ impl TickTaken {
             return 0;
         }
         let irq = self.interrupts.as_ref().map_or(0, |t| t.ns);
-        let late = self.stall.and_then(|e| e.lateness).map_or(0.0, |l| l.ms * 1e6) as u64;
-        (irq + late).saturating_sub(self.interrupts_while_late_ns.min(irq))
+        (irq + self.late_ns).saturating_sub(self.interrupts_while_late_ns.min(irq))
     }
 }
 
@@ -277,7 +282,13 @@ impl std::fmt::Display for TickTaken {
             None => write!(f, "no kernel interrupt trace of it; ")?,
         }
         match &self.stall {
-            Some(e) => write!(f, "{e}")?,
+            Some(e) => write!(
+                f,
+                "{e}; in the tick {} wake-up(s) ≥ {} µs late, {:.0} µs",
+                self.late,
+                core_watch::FINE_LATE_NS / 1000,
+                self.late_ns as f64 * 1e-3
+            )?,
             None => write!(f, "the stall witness did not watch it")?,
         }
         if self.interrupts_while_late_ns > 0 {
@@ -323,6 +334,8 @@ mod tests {
         TickTaken {
             interrupts: Some(interrupts),
             stall: Some(Evidence { window, lateness, steal, outranked: None }),
+            late: 1,
+            late_ns: (late_ms * 1e6) as u64,
             interrupts_while_late_ns: irq_while_late_us * 1000,
         }
     }

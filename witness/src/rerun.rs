@@ -5,12 +5,16 @@
 //! cause, from that peer's own account of its pace ([`crate::peer`]), so no test can rerun on its own evidence.
 //! Every rerun is printed to the real stderr (libtest's capture does not hide it) and appended, one line each, to
 //! the file `$MARS_RERUN_LOG` names, if any (`.ci/run` sums it up in its last line).
+//!
+//! The same goes for the one correction a test makes without a rerun ([`report_machine_time`]): a loop tick whose
+//! thread clock counted time the machine took, by the kernel's interrupt trace and the witness
+//! ([`crate::Witness::machine_time_in_ticks`]). It is a measurement, not an excuse: printed as `TAKEN`, summed by
+//! `.ci/run` apart from the reruns.
 
 use std::fmt;
 use std::io::Write;
 
 use crate::Evidence;
-use crate::TickTaken;
 use crate::peer::PeerAccount;
 
 /// A failure and the evidence that the machine stalled at its time.
@@ -25,9 +29,6 @@ pub struct Excuse {
 enum Grounds {
     Witness(Box<Evidence>),
     Peer(PeerAccount),
-    /// What the kernel's interrupt trace and the witness saw taken from a loop's core during a tick its CPU clock
-    /// blamed on the loop.
-    Kernel(Box<TickTaken>),
 }
 
 impl Excuse {
@@ -39,16 +40,11 @@ impl Excuse {
         Self { failure, grounds: Grounds::Peer(account) }
     }
 
-    pub(crate) fn by_kernel(failure: String, taken: TickTaken) -> Self {
-        Self { failure, grounds: Grounds::Kernel(Box::new(taken)) }
-    }
-
     /// How long the machine stalled by the evidence (ms).
     pub fn stalled_ms(&self) -> f64 {
         match &self.grounds {
             Grounds::Witness(e) => e.stalled_ms(),
             Grounds::Peer(a) => a.lost_ms(),
-            Grounds::Kernel(t) => t.ns() as f64 * 1e-6,
         }
     }
 }
@@ -58,7 +54,6 @@ impl fmt::Display for Excuse {
         match &self.grounds {
             Grounds::Witness(e) => write!(f, "{} — {e}", self.failure),
             Grounds::Peer(a) => write!(f, "{} — {a}", self.failure),
-            Grounds::Kernel(t) => write!(f, "{} — {t}", self.failure),
         }
     }
 }
@@ -87,6 +82,18 @@ pub fn report(test: &str, excuse: &Excuse) {
     {
         // Not `line` first: `.ci/stress` counts lines that start with "RERUN", and the one above is already there.
         panic!("{test}: its rerun cannot be recorded in MARS_RERUN_LOG {}: {e}", path.to_string_lossy());
+    }
+}
+
+/// Prints `TAKEN <test>: <what>` past libtest's capture and appends it to `$MARS_RERUN_LOG`, as [`report`] does a
+/// rerun: what the machine took from a loop tick that the test therefore did not count as the loop's.
+pub fn report_machine_time(test: &str, what: &str) {
+    let line = format!("TAKEN {test}: {what}");
+    let _ = writeln!(std::io::stderr(), "{line}");
+    if let Some(path) = std::env::var_os("MARS_RERUN_LOG")
+        && let Err(e) = append(std::path::Path::new(&path), &line)
+    {
+        panic!("{test}: what the machine took cannot be recorded in MARS_RERUN_LOG {}: {e}", path.to_string_lossy());
     }
 }
 

@@ -9,9 +9,9 @@ use std::time::Duration;
 use mars_hal::backend::Backend;
 use mars_hal::control::HalControl;
 use mars_hal::fault::FaultInjector;
-use mars_hal::profile::Profile;
 use mars_hal::safety::SafetyFilter;
 use mars_hal::sim::SimBackend;
+use mars_profile::Profile;
 use mars_runtime::config::DaemonConfig;
 use mars_runtime::task::HilTask;
 

@@ -10,8 +10,8 @@ use super::JOINTS;
 use super::history::History;
 use super::setpoint_sync::RobotSetpoints;
 use super::sim_checker::{Judged, Shown, SimChecker};
-use crate::profile::Profile;
 use crate::safety::SafetyFilter;
+use mars_profile::Profile;
 
 mod random;
 

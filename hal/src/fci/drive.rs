@@ -34,8 +34,8 @@ use super::state::measurement;
 use super::{Fci, LateCommands, Realtime, connect};
 use crate::backend::{Backend, BackendError, Measurement, RobotReport};
 use crate::gripper::GripperMove;
-use crate::profile::Profile;
 use crate::runner::{Ended, HalLoop, Next, Report, RunOptions};
+use mars_profile::Profile;
 
 /// A state that comes less than half the robot's 1 ms period after the one before is bunched behind it.
 const BUNCHED: Duration = Duration::from_micros(500);
@@ -183,7 +183,7 @@ pub fn run(profile: &Profile, addr: &str, opts: &RunOptions) -> anyhow::Result<R
     };
     report.gripper = hand.as_ref().map(Hand::counts);
     drop(hand);
-    Ok(hal.finish(ended, 0, Some(report)))
+    Ok(hal.finish(ended, 0, Some(Box::new(report))))
 }
 
 /// One motion: the robot's callback runs the HAL tick until the HAL ends (at rest) or the robot stops.
@@ -195,51 +195,12 @@ fn control(
     report: &mut RobotLoopReport,
 ) -> Phase {
     let mut done = None;
-    let mut last: Option<Instant> = None;
-    let mut cycles_in_motion = 0u64;
-    let mut robot_setpoints = RobotSetpoints::new(profile.fci.late_commands == LateCommands::Applied);
-    let mut last_resync: Option<(u64, u64)> = None;
-    let mut recent = RecentCycles::<REGULARITY_CYCLES>::default();
+    let mut motion = Motion::new(profile.fci.late_commands == LateCommands::Applied);
     let result = fci.robot().control_joint_positions(
         |state, period| {
             let start = Stamp::now();
-            let woke = start.at;
-            let bunched = last.is_some_and(|prev| woke - prev < BUNCHED);
-            if let Some(prev) = last {
-                hal.late_us.saturating_record((woke - prev).as_micros().saturating_sub(1000) as u64);
-            }
-            report.bunched_states += u64::from(bunched);
-            last = Some(woke);
-            // States the robot sent between the last one we saw and this one.
-            let missed = period.as_millis().saturating_sub(1);
-            report.cycles += 1;
-            report.lost_states += missed;
-            cycles_in_motion += 1;
-            report.last_success_rate = state.control_command_success_rate;
-            if cycles_in_motion > 100 {
-                report.success_rate(state.control_command_success_rate);
-            }
-            // The robot's q_d is the setpoint it applied last cycle: ours, unless it extrapolated over a command it
-            // did not get or over states we never saw (see `setpoint_sync`).
-            let resync = robot_setpoints.observe(
-                &state.q_d,
-                &state.dq_d,
-                &state.ddq_d,
-                state.control_command_success_rate,
-                missed,
-            );
-            if let Some(r) = resync {
-                hal.control.resync_setpoint(&r.q, &r.v, &r.a);
-                report.resyncs += 1;
-                report.resyncs_thrown_away += u64::from(robot_setpoints.last_from == Some(ResyncFrom::LateThrownAway));
-                last_resync = Some((report.cycles, missed));
-            }
-            let mut judged_twice = false;
-            for (h, cycles) in robot_setpoints.alternatives() {
-                hal.control.also_judged_from(&h.q, &h.v, &h.a, cycles);
-                judged_twice = true;
-            }
-            report.judged_twice += u64::from(judged_twice);
+            let (missed, bunched) = motion.timing(start.at, period, state, hal, report);
+            let resynced = motion.follow_the_robot(state, missed, hal, report);
             let mut cycle = Cycle {
                 state,
                 hand: hand.as_deref_mut(),
@@ -248,17 +209,7 @@ fn control(
                 cycles: u32::try_from(missed + 1).unwrap_or(u32::MAX),
             };
             let next = hal.tick(&mut cycle, start);
-            robot_setpoints.sent(cycle.command);
-            recent.push(CycleRecord {
-                period_ms: period.as_millis(),
-                q_d: state.q_d,
-                dq_d: state.dq_d,
-                ddq_d: state.ddq_d,
-                sent: cycle.command,
-                resynced: resync.is_some(),
-                bunched,
-                success_rate: state.control_command_success_rate,
-            });
+            motion.sent(state, period, cycle.command, resynced, bunched);
             let mut cmd = JointPositions::new(cycle.command);
             if let Next::End(e) = next {
                 done = Some(e);
@@ -273,25 +224,131 @@ fn control(
     match (result, done) {
         (Ok(()), Some(e)) => Phase::Done(e),
         (Ok(()), None) => Phase::Lost("the robot ended the motion without being asked".into()),
-        (Err(FrankaError::Control(ce)), _) => {
-            let reasons = ce.last_motion_errors.names();
-            let mut why = if reasons.is_empty() { ce.message.clone() } else { reasons.join(", ") };
-            // Whether the robot had just extrapolated over a lost command (the usual cause of a discontinuity).
-            if let (Some((at, missed)), Some(from)) = (last_resync, robot_setpoints.last_from) {
-                why += &format!(
-                    " ({} cycles after the last setpoint resync, over {missed} unseen states, from {from:?})",
-                    report.cycles - at
-                );
-            }
-            // How regularly the states came before it: the robot may have applied what the HAL could only guess.
-            why += &format!("; {}", recent.regularity());
-            // The cycles before it, for the joint where our last commands implied the largest jerk against the
-            // robot's report (a discontinuity is usually there).
-            let joint = recent.roughest_joint(8);
-            warn!("the last cycles before the reflex, joint {}:{}", joint + 1, recent.describe(joint, 8));
-            Phase::Reflex(why)
-        }
+        (Err(FrankaError::Control(ce)), _) => Phase::Reflex(motion.reflex_reasons(&ce, report)),
         (Err(e), _) => Phase::Lost(e.to_string()),
+    }
+}
+
+/// What the robot's callback keeps from cycle to cycle of one motion: when the last state came, the model of the
+/// robot's setpoint history, and the recent cycles a reflex's report describes. Every method runs inside the
+/// robot's cycle: no allocation, no lock.
+struct Motion {
+    last: Option<Instant>,
+    cycles: u64,
+    setpoints: RobotSetpoints,
+    /// The robot cycle of the last resync and the states unseen before it.
+    last_resync: Option<(u64, u64)>,
+    recent: RecentCycles<REGULARITY_CYCLES>,
+}
+
+impl Motion {
+    fn new(late_commands_applied: bool) -> Self {
+        Self {
+            last: None,
+            cycles: 0,
+            setpoints: RobotSetpoints::new(late_commands_applied),
+            last_resync: None,
+            recent: RecentCycles::default(),
+        }
+    }
+
+    /// The state's timing against the one before: how many states the robot sent that we never saw, and whether
+    /// this one came bunched behind a late one; counted in the report with the robot's success rate.
+    fn timing(
+        &mut self,
+        woke: Instant,
+        period: franka::Duration,
+        state: &RobotState,
+        hal: &mut HalLoop,
+        report: &mut RobotLoopReport,
+    ) -> (u64, bool) {
+        let bunched = self.last.is_some_and(|prev| woke - prev < BUNCHED);
+        if let Some(prev) = self.last {
+            hal.late_us.saturating_record((woke - prev).as_micros().saturating_sub(1000) as u64);
+        }
+        report.bunched_states += u64::from(bunched);
+        self.last = Some(woke);
+        // States the robot sent between the last one we saw and this one.
+        let missed = period.as_millis().saturating_sub(1);
+        report.cycles += 1;
+        report.lost_states += missed;
+        self.cycles += 1;
+        report.last_success_rate = state.control_command_success_rate;
+        if self.cycles > 100 {
+            report.success_rate(state.control_command_success_rate);
+        }
+        (missed, bunched)
+    }
+
+    /// Continues the HAL's filter from the robot's own setpoint history when the robot applied another than our
+    /// last command (the robot's q_d is the setpoint it applied last cycle: ours, unless it extrapolated over a
+    /// command it did not get or over states we never saw: see `setpoint_sync`), and has the next command judged
+    /// from each history the robot may yet be in. Whether it resynced.
+    fn follow_the_robot(
+        &mut self,
+        state: &RobotState,
+        missed: u64,
+        hal: &mut HalLoop,
+        report: &mut RobotLoopReport,
+    ) -> bool {
+        let rate = state.control_command_success_rate;
+        let resync = self.setpoints.observe(&state.q_d, &state.dq_d, &state.ddq_d, rate, missed);
+        if let Some(r) = &resync {
+            hal.control.resync_setpoint(&r.q, &r.v, &r.a);
+            report.resyncs += 1;
+            report.resyncs_thrown_away += u64::from(self.setpoints.last_from == Some(ResyncFrom::LateThrownAway));
+            self.last_resync = Some((report.cycles, missed));
+        }
+        let mut judged_twice = false;
+        for (h, cycles) in self.setpoints.alternatives() {
+            hal.control.also_judged_from(&h.q, &h.v, &h.a, cycles);
+            judged_twice = true;
+        }
+        report.judged_twice += u64::from(judged_twice);
+        resync.is_some()
+    }
+
+    /// The command sent this cycle: into the setpoint model and the recent cycles.
+    fn sent(
+        &mut self,
+        state: &RobotState,
+        period: franka::Duration,
+        command: [f64; JOINTS],
+        resynced: bool,
+        bunched: bool,
+    ) {
+        self.setpoints.sent(command);
+        self.recent.push(CycleRecord {
+            period_ms: period.as_millis(),
+            q_d: state.q_d,
+            dq_d: state.dq_d,
+            ddq_d: state.ddq_d,
+            sent: command,
+            resynced,
+            bunched,
+            success_rate: state.control_command_success_rate,
+        });
+    }
+
+    /// A reflex's reasons as the robot gave them, with what came before it: the last resync, how regularly the
+    /// states came, and (logged) the last cycles of the joint our commands jerked most against the robot's report.
+    fn reflex_reasons(&self, ce: &franka::ControlException, report: &RobotLoopReport) -> String {
+        let reasons = ce.last_motion_errors.names();
+        let mut why = if reasons.is_empty() { ce.message.clone() } else { reasons.join(", ") };
+        // Whether the robot had just extrapolated over a lost command (the usual cause of a discontinuity).
+        if let (Some((at, missed)), Some(from)) = (self.last_resync, self.setpoints.last_from) {
+            why += &format!(
+                " ({} cycles after the last setpoint resync, over {missed} unseen states, from {from:?})",
+                report.cycles - at
+            );
+        }
+        // How regularly the states came before it: the robot may have applied what the HAL could only guess.
+        why += &format!("; {}", self.recent.regularity());
+        // The cycles before it, for the joint where our last commands implied the largest jerk against the
+        // robot's report (a discontinuity is usually there).
+        let joint = self.recent.roughest_joint(8);
+        warn!("the last cycles before the reflex, joint {}:{}", joint + 1, self.recent.describe(joint, 8));
+        why
     }
 }
 

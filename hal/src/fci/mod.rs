@@ -5,12 +5,12 @@
 //! the filtered setpoint out, in the same cycle), holds on a reflex and recovers only when asked; [`state`] turns
 //! a `franka::RobotState` into our measurement; [`hand`] drives the Franka Hand on threads of its own.
 //! `mars-hal fci-status` ([`status`]) reads one state and commands nothing; `mars-hal recover` ([`recover`]) clears
-//! a reflex when no HAL is running. [`franka_sim`] starts the simulator that speaks the same protocol.
+//! a reflex when no HAL is running. (The simulator that speaks the same protocol, franka-sim, is started by the
+//! HIL rig: `mars_hil::franka_sim`.)
 
 pub mod connect;
 pub mod drive;
 pub mod error;
-pub mod franka_sim;
 pub mod hand;
 pub mod history;
 mod late_reads;
@@ -26,7 +26,7 @@ mod against_sim;
 #[cfg(test)]
 mod sim_checker;
 
-pub use crate::profile::fci_params::{FciParams, JOINTS, LateCommands, Realtime};
 pub use connect::{Fci, connect};
 pub use error::FciError;
+pub use mars_profile::fci_params::{FciParams, JOINTS, LateCommands, Realtime};
 pub use report::RobotLoopReport;

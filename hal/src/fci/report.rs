@@ -45,6 +45,25 @@ impl RobotLoopReport {
     }
 }
 
+impl crate::runner::DriverReport for RobotLoopReport {
+    fn to_json(&self) -> serde_json::Value {
+        serde_json::json!({
+            "addr": self.addr,
+            "cycles": self.cycles,
+            "lost_states": self.lost_states,
+            "bunched_states": self.bunched_states,
+            "resyncs": self.resyncs,
+            "resyncs_thrown_away": self.resyncs_thrown_away,
+            "judged_twice": self.judged_twice,
+            "min_success_rate": self.min_success_rate,
+            "last_success_rate": self.last_success_rate,
+            "reflexes": self.reflexes,
+            "recoveries": self.recoveries,
+            "connection_lost": self.connection_lost,
+        })
+    }
+}
+
 impl std::fmt::Display for RobotLoopReport {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(

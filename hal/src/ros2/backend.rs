@@ -27,7 +27,7 @@ use mars_rt::monotonic_ns;
 use super::io::{Link, Newest, Target};
 use crate::backend::{Backend, BackendError, Measurement};
 use crate::gripper::GripperMove;
-use crate::profile::Profile;
+use mars_profile::Profile;
 
 /// How many ticks the stop target is published after the feedback stopped.
 pub const STOP_REPEATS: u32 = 5;

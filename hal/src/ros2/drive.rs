@@ -21,8 +21,8 @@ use super::backend::Ros2Backend;
 use super::io::Link;
 use crate::control::StartError;
 use crate::events::LoopEvent;
-use crate::profile::Profile;
 use crate::runner::{HalLoop, Next, Report, RunOptions};
+use mars_profile::Profile;
 
 /// Runs the HAL on the ROS 2 robot of `profile.ros2` until the duration ends or a termination request (both at
 /// rest). Refuses to start (a [`StartError`], nothing published) without feedback from the robot.

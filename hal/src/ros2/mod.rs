@@ -32,5 +32,5 @@ pub mod io;
 pub mod message;
 pub mod topics;
 
-pub use crate::profile::ros2_params::{Reliability, Ros2Params};
 pub use backend::Ros2Backend;
+pub use mars_profile::ros2_params::{Reliability, Ros2Params};

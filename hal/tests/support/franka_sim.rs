@@ -17,7 +17,11 @@ use std::process::{Command, Stdio};
 use std::sync::atomic::{AtomicU32, Ordering};
 use std::time::{Duration, Instant};
 
-use mars_hal::fci::franka_sim::FrankaSim as Sim;
+// The simulator's process handle is the HIL rig's (`mars_hil::franka_sim`, which the demo starts it with); the HAL
+// does not depend on the rig, so its tests take the file itself.
+#[path = "../../../hil/src/franka_sim.rs"]
+mod process;
+use process::FrankaSim as Sim;
 
 /// How long the simulator may take to listen (MuJoCo compiles the model and settles it first: ~1 s idle, several
 /// seconds on a loaded 2-core machine).

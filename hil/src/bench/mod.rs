@@ -278,7 +278,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     let cfg = mars_runtime::config::DaemonConfig::load(&args.config)?;
     // One real-time rig at a time: cyclictest and the demo rigs measured here must not share the cores.
     let _rig = mars_runtime::rt::rig_lock::rt_rig_lock().context("taking the real-time rig lock")?;
-    let profile = mars_hal::profile::Profile::load(&cfg.profile)?;
+    let profile = mars_profile::Profile::load(&cfg.profile)?;
     let period_us = (profile.period_s() * 1e6).round() as u64;
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
     let started = first_line("date", &["-u", "+%Y-%m-%d %H:%M UTC"]).unwrap_or_else(|| "?".into());

@@ -6,8 +6,8 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::Duration;
 
+use crate::franka_sim::FrankaSim;
 use anyhow::Context;
-use mars_hal::fci::franka_sim::FrankaSim;
 
 use super::watch::StateWatch;
 use crate::demo::{DemoRobot, FRANKA_SIM_STATE_GAP_MS, hal_command, start_franka_sim};

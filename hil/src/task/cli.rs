@@ -3,7 +3,7 @@
 use std::path::Path;
 
 use anyhow::Context;
-use mars_hal::profile::Profile;
+use mars_profile::Profile;
 use mars_tasks::demo::{Demo, DemoSet};
 
 use super::eval::{EvalReport, evaluate};

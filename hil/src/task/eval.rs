@@ -6,8 +6,8 @@ use std::path::Path;
 
 use anyhow::ensure;
 use mars_engine::{Engine, EngineConfig};
-use mars_hal::profile::Profile;
 use mars_ipc::MAX_JOINTS;
+use mars_profile::Profile;
 use mars_tasks::nav2d::eval::latency_percentiles;
 use mars_tasks::nav2d::modal_balance;
 use serde::{Deserialize, Serialize};

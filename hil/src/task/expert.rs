@@ -3,7 +3,7 @@
 //! would record. Modes alternate (balanced), everything is seeded, and every demo is checked before it is kept.
 
 use anyhow::bail;
-use mars_hal::profile::Profile;
+use mars_profile::Profile;
 use mars_tasks::demo::Demo;
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};

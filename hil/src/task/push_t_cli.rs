@@ -6,9 +6,9 @@
 use std::path::Path;
 use std::time::Instant;
 
-use mars_hal::profile::Profile;
 use mars_policy::config::{PolicyConfig, PolicyKind};
 use mars_policy::inference::MarsPolicy;
+use mars_profile::Profile;
 use mars_tasks::push_t::episode::{Episode, Observer, Score, expert_demos, run_episode, score};
 use serde::Serialize;
 

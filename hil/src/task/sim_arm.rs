@@ -4,9 +4,9 @@
 
 use mars_hal::backend::{Backend, Measurement};
 use mars_hal::gripper::GripperMove;
-use mars_hal::profile::Profile;
 use mars_hal::sim::SimBackend;
 use mars_ipc::MAX_JOINTS;
+use mars_profile::Profile;
 
 use super::pick::Pick;
 

@@ -178,8 +178,10 @@ struct BenchTrainArgs {
 struct TrainArgs {
     #[arg(long, value_parser = mars_policy::kind_arg::policy_kind_parser(), default_value_t = PolicyKind::Mars)]
     policy: PolicyKind,
-    #[arg(long, default_value = "configs/policy.toml")]
-    config: PathBuf,
+    /// The policy's config (default: configs/policy.toml; with --dataset, the dataset's features on the shipped
+    /// defaults, printed and written beside the checkpoint as config.toml).
+    #[arg(long)]
+    config: Option<PathBuf>,
     /// A demo file (`mars demos`).
     #[arg(long, default_value = "runs/nav2d/demos.json")]
     demos: PathBuf,
@@ -375,7 +377,7 @@ impl TrainArgs {
             }
         };
         let out = out.unwrap_or_else(|| runs.join(policy.name()));
-        cli::train(policy, &config, &input, &out, epochs, seed, snapshot_every).map(|_| ())
+        cli::train(policy, config.as_deref(), &input, &out, epochs, seed, snapshot_every).map(|_| ())
     }
 }
 

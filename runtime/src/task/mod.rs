@@ -10,7 +10,7 @@ pub mod push_t;
 
 use std::path::Path;
 
-use mars_hal::profile::Profile;
+use mars_profile::Profile;
 pub use mars_tasks::Task;
 pub use mars_tasks::pick;
 

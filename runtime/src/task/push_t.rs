@@ -8,8 +8,8 @@
 
 use std::path::Path;
 
-use mars_hal::profile::Profile;
 use mars_kinematics::{Arm, Plane};
+use mars_profile::Profile;
 use mars_tasks::push_t::PushTConfig;
 use mars_tasks::push_t::episode::Observe;
 use serde::Deserialize;

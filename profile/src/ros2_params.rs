@@ -14,7 +14,7 @@ pub enum Reliability {
 }
 
 /// One of the robot's cameras (`[[ros2.cameras]]`): a `sensor_msgs/CompressedImage` (JPEG) topic, bridged to our
-/// image frames on `mars/<robot>/camera/<id>` ([`crate::ros2::camera`]).
+/// image frames on `mars/<robot>/camera/<id>` (the HAL's `ros2::camera`).
 #[derive(Debug, Clone, PartialEq, Eq, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct CameraParams {
@@ -202,7 +202,7 @@ mod tests {
     use std::path::Path;
 
     use super::*;
-    use crate::profile::{BackendKind, Profile};
+    use crate::{BackendKind, Profile};
 
     #[test]
     fn the_r1_lite_topics_are_valid_ros_names_and_malformed_ones_are_not() {

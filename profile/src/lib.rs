@@ -7,11 +7,13 @@ use std::path::Path;
 use mars_ipc::MAX_JOINTS;
 use serde::Deserialize;
 
-use crate::fault::FaultConfig;
-
+pub mod faults;
 pub mod fci_params;
 pub mod ros2_params;
-use crate::velocity_limits::{JointVelocityBound, VelocityLimits};
+pub mod velocity_limits;
+
+use faults::FaultConfig;
+use velocity_limits::{JointVelocityBound, VelocityLimits};
 
 /// What the safety filter does with a command outside the limits.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
@@ -45,7 +47,7 @@ pub struct SimParams {
     /// Gripper opening the plant starts at (default: `gripper_max`).
     #[serde(default)]
     pub start_gripper: Option<f64>,
-    /// Faults to inject (all off by default); see [`crate::fault`].
+    /// Faults to inject (all off by default); see [`faults`].
     #[serde(default)]
     pub faults: FaultConfig,
 }
@@ -76,7 +78,7 @@ pub struct Profile {
     pub q_min: Vec<f64>,
     pub q_max: Vec<f64>,
     pub dq_max: Vec<f64>,
-    /// Whether the velocity bound depends on position (the FR3's braking curves, see [`crate::velocity_limits`]);
+    /// Whether the velocity bound depends on position (the FR3's braking curves, see [`velocity_limits`]);
     /// `dq_max` caps it either way.
     #[serde(default)]
     pub velocity_limits: VelocityLimits,

@@ -118,7 +118,7 @@ impl JointVelocityBound {
 
     /// The bound `headroom` (rad/s) further inside everywhere, the cap included: what a planner keeps off the
     /// robot's bound when the robot judges the arm's *measured* velocity, which overshoots the commanded one while
-    /// the arm tracks (see `velocity_headroom` in [`crate::profile::Profile`]).
+    /// the arm tracks (see `velocity_headroom` in [`crate::Profile`]).
     pub fn with_headroom(&self, headroom: f64) -> Self {
         match self.curves {
             None => Self { cap: self.cap - headroom, ..*self },
