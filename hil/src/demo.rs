@@ -136,7 +136,7 @@ pub fn demo(mut args: DemoArgs) -> anyhow::Result<u8> {
     let robot = args.marsd.robot.clone().unwrap_or_else(|| format!("{}-demo-{}", cfg.robot, std::process::id()));
     let out = args.marsd.out.clone().unwrap_or_else(|| cfg.out.clone());
     // The preflight: what this machine can do, before anything runs on it (it never stops the demo).
-    match mars_runtime::doctor::run(&args.marsd.config, 2.0, Some(&out)) {
+    match mars_runtime::tools::doctor::run(&args.marsd.config, 2.0, Some(&out)) {
         Ok(report) => print!("{report}"),
         Err(e) => eprintln!("doctor: could not measure this machine: {e:#}"),
     }
@@ -322,18 +322,18 @@ fn explain_trip(out: &Path, trip_line: Option<&str>, watched: &crate::stall_watc
         .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok());
     let Some(trip) = summary.as_ref().and_then(|s| s["trip"].as_str().map(str::to_owned)) else { return };
     let Some(line) = trip_line else { return };
-    let Some(trip_ns) = mars_runtime::stall::trip_time_from_log(line) else { return };
+    let Some(trip_ns) = mars_runtime::report::stall::trip_time_from_log(line) else { return };
     let gaps: Vec<_> = watched.gaps.iter().copied().collect();
     let steal: Vec<_> = watched.steal.iter().copied().collect();
-    let evidence = mars_runtime::stall::around_trip(trip_ns, &gaps, period_ms, &steal);
+    let evidence = mars_runtime::report::stall::around_trip(trip_ns, &gaps, period_ms, &steal);
     let clock = line.get(11..23).unwrap_or("the trip");
-    if let Some(m) = mars_runtime::stall::demo_message(&trip, clock, &evidence) {
+    if let Some(m) = mars_runtime::report::stall::demo_message(&trip, clock, &evidence) {
         eprintln!("{m}");
     }
     let record = serde_json::json!({
         "trip": trip,
         "logged_at": clock,
-        "timing_check": mars_runtime::stall::is_timing_trip(&trip),
+        "timing_check": mars_runtime::report::stall::is_timing_trip(&trip),
         "machine_stalled": evidence.is_stall(),
         "evidence": evidence,
         "said": evidence.to_string(),

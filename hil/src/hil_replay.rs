@@ -1,6 +1,6 @@
 //! `mars-hil replay DATASET --episode N`: a recorded episode's commands through the mock HAL again — the demo's
 //! rig (HAL process, marsd) with marsd running the recording's chunks instead of the policy's
-//! ([`mars_runtime::recorded_actions`]), from the same start pose, through the same servo smoothing and safety filter —
+//! ([`mars_runtime::policy::recorded_actions`]), from the same start pose, through the same servo smoothing and safety filter —
 //! recorded in turn, and the two trajectories compared period by period. The plant is deterministic; what
 //! differs is the live run's timing (which servo tick a chunk reached, the machine's stalls), so the answer is
 //! how closely the plant's trajectory comes back, and whether the episode ends the same way.
@@ -13,7 +13,7 @@ use serde::Serialize;
 
 use crate::demo::{DemoArgs, DemoRobot};
 use mars_runtime::cli::MarsdArgs;
-use mars_runtime::recorded_actions::RunMeta;
+use mars_runtime::policy::recorded_actions::RunMeta;
 
 #[derive(clap::Args, Debug, Clone)]
 pub struct HilReplayArgs {

@@ -1,7 +1,7 @@
 //! A thread of `mars-hil demo` that watches the machine while marsd runs: it reads the HAL's state frames and
 //! keeps the gaps in them (a HAL that published nothing for 15 ms, or as long in pauses, means the machine stalled), and samples the
 //! hypervisor's steal time every 10 ms. When marsd then trips on a timing check, the demo looks here for a
-//! stall around the trip ([`mars_runtime::stall::around_trip`]) and says so. Memory is bounded for endless runs.
+//! stall around the trip ([`mars_runtime::report::stall::around_trip`]) and says so. Memory is bounded for endless runs.
 
 use std::collections::VecDeque;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -13,7 +13,7 @@ use anyhow::Context;
 use mars_ipc::node::create_node;
 use mars_ipc::{RobotNamespace, StateReader};
 
-use mars_runtime::stall::{self, FrameGap, GapFinder, StealSample};
+use mars_runtime::report::stall::{self, FrameGap, GapFinder, StealSample};
 
 /// Steal samples kept: the last minute at one per 10 ms (a trip is looked up right after it).
 const STEAL_SAMPLES: usize = 6_000;

@@ -58,7 +58,7 @@ fn a_slow_writer_costs_the_loop_nothing_and_keeps_only_complete_episodes() {
             frames,
             success: true,
             mode: None,
-            rest: [0.0; mars_runtime::chunk::MAX_ACTION],
+            rest: [0.0; mars_runtime::servo::chunk::MAX_ACTION],
             rest_len: 3,
         });
     }
@@ -186,7 +186,7 @@ fn recorded_demo(attempt: u32) -> Attempt {
 
     // `marsd replay`: the run's calls again, with its seeds and step counts, equal what it executed bit for
     // bit; another checkpoint diverges at the first call and says by how much.
-    use mars_runtime::replay::{ReplayArgs, run};
+    use mars_runtime::tools::replay::{ReplayArgs, run};
     let args = ReplayArgs { dataset: path.clone(), episode: 0, checkpoint: None };
     let same = run(&args).unwrap();
     eprint!("{same}");

@@ -8,7 +8,7 @@
 use iceoryx2::prelude::ZeroCopySend;
 
 /// Latency channels a frame has room for, in the order of the daemon's channel list
-/// (`mars_runtime::latency::Channel::ALL`, which checks at compile time that it fits).
+/// (`mars_runtime::report::latency::Channel::ALL`, which checks at compile time that it fits).
 pub const LIVE_CHANNELS: usize = 12;
 
 /// One channel over its newest interval: time channels in ns, the K channels in ODE steps. `count` 0: no sample
@@ -44,7 +44,7 @@ pub struct LiveStats {
     pub channels: [LiveChannel; LIVE_CHANNELS],
     /// The servo loop's phase (`mars_runtime::shared::Phase` as a number), its episode and ticks so far.
     pub phase: u32,
-    /// The trip that stopped the loop (`mars_runtime::watchdog::Trip` code); 0: none.
+    /// The trip that stopped the loop (`mars_runtime::servo::watchdog::Trip` code); 0: none.
     pub trip: u32,
     pub episode: u64,
     pub ticks: u64,

@@ -1,5 +1,5 @@
 //! ns per servo tick of the end-effector map Push-T adds to the tick: (x, y) on the table → joints by IK from the
-//! previous tick, q̇ by the Jacobian (`mars_runtime::effector`), on the expert's own paths (both routes, several
+//! previous tick, q̇ by the Jacobian (`mars_runtime::servo::effector`), on the expert's own paths (both routes, several
 //! starts) interpolated at 1 kHz, as the servo samples a chunk; next to one ruckig step of the smoother on the
 //! joint stream it produced, for scale. Counts heap allocations per tick (the binary's counting allocator).
 //!
@@ -11,7 +11,7 @@ use std::time::Instant;
 
 use mars_profile::Profile;
 use mars_runtime::alloc_count::{CountingAlloc, thread_counts};
-use mars_runtime::smoothing::{Limits, Smoother};
+use mars_runtime::servo::smoothing::{Limits, Smoother};
 use mars_runtime::task::PushTHil;
 use mars_tasks::push_t::PushT;
 use mars_tasks::push_t::expert::{Expert, Route};

@@ -14,7 +14,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant;
 
 use mars_profile::Profile;
-use mars_runtime::smoothing::{DEFAULT_SAFETY_FACTOR, Limits, Smoother};
+use mars_runtime::servo::smoothing::{DEFAULT_SAFETY_FACTOR, Limits, Smoother};
 
 const TICKS: usize = 20_000;
 const ROUNDS: usize = 3;

@@ -136,26 +136,26 @@ pub enum MarsdTool {
     /// Measure this machine in a few seconds (wake-ups at the servo's rate and priority, steal, RT limits,
     /// PREEMPT_RT, CPU governor, isolated cores), say what a run can expect and how to improve it, and write
     /// doctor.json.
-    Doctor(crate::doctor::DoctorArgs),
+    Doctor(crate::tools::doctor::DoctorArgs),
     /// Watch one camera's frames for a few seconds through the policy's checks (size, encoding, schema, capture
     /// age on CLOCK_MONOTONIC, order): what arrived, what was refused and why, how old frames were, at what rate.
     /// Exits 0 when usable frames came and none was refused, 2 otherwise.
-    Camera(crate::camera_watch::CameraArgs),
+    Camera(crate::tools::camera_watch::CameraArgs),
     /// Watch a running daemon live: servo wake-up lateness and tick time, state age, inference time against its
     /// budget, K, camera ages (p50/p99/max of each last interval, and how many samples took a period or more),
     /// the servo's phase, episode and trip. Reads mars/<robot>/live; costs the daemon's loops nothing.
-    Top(crate::top::TopArgs),
+    Top(crate::tools::top::TopArgs),
     /// Replay a recorded run's policy calls (a dataset from `--record`) through the engine with the seeds and
     /// step counts the run used, and compare with the actions it executed: identical bit for bit on an unchanged
     /// checkpoint, else the first call that differs. Exits 0 when identical, 2 when they differ.
-    Replay(crate::replay::ReplayArgs),
+    Replay(crate::tools::replay::ReplayArgs),
 }
 
 /// Runs marsd's command line: the daemon, or the tool it names (exit status per [`daemon::exit`] for the daemon;
 /// 0 healthy, 2 not, 1 on an error for the tools).
 pub fn run_command_line(cl: MarsdCommandLine) -> ExitCode {
     match cl.tool {
-        Some(MarsdTool::Doctor(d)) => match crate::doctor::run(&d.config, d.seconds, d.out.as_deref()) {
+        Some(MarsdTool::Doctor(d)) => match crate::tools::doctor::run(&d.config, d.seconds, d.out.as_deref()) {
             Ok(report) => {
                 print!("{report}");
                 std::process::ExitCode::SUCCESS
@@ -165,7 +165,7 @@ pub fn run_command_line(cl: MarsdCommandLine) -> ExitCode {
                 std::process::ExitCode::FAILURE
             }
         },
-        Some(MarsdTool::Replay(r)) => match crate::replay::run(&r) {
+        Some(MarsdTool::Replay(r)) => match crate::tools::replay::run(&r) {
             Ok(report) => {
                 print!("{report}");
                 std::process::ExitCode::from(if report.identical { 0 } else { 2 })
@@ -175,7 +175,7 @@ pub fn run_command_line(cl: MarsdCommandLine) -> ExitCode {
                 std::process::ExitCode::FAILURE
             }
         },
-        Some(MarsdTool::Camera(c)) => match crate::camera_watch::run(&c) {
+        Some(MarsdTool::Camera(c)) => match crate::tools::camera_watch::run(&c) {
             Ok(report) => {
                 print!("{report}");
                 std::process::ExitCode::from(if report.healthy() { 0 } else { 2 })
@@ -185,7 +185,7 @@ pub fn run_command_line(cl: MarsdCommandLine) -> ExitCode {
                 std::process::ExitCode::FAILURE
             }
         },
-        Some(MarsdTool::Top(t)) => match crate::top::run(&t) {
+        Some(MarsdTool::Top(t)) => match crate::tools::top::run(&t) {
             Ok(_) => std::process::ExitCode::SUCCESS,
             Err(e) => {
                 eprintln!("error: {e:#}");

@@ -18,16 +18,16 @@ use mars_ipc::{HeartbeatThread, PeerView, Route, Side};
 use mars_profile::Profile;
 use tracing::{error, info, warn};
 
-use crate::chunk::{MAX_ACTION, MAX_CHUNK, TimedChunk};
 use crate::config::DaemonConfig;
-use crate::latency::{Channel, Collector};
-use crate::policy_loop::{PolicyChannels, PolicyLoop};
-use crate::recorded_actions::RecordedActions;
+use crate::observe::scene_link::SceneLink;
+use crate::policy::recorded_actions::RecordedActions;
+use crate::policy::{PolicyChannels, PolicyLoop};
 use crate::report::Summary;
+use crate::report::latency::{Channel, Collector};
 use crate::rt::RtStatus;
-use crate::scene_link::SceneLink;
 use crate::servo::ServoTick;
-use crate::servo_loop::{ServoChannels, ServoLoopConfig, ServoReport, ServoWire, run_servo};
+use crate::servo::chunk::{MAX_ACTION, MAX_CHUNK, TimedChunk};
+use crate::servo::servo_loop::{ServoChannels, ServoLoopConfig, ServoReport, ServoWire, run_servo};
 use crate::shared::{Observed, Status};
 use crate::task::HilTask;
 
@@ -233,8 +233,8 @@ fn start_collector(
     profile: &Profile,
     task: &HilTask,
     status: &Arc<Status>,
-) -> anyhow::Result<(Collector, crate::latency::Recorder, crate::latency::Recorder)> {
-    let live = crate::live::publisher(crate::live::LiveSetup {
+) -> anyhow::Result<(Collector, crate::report::latency::Recorder, crate::report::latency::Recorder)> {
+    let live = crate::report::live::publisher(crate::report::live::LiveSetup {
         robot: cfg.robot.clone(),
         status: status.clone(),
         period_ns: (profile.period_s() * 1e9) as u64,
@@ -280,7 +280,7 @@ fn on_termination_signals() -> anyhow::Result<Arc<AtomicBool>> {
 /// The servo thread's end: its report and real-time setup (`None`: it could not open the wire).
 type ServoThread = std::thread::JoinHandle<Option<(ServoReport, RtStatus)>>;
 /// The policy thread's end (`None`: it could not open the task's camera and scene).
-type PolicyThread = std::thread::JoinHandle<Option<(crate::policy_loop::PolicyReport, RtStatus)>>;
+type PolicyThread = std::thread::JoinHandle<Option<(crate::policy::PolicyReport, RtStatus)>>;
 
 /// Starts the servo thread, which opens the wire itself (iceoryx2's ports stay on the thread that made them);
 /// returns once it is open, with a view of its HAL liveness watch.
@@ -288,7 +288,7 @@ fn start_servo(
     cfg: &DaemonConfig,
     tick: ServoTick,
     ch: ServoChannels,
-    rec: crate::latency::Recorder,
+    rec: crate::report::latency::Recorder,
     loop_cfg: ServoLoopConfig,
 ) -> anyhow::Result<(ServoThread, PeerView)> {
     let (core, priority, lock) = (cfg.servo.core, cfg.servo.priority, cfg.servo.lock_memory);
@@ -320,7 +320,7 @@ struct PolicyParts {
     engine: Engine,
     task: HilTask,
     ch: PolicyChannels,
-    rec: crate::latency::Recorder,
+    rec: crate::report::latency::Recorder,
     recording: Option<crate::record::Recorder>,
     replay: Option<RecordedActions>,
 }

@@ -56,7 +56,7 @@ pub struct EpisodeEnd {
     /// The grasp (or approach) the episode took, by the task's monitor, if it took one.
     pub mode: Option<usize>,
     /// The action history's padding before the first chunk (`rest[..rest_len]`): replay starts from it.
-    pub rest: [f32; crate::chunk::MAX_ACTION],
+    pub rest: [f32; crate::servo::chunk::MAX_ACTION],
     pub rest_len: usize,
 }
 

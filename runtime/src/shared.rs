@@ -11,7 +11,7 @@ use std::sync::atomic::{AtomicBool, AtomicU8, AtomicU32, AtomicU64, Ordering};
 
 use mars_ipc::MAX_JOINTS;
 
-use crate::watchdog::Trip;
+use crate::servo::watchdog::Trip;
 
 /// What the policy thread (the episode coordinator) asks of the servo loop.
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -9,8 +9,8 @@ use std::sync::Arc;
 use arrow_array::{ArrayRef, Float64Array, Int64Array, RecordBatch};
 use mars_lerobot::table::Table;
 use mars_lerobot::writer::{DatasetSpec, DatasetWriter, VectorSpec};
-use mars_runtime::recorded_actions::RecordedActions;
-use mars_runtime::replay::{ReplayArgs, run};
+use mars_runtime::policy::recorded_actions::RecordedActions;
+use mars_runtime::tools::replay::{ReplayArgs, run};
 use parquet::arrow::ArrowWriter;
 
 fn root() -> PathBuf {

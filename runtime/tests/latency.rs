@@ -11,7 +11,7 @@ use std::time::{Duration, Instant};
 use hdrhistogram::Histogram;
 use hdrhistogram::serialization::Deserializer;
 use hdrhistogram::serialization::interval_log::{IntervalLogIterator, LogEntry};
-use mars_runtime::latency::{Channel, Collector, LOG_FILE, LoopCounters};
+use mars_runtime::report::latency::{Channel, Collector, LOG_FILE, LoopCounters};
 use mars_runtime::rt::monotonic_ns;
 
 /// Counts allocator calls made by threads that opted in, so the collector thread's own work is not counted.
@@ -79,8 +79,8 @@ fn counters(i: u64) -> LoopCounters {
 fn the_live_hook_sees_every_interval_with_the_counters_handed_over() {
     let dir = out_dir("live");
     let (tx, rx) = std::sync::mpsc::channel();
-    let hook: mars_runtime::latency::LiveHook = Box::new(move || {
-        Box::new(move |view: &mars_runtime::latency::IntervalView<'_>, _starved: u64| {
+    let hook: mars_runtime::report::latency::LiveHook = Box::new(move || {
+        Box::new(move |view: &mars_runtime::report::latency::IntervalView<'_>, _starved: u64| {
             let wake = view.histogram(Channel::WakeJitter).map(|h| h.len());
             let _ = tx.send((view.counters().copied(), wake, view.histogram(Channel::Inference).is_some()));
         })

@@ -4,8 +4,10 @@ use std::path::{Path, PathBuf};
 
 use hdrhistogram::Histogram;
 use mars_ipc::MAX_JOINTS;
-use mars_runtime::latency::{Channel, Totals};
-use mars_runtime::plots::{EPISODES_SIZE, EpisodeTrace, K_SIZE, LATENCY_SIZE, plot_episodes, plot_k, plot_latency};
+use mars_runtime::report::latency::{Channel, Totals};
+use mars_runtime::report::plots::{
+    EPISODES_SIZE, EpisodeTrace, K_SIZE, LATENCY_SIZE, plot_episodes, plot_k, plot_latency,
+};
 
 /// Set `MARS_PLOT_DIR` to keep the PNGs for a look.
 fn out_dir(test: &str) -> (PathBuf, bool) {

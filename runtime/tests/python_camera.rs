@@ -12,7 +12,7 @@ use std::time::{Duration, Instant};
 use mars_ipc::clock::monotonic_ns;
 use mars_ipc::node::create_node;
 use mars_ipc::{ImageEncoding, ImageReader, RobotNamespace, SCHEMA_VERSION, SchemaMismatch};
-use mars_runtime::camera::{Camera, CameraRefusal, CameraSpec};
+use mars_runtime::observe::camera::{Camera, CameraRefusal, CameraSpec};
 
 const MS: u64 = 1_000_000;
 

@@ -379,7 +379,7 @@ fn nan_sensor_run(offset_ns: u64, stall_ms: u64, nan: bool) -> Option<StopCause>
 #[test]
 fn a_nan_sensor_is_reported_as_unusable_state_whatever_the_timing() {
     use mars_ipc::HoldReason;
-    use mars_runtime::watchdog::Trip;
+    use mars_runtime::servo::watchdog::Trip;
     for offset_us in [50, 300, 700, 950] {
         for stall_ms in [0, 2, 5, 25] {
             let cause = nan_sensor_run(offset_us * 1000, stall_ms, true);
@@ -437,7 +437,7 @@ fn a_robot_slower_than_the_servo_clock_gets_one_command_per_frame_and_none_clamp
 /// 22 latencies for 23 adopted chunks when the frameless tick adopted and sent nothing).
 #[test]
 fn a_chunk_due_in_a_frameless_tick_reports_its_capture_with_the_next_command() {
-    use mars_runtime::chunk::TimedChunk;
+    use mars_runtime::servo::chunk::TimedChunk;
     let root = root();
     let cfg = DaemonConfig::load(&root.join("configs/marsd.toml")).unwrap();
     let profile = Profile::load(&root.join("configs/fr3.toml")).unwrap();

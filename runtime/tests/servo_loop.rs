@@ -11,13 +11,13 @@ use std::time::Duration;
 
 use mars_ipc::{FrameReceiveError, FrameSendError, JointCommand, RobotState, SchemaMismatch, status};
 use mars_profile::Profile;
-use mars_runtime::chunk::TimedChunk;
 use mars_runtime::config::DaemonConfig;
-use mars_runtime::latency::{Channel, Collector};
+use mars_runtime::report::latency::{Channel, Collector};
+use mars_runtime::servo::chunk::TimedChunk;
+use mars_runtime::servo::servo_loop::{ServoChannels, ServoLoopConfig, ServoPorts, ServoReport, run_servo};
+use mars_runtime::servo::watchdog::Trip;
 use mars_runtime::servo::{ServoTick, StopCause};
-use mars_runtime::servo_loop::{ServoChannels, ServoLoopConfig, ServoPorts, ServoReport, run_servo};
 use mars_runtime::shared::{Observed, Status};
-use mars_runtime::watchdog::Trip;
 
 fn root() -> PathBuf {
     Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/..")).canonicalize().unwrap()

@@ -8,7 +8,7 @@ use std::path::Path;
 
 use mars_ipc::MAX_JOINTS;
 use mars_profile::Profile;
-use mars_runtime::smoothing::{DEFAULT_SAFETY_FACTOR, Kinematics, Limits, Smoother, SmoothingError};
+use mars_runtime::servo::smoothing::{DEFAULT_SAFETY_FACTOR, Kinematics, Limits, Smoother, SmoothingError};
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
 

@@ -9,14 +9,16 @@ use std::time::Duration;
 
 use crate::monotonic_ns;
 
-/// How often the witness wakes: half the HAL's period on an FR3. A stall between two wake-ups shows only if one
-/// of its deadlines falls at least [`LATE_NS`] before the stall's end, so a stall of [`LATE_NS`] + `PERIOD_NS` (1
-/// ms, the HAL's whole period) is seen wherever it falls. At a 1 ms period a 1 ms absence of the virtual CPU that
-/// fell between two wake-ups went unseen while the HAL's thread clock charged it to a tick (CI, 2026-11-29: a tick
-/// of 1 024 µs of "CPU"). Not shorter: what the witness costs the core it watches (`absence_probe 10 1` with and
-/// without `--witness`, 2026-11-29: time taken from a spinner at SCHED_FIFO 80, charged and not) was 3.6 % at 1
-/// ms, 7.7 % at 500 µs, 15 % at 250 µs.
-pub const PERIOD_NS: u64 = 500_000;
+/// How often the witness wakes: a quarter of the HAL's period on an FR3. A stall between two wake-ups shows only if
+/// one of its deadlines falls at least the threshold ([`LATE_NS`], or [`FINE_LATE_NS`] inside a tick) before the
+/// stall's end, so one of [`LATE_NS`] + `PERIOD_NS` (750 µs) is seen wherever it falls, and inside a tick one of
+/// 400 µs. This VM's absences often begin right after a wake-up of the witness (`absence_probe 30 1 --witness`,
+/// 2026-11-29: charged stretches starting at the witness's own phase), where only the next deadline can see them:
+/// at a 1 ms period a 1 ms absence went unseen on CI (a HAL tick of 1 024 µs of "CPU"), at 500 µs one of 1.6 ms
+/// in ~500 µs pieces (`hil/tests/franka_sim.rs`, the stalled HAL, 1 run in 12). The price, what the witness costs
+/// the core it watches (`absence_probe 10 1` with and without `--witness`, time taken from a spinner at SCHED_FIFO
+/// 80, charged and not): 3.6 % at 1 ms, 7.7 % at 500 µs, 15 % at 250 µs.
+pub const PERIOD_NS: u64 = 250_000;
 /// A wake-up at least this late is recorded (the witness's own wake-up lateness on an idle VM is tens of µs). Not
 /// lower: on a kernel that does not preempt itself (`preempt=none`) a thread of the rig in a system call on this
 /// core delays the witness too — a neighbour mapping and unmapping 1 GB made a waker at [`crate::PRIORITY`] ≥ 100

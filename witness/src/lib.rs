@@ -4,7 +4,7 @@
 //! when this witness saw the machine stall at the failure's time. Its evidence is its own:
 //!
 //! - [`core_watch`]: one thread per core, pinned to it, SCHED_FIFO [`PRIORITY`] — above every loop of a rig (the
-//!   HAL at 85, marsd's servo at 80) — waking every 500 µs on an absolute deadline and recording each wake-up
+//!   HAL at 85, marsd's servo at 80) — waking every 250 µs on an absolute deadline and recording each wake-up
 //!   later than [`core_watch::LATE_NS`]. Nothing of a rig's user-space code can delay it: only the kernel,
 //!   interrupts, a higher-priority thread of another program, or the hypervisor (whose absences this VM charges to
 //!   the running thread's CPU clock: `examples/absence_probe.rs`). The kernel's work for a rig's system call can

@@ -23,8 +23,8 @@ pub fn marsd_config() -> Arc<dyn Target> {
     Bundles::of_files("marsd-config", files.iter().map(|f| read(f)).collect(), true, |_, bytes| {
         let Some(Ok(cfg)) = text(bytes).map(|t| DaemonConfig::parse(t, "marsd.toml")) else { return false };
         let _ = (cfg.handshake_timeout(), cfg.histogram_interval(), cfg.engine_step_delay(), cfg.record_writer_delay());
-        let _ = (cfg.policy_period_ns(), mars_runtime::watchdog::ServoWatchdog::new(&cfg.watchdog));
-        let _ = mars_runtime::traces::TraceRing::new(cfg.traces_kept);
+        let _ = (cfg.policy_period_ns(), mars_runtime::servo::watchdog::ServoWatchdog::new(&cfg.watchdog));
+        let _ = mars_runtime::report::traces::TraceRing::new(cfg.traces_kept);
         true
     })
 }

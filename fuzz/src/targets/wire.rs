@@ -14,8 +14,8 @@ use mars_hal::control::HalControl;
 use mars_hal::events::{EventLogger, EventSender};
 use mars_ipc::{ImageEncoding, ImageHeader, JointCommand, MAX_JOINTS, RobotState, SCHEMA_VERSION};
 use mars_profile::Profile;
-use mars_runtime::camera::{CameraCheck, CameraSpec};
 use mars_runtime::config::DaemonConfig;
+use mars_runtime::observe::camera::{CameraCheck, CameraSpec};
 use mars_runtime::servo::{ServoTick, TickInput};
 
 /// Little-endian fields out of the input, zeros once it is used up.

@@ -1,6 +1,6 @@
 //! Shared rig of the multi-process HIL tests: the mock HAL (`mars-hil hal`) and `marsd` as real child processes,
 //! killed when dropped; a recorder thread in the test process that reads the robot's state and command services;
-//! and a limit checker of its own (independent of `mars_runtime::limits` and of the HAL's safety filter).
+//! and a limit checker of its own (independent of `mars_runtime::servo::limits` and of the HAL's safety filter).
 //!
 //! Every test uses its own robot id (pid + test name), so tests never meet each other's iceoryx2 services; and
 //! every test that starts the HAL or marsd holds the machine-wide [`rt_rig_lock`] for its whole run (the spawners

@@ -14,7 +14,7 @@ use mars_tasks::push_t::PushTConfig;
 use mars_tasks::push_t::episode::Observe;
 use serde::Deserialize;
 
-use crate::effector::{PlanarEffector, Workspace};
+use crate::servo::effector::{PlanarEffector, Workspace};
 use mars_tasks::pick::{LIMIT_MARGIN_RAD, TaskError};
 
 /// Where the table is for the arm.

@@ -4,7 +4,7 @@
 
 use std::collections::VecDeque;
 
-use crate::plots::EpisodeTrace;
+use crate::report::plots::EpisodeTrace;
 
 /// Steps one trace can hold before it stops growing (no reallocation in the policy loop).
 pub const TRACE_CAPACITY: usize = 4096;

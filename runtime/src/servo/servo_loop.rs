@@ -15,12 +15,12 @@ use mars_ipc::{
     CommandWriter, FrameReceiveError, FrameSendError, JointCommand, PeerWatch, RobotNamespace, RobotState, StateReader,
 };
 
-use crate::chunk::TimedChunk;
-use crate::latency::{Channel, LoopCounters, Recorder};
+use crate::report::latency::{Channel, LoopCounters, Recorder};
 use crate::rt::Ticker;
+use crate::servo::chunk::TimedChunk;
+use crate::servo::watchdog::SendWatch;
 use crate::servo::{HalCounts, ServoCounters, ServoTick, StopCause, TickInput};
 use crate::shared::{Observed, Phase, Request, Status};
-use crate::watchdog::SendWatch;
 
 /// The servo loop's ends of the wire. iceoryx2's ports are bound to the thread that made them, so the servo
 /// thread opens them itself.
@@ -92,7 +92,7 @@ pub struct ServoChannels {
 pub struct ServoReport {
     pub cause: Option<StopCause>,
     pub counters: ServoCounters,
-    pub frames: crate::frame::FrameCounts,
+    pub frames: crate::servo::frame::FrameCounts,
     pub missed_periods: u64,
     /// Frames refused by the wire for a wrong schema version.
     pub schema_refusals: u64,
@@ -101,9 +101,9 @@ pub struct ServoReport {
     pub send_errors: u64,
     /// The HAL's own counters since the handshake (from its state frames).
     pub hal: HalCounts,
-    pub first_violation: Option<crate::limits::Violation>,
+    pub first_violation: Option<crate::servo::limits::Violation>,
     /// A task acting on the table: what the servo's IK did with the policy's (x, y) references.
-    pub effector: Option<crate::effector::EffectorCounts>,
+    pub effector: Option<crate::servo::effector::EffectorCounts>,
     /// Heap allocations on the servo thread from [`ALLOC_WARMUP_TICKS`] ticks after the handshake to the end
     /// (`None`: the process does not run the counting allocator, or the loop ended before). See
     /// [`crate::alloc_count`].
@@ -210,7 +210,7 @@ fn publish_status(st: &Status, tick: &ServoTick, missed_periods: u64, observed: 
 /// state, give the watch a moment (outside the loop, nothing is commanded any more) to say whether the HAL died —
 /// the report should name the cause, not the symptom.
 fn await_liveness_verdict(tick: &mut ServoTick, wire: &impl ServoPorts, st: &Status, losses_at_start: u64) {
-    if !matches!(tick.stop_cause(), Some(StopCause::Trip(crate::watchdog::Trip::StaleState))) {
+    if !matches!(tick.stop_cause(), Some(StopCause::Trip(crate::servo::watchdog::Trip::StaleState))) {
         return;
     }
     let until = std::time::Instant::now() + LIVENESS_GRACE;
@@ -219,7 +219,7 @@ fn await_liveness_verdict(tick: &mut ServoTick, wire: &impl ServoPorts, st: &Sta
     }
     if wire.hal_losses() != losses_at_start {
         tick.blame_hal_death();
-        st.set_trip(crate::watchdog::Trip::HalDied);
+        st.set_trip(crate::servo::watchdog::Trip::HalDied);
     }
 }
 

@@ -1,22 +1,37 @@
+//! The servo thread, the robot's side of marsd. A state frame enters in [`servo_loop`] and is judged by [`frame`];
+//! the policy's time-stamped chunks ([`chunk`]) become a reference, smoothed by ruckig ([`smoothing`]) or, for a
+//! policy that acts on the table, through the arm's kinematics ([`effector`]); [`limits`] is the last check before
+//! the command leaves in [`servo_loop`]; [`timeliness`] says whether it reached the HAL in time, and [`watchdog`]
+//! when misses are too many.
+//!
 //! One servo tick, as plain logic: state frame and chunk in, command out. No I/O here (the loop around it in
-//! [`crate::servo_loop`] reads and writes iceoryx2), so the whole decision is testable and provably
+//! [`crate::servo::servo_loop`] reads and writes iceoryx2), so the whole decision is testable and provably
 //! allocation-free: every field is fixed-size and preallocated in [`ServoTick::new`].
 //!
 //! Phases: waiting for the HAL → idle (holding) → resetting to an episode's start pose → ready → running the
 //! policy's chunks → … → stopping (jerk-limited brake) → finished (a hold command sent to the HAL).
 
+pub mod chunk;
+pub mod effector;
+pub mod frame;
+pub mod limits;
+pub mod servo_loop;
+pub mod smoothing;
+pub mod timeliness;
+pub mod watchdog;
+
 use mars_ipc::{CommandMode, HoldReason, JointCommand, MAX_JOINTS, RobotState, status};
 use mars_profile::Profile;
 
-use crate::chunk::{MAX_ACTION, Schedule, TimedChunk};
 use crate::config::DaemonConfig;
-use crate::effector::PlanarEffector;
-use crate::frame::FrameCheck;
-use crate::limits::LimitCheck;
+use crate::servo::chunk::{MAX_ACTION, Schedule, TimedChunk};
+use crate::servo::effector::PlanarEffector;
+use crate::servo::frame::FrameCheck;
+use crate::servo::limits::LimitCheck;
+use crate::servo::smoothing::{Kinematics, Limits, Smoother, SmoothingError};
+use crate::servo::timeliness::CommandTimeliness;
+use crate::servo::watchdog::{ServoWatchdog, Trip};
 use crate::shared::{Observed, Phase, Request};
-use crate::smoothing::{Kinematics, Limits, Smoother, SmoothingError};
-use crate::timeliness::CommandTimeliness;
-use crate::watchdog::{ServoWatchdog, Trip};
 
 /// A reset waits until the measured gripper is this close to its target (m).
 const GRIPPER_TOLERANCE: f64 = 0.002;
@@ -71,7 +86,7 @@ pub struct ServoCounters {
     pub clamped_targets: u64,
     /// Commands that failed the final limit check (never sent). Must be 0.
     pub limit_violations: u64,
-    /// Commands that reached the HAL after its next tick (see [`crate::timeliness`]): a deadline miss of its
+    /// Commands that reached the HAL after its next tick (see [`crate::servo::timeliness`]): a deadline miss of its
     /// own — the tick finished, but too late for the HAL.
     pub late_commands: u64,
     /// Times the HAL had not applied the last command exactly (it arrived late, so the HAL smoothed the gap)
@@ -165,7 +180,7 @@ pub struct ServoTick {
     /// Whether each command reached the HAL before its next tick.
     timeliness: CommandTimeliness,
     /// The first command refused by the final check, for the report.
-    pub first_violation: Option<crate::limits::Violation>,
+    pub first_violation: Option<crate::servo::limits::Violation>,
     pub counters: ServoCounters,
 }
 

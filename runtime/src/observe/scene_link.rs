@@ -8,7 +8,7 @@ use mars_ipc::{
     SceneStateReader,
 };
 
-use crate::camera::{Camera, CameraSpec};
+use crate::observe::camera::{Camera, CameraSpec};
 use crate::task::PushTHil;
 
 pub struct SceneLink {

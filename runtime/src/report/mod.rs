@@ -1,5 +1,15 @@
+//! What marsd reports: the latency histograms the loops record without allocating ([`latency`]), the live view
+//! for `marsd top` ([`live`]), the evidence of a machine stall ([`stall`]), the episode traces ([`traces`]) and the
+//! PNG plots ([`plots`]); below, the exit report itself.
+//!
 //! What `marsd` reports at exit: success, modes and γ, K statistics, deadline misses, limit violations, frame
 //! refusals and the latency percentile table — printed, and written as `summary.json` with the plots.
+
+pub mod latency;
+pub mod live;
+pub mod plots;
+pub mod stall;
+pub mod traces;
 
 use std::path::{Path, PathBuf};
 
@@ -7,12 +17,12 @@ use anyhow::Context;
 use serde::Serialize;
 
 use crate::config::DaemonConfig;
-use crate::frame::FrameCounts;
-use crate::latency::{Channel, Totals};
-use crate::policy_loop::{EpisodeResult, PolicyReport};
+use crate::policy::{EpisodeResult, PolicyReport};
+use crate::report::latency::{Channel, Totals};
 use crate::rt::RtStatus;
 use crate::servo::StopCause;
-use crate::servo_loop::ServoReport;
+use crate::servo::frame::FrameCounts;
+use crate::servo::servo_loop::ServoReport;
 use mars_ipc::HeartbeatReport;
 
 #[derive(Debug, Clone, Serialize)]
@@ -31,8 +41,8 @@ pub struct DeadlineMisses {
     pub servo_missed_periods: u64,
     pub late_chunks: u64,
     /// The first late chunks' inference windows (all of them when `late_chunks` is at most
-    /// [`crate::policy_loop::LATE_CHUNKS_KEPT`]).
-    pub late_chunk_times: Vec<crate::policy_loop::LateChunk>,
+    /// [`crate::policy::LATE_CHUNKS_KEPT`]).
+    pub late_chunk_times: Vec<crate::policy::LateChunk>,
     pub over_budget: u64,
     /// Actions of late chunks that were already due, dropped.
     pub actions_dropped: u64,
@@ -138,9 +148,9 @@ pub struct Summary {
     /// Episode traces dropped from the plot (only the last `traces_kept` are kept).
     pub traces_dropped: u64,
     /// A camera task: its frames as the policy judged them.
-    pub camera: Option<crate::policy_loop::CameraReport>,
+    pub camera: Option<crate::policy::CameraReport>,
     /// A task acting on the table: references the servo's IK clamped or could not reach.
-    pub effector: Option<crate::effector::EffectorCounts>,
+    pub effector: Option<crate::servo::effector::EffectorCounts>,
     /// `--record`: what the dataset got.
     pub record: Option<crate::record::RecordReport>,
     /// When marsd's main thread saw the trip (CLOCK_MONOTONIC ns): the moment a stall's evidence is sought around.
@@ -241,10 +251,13 @@ impl Summary {
         written.push(self.latency.log.clone());
         type Draw<'a> = Box<dyn Fn(&Path) -> anyhow::Result<()> + 'a>;
         let plots: [(&str, Draw); 3] = [
-            ("latency.png", Box::new(|path| crate::plots::plot_latency(&self.latency, path))),
-            ("k.png", Box::new(|path| crate::plots::plot_k(&self.latency, path))),
+            ("latency.png", Box::new(|path| crate::report::plots::plot_latency(&self.latency, path))),
+            ("k.png", Box::new(|path| crate::report::plots::plot_k(&self.latency, path))),
             // The two joints in which the task's modes differ most.
-            ("episodes.png", Box::new(|path| crate::plots::plot_episodes(&p.traces, &mode_names, jx, jy, path))),
+            (
+                "episodes.png",
+                Box::new(|path| crate::report::plots::plot_episodes(&p.traces, &mode_names, jx, jy, path)),
+            ),
         ];
         let mut plots = Vec::from(plots);
         if let crate::task::HilTask::PushT(t) = task {
@@ -255,7 +268,7 @@ impl Summary {
             let draw: Draw = Box::new(move |path| {
                 let xy = |q: &[f64; mars_ipc::MAX_JOINTS]| effector.xy(&q[..7]);
                 let pixel = |p: [f64; 2]| camera.pixel(p[0] as f32, p[1] as f32);
-                crate::plots::plot_camera_strip(&p.traces, &mode_names, size, xy, pixel, path, 6)
+                crate::report::plots::plot_camera_strip(&p.traces, &mode_names, size, xy, pixel, path, 6)
             });
             plots.push(("camera_strip.png", draw));
         }

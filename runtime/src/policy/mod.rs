@@ -1,3 +1,6 @@
+//! The policy thread: the episodes ([`PolicyLoop`]), each chunk inferred by the engine or replayed from a recording
+//! ([`recorded_actions`]), the results kept in bounded memory ([`tally`]).
+//!
 //! The policy loop: runs the episodes. For each: ask the servo to move to the start pose, then, once per policy
 //! period, watch the task's progress and — every `chunk_len` periods — build the observation and the history of
 //! the last `chunk_len` actions, call the engine with the time left until the servo needs the chunk, stamp the
@@ -8,6 +11,9 @@
 //! toward its first action), and its action i is due at t0 + lead + (n·C + i + 1)·Δ. So the next inference
 //! overlaps the execution of the current chunk, and a chunk one lead late costs nothing but smoothness.
 
+pub mod recorded_actions;
+pub mod tally;
+
 use std::sync::Arc;
 use std::sync::atomic::Ordering;
 use std::time::Duration;
@@ -17,19 +23,19 @@ use mars_ipc::clock::monotonic_ns;
 use mars_ipc::{MAX_JOINTS, SceneAction, ScenePhase};
 use serde::Serialize;
 
-use crate::chunk::TimedChunk;
 use crate::config::DaemonConfig;
-use crate::latency::{Channel, Recorder};
-use crate::plots::EpisodeTrace;
+use crate::observe::scene_link::SceneLink;
+use crate::report::latency::{Channel, Recorder};
+use crate::report::plots::EpisodeTrace;
+use crate::report::traces::{TRACE_CAPACITY, TraceRing};
 use crate::rt::Ticker;
-use crate::scene_link::SceneLink;
+use crate::servo::chunk::TimedChunk;
+use crate::servo::watchdog::{Streak, Trip};
 use crate::shared::{Observed, Phase, Request, Status};
 use crate::task::pick::{DoneReason, EpisodeMonitor, Progress};
 use crate::task::{HilTask, PushTHil};
-use crate::traces::{TRACE_CAPACITY, TraceRing};
-use crate::watchdog::{Streak, Trip};
 
-pub use crate::tally::EpisodeResult;
+pub use crate::policy::tally::EpisodeResult;
 
 /// How many late chunks a report times.
 pub const LATE_CHUNKS_KEPT: usize = 16;
@@ -49,7 +55,7 @@ pub struct LateChunk {
 #[derive(Debug, Clone, Default, Serialize)]
 pub struct PolicyReport {
     /// Totals over every episode, and the last `traces_kept` results.
-    pub episodes: crate::tally::EpisodeTally,
+    pub episodes: crate::policy::tally::EpisodeTally,
     /// The last `traces_kept` episodes' traces, oldest first.
     #[serde(skip)]
     pub traces: Vec<EpisodeTrace>,
@@ -74,7 +80,7 @@ pub struct PolicyReport {
 #[derive(Debug, Clone, Default, Serialize)]
 pub struct CameraReport {
     pub service: String,
-    pub counts: crate::camera::CameraCounts,
+    pub counts: crate::observe::camera::CameraCounts,
     /// Inferences skipped for want of a usable frame (the previous chunk kept).
     pub no_frame: u64,
     /// The first refusal, in words.
@@ -124,8 +130,8 @@ pub struct PolicyLoop {
     /// While recording Push-T: the camera's newest frame at this period (the recording's own view of it), what a
     /// period without a call records.
     pub view_image: Vec<u8>,
-    /// `--replay-actions`: a recorded episode's chunks instead of the engine's (see [`crate::recorded_actions`]).
-    pub replay: Option<crate::recorded_actions::RecordedActions>,
+    /// `--replay-actions`: a recorded episode's chunks instead of the engine's (see [`crate::policy::recorded_actions`]).
+    pub replay: Option<crate::policy::recorded_actions::RecordedActions>,
 }
 
 /// Where and when a chunk's actions are due, and when it was made (see [`TimedChunk`]).
@@ -168,7 +174,7 @@ struct EpisodeRun {
     /// A replay's chunk (empty unless replaying).
     replayed: Vec<f32>,
     in_force: InForce,
-    trace: crate::plots::EpisodeTrace,
+    trace: crate::report::plots::EpisodeTrace,
     /// Chunks published this episode (`seq` of the last), the sum of their K, how many were late.
     seq: u64,
     chunks: u64,
@@ -204,7 +210,7 @@ struct Call {
 impl PolicyLoop {
     pub fn run(mut self, cfg: &DaemonConfig) -> PolicyReport {
         let mut report = PolicyReport {
-            episodes: crate::tally::EpisodeTally::new(self.task.mode_names().len(), cfg.traces_kept),
+            episodes: crate::policy::tally::EpisodeTally::new(self.task.mode_names().len(), cfg.traces_kept),
             late_chunk_times: Vec::with_capacity(LATE_CHUNKS_KEPT),
             ..Default::default()
         };
@@ -590,7 +596,7 @@ impl PolicyLoop {
                 frames,
                 success,
                 mode,
-                rest: [0.0; crate::chunk::MAX_ACTION],
+                rest: [0.0; crate::servo::chunk::MAX_ACTION],
                 rest_len: rest.len(),
             };
             end.rest[..rest.len()].copy_from_slice(rest);
@@ -686,7 +692,7 @@ impl PolicyLoop {
         &mut self,
         o: &Observed,
         obs: &mut [f32],
-        trace: &mut crate::plots::EpisodeTrace,
+        trace: &mut crate::report::plots::EpisodeTrace,
         report: &mut PolicyReport,
     ) -> Result<u64, ()> {
         match &self.task {

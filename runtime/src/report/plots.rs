@@ -11,7 +11,7 @@ use plotters::prelude::*;
 
 use mars_ipc::MAX_JOINTS;
 
-use crate::latency::{Channel, K_MAX, Totals};
+use crate::report::latency::{Channel, K_MAX, Totals};
 
 pub const LATENCY_SIZE: (u32, u32) = (1000, 600);
 pub const K_SIZE: (u32, u32) = (900, 520);

@@ -1,4 +1,4 @@
-//! Which camera frames the policy may see: the same kind of gate as [`crate::frame`] for state frames.
+//! Which camera frames the policy may see: the same kind of gate as [`crate::servo::frame`] for state frames.
 //!
 //! A camera is any process that publishes `ImageHeader` + `[u8]` on `mars/<robot>/camera/<id>`: the HIL mock, a
 //! driver, or a few lines of Python (`examples/python/camera_publisher.py`). A frame is used only if it has this

@@ -13,7 +13,7 @@ use mars_ipc::node::create_node;
 use mars_ipc::{ImageEncoding, ImageReader, RobotNamespace};
 use serde::Serialize;
 
-use crate::camera::{Camera, CameraCounts, CameraSpec};
+use crate::observe::camera::{Camera, CameraCounts, CameraSpec};
 
 #[derive(clap::Args, Debug, Clone)]
 pub struct CameraArgs {

@@ -222,7 +222,7 @@ pub fn measure_wakeups(
             let status = rt::setup_realtime("doctor", core, Some(priority), lock_memory);
             // Preallocated: the loop below records without allocating, as a servo tick must.
             let mut late_us = Vec::with_capacity(n);
-            let steal0 = crate::stall::steal_ms();
+            let steal0 = crate::report::stall::steal_ms();
             let mut ticker = Ticker::new(period);
             let mut missed = 0;
             while late_us.len() + (missed as usize) < n {
@@ -230,7 +230,7 @@ pub fn measure_wakeups(
                 missed += w.missed;
                 late_us.push((w.late_ns + w.missed * ticker.period_ns()) as f64 * 1e-3);
             }
-            let steal = steal0.zip(crate::stall::steal_ms()).map(|(a, b)| b - a);
+            let steal = steal0.zip(crate::report::stall::steal_ms()).map(|(a, b)| b - a);
             if status.memory_locked == Outcome::Applied {
                 // SAFETY: munlockall has no preconditions; it undoes this process's mlockall.
                 unsafe { libc::munlockall() };

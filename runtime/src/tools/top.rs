@@ -12,9 +12,9 @@ use mars_ipc::clock::monotonic_ns;
 use mars_ipc::node::create_node;
 use mars_ipc::{LiveReader, LiveStats, RobotNamespace};
 
-use crate::latency::Channel;
+use crate::report::latency::Channel;
+use crate::servo::watchdog::Trip;
 use crate::shared::Phase;
-use crate::watchdog::Trip;
 
 #[derive(clap::Args, Debug, Clone)]
 pub struct TopArgs {

@@ -14,7 +14,7 @@ use mars_ipc::node::create_node;
 use mars_ipc::{HalLive, LiveChannel, LiveStats, LiveWriter, RobotNamespace, ServoLive};
 use tracing::warn;
 
-use crate::latency::{Channel, IntervalView, LiveHook, OnInterval};
+use crate::report::latency::{Channel, IntervalView, LiveHook, OnInterval};
 use crate::shared::Status;
 
 /// What the frames say besides the histograms.
