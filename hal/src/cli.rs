@@ -5,7 +5,8 @@ use std::time::Duration;
 
 use anyhow::Context;
 
-use crate::fci::{LateCommands, Realtime};
+use crate::fci::{FciParams, LateCommands, Realtime};
+use crate::ros2::Ros2Params;
 use crate::runner::{Report, RunOptions, run};
 use crate::sim::SimBackend;
 use mars_profile::faults::FaultConfig;
@@ -205,25 +206,34 @@ pub fn run_hal(args: HalArgs) -> anyhow::Result<Report> {
     if let Some(b) = args.backend {
         profile.backend = b;
     }
+    profile.validate()?;
+    // Each driver reads its own table of the profile; the options override it, and it is checked before anything
+    // moves (only the backend that runs: a sim profile may carry an unused table).
+    let mut fci = FciParams::of(&profile)?;
     if let Some(ip) = &args.robot_ip {
-        profile.fci.robot_ip = Some(ip.clone());
+        fci.robot_ip = Some(ip.clone());
     }
     if let Some(rt) = args.realtime {
-        profile.fci.realtime = rt;
+        fci.realtime = rt;
     }
     if args.no_gripper {
-        profile.fci.gripper = false;
+        fci.gripper = false;
     }
     if let Some(l) = args.late_commands {
-        profile.fci.late_commands = l;
+        fci.late_commands = l;
     }
+    let mut ros2 = Ros2Params::of(&profile)?;
     if let Some(d) = args.ros_domain_id {
-        profile.ros2.domain_id = d;
+        ros2.domain_id = d;
     }
     if args.ros_localhost_only {
-        profile.ros2.localhost_only = true;
+        ros2.localhost_only = true;
     }
-    profile.validate()?;
+    match profile.backend {
+        BackendKind::Sim => {}
+        BackendKind::Fci => fci.check(&profile)?,
+        BackendKind::Ros2 => ros2.check(&profile)?,
+    }
     if profile.sim.faults.any() {
         tracing::warn!(faults = ?profile.sim.faults, "fault injection is on");
     }
@@ -247,14 +257,14 @@ pub fn run_hal(args: HalArgs) -> anyhow::Result<Report> {
         BackendKind::Sim => run(&profile, &mut SimBackend::new(&profile), &opts)?,
         BackendKind::Fci => {
             anyhow::ensure!(!profile.sim.faults.any(), "fault injection is a sim backend feature; not with fci");
-            let Some(addr) = profile.fci.robot_ip.clone() else {
+            let Some(addr) = fci.robot_ip.clone() else {
                 anyhow::bail!("backend fci needs the robot's address: --robot-ip or [fci] robot_ip in the profile");
             };
-            crate::fci::drive::run(&profile, &addr, &opts)?
+            crate::fci::drive::run(&profile, &fci, &addr, &opts)?
         }
         BackendKind::Ros2 => {
             anyhow::ensure!(!profile.sim.faults.any(), "fault injection is a sim backend feature; not with ros2");
-            crate::ros2::drive::run(&profile, &opts)?
+            crate::ros2::drive::run(&profile, &ros2, &opts)?
         }
     };
     // The run is over and the arm at rest: a file that cannot be written costs only the file.

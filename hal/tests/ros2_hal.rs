@@ -15,6 +15,7 @@ use std::sync::atomic::{AtomicU32, Ordering};
 use std::time::{Duration, Instant};
 
 use iceoryx2::prelude::*;
+use mars_hal::ros2::Ros2Params;
 use mars_hal::ros2::backend::STOP_REPEATS;
 use mars_ipc::node::create_node;
 use mars_ipc::*;
@@ -221,7 +222,11 @@ fn the_hal_reads_the_standin_first_then_drives_it_and_its_gripper() {
     assert!(targets[0].0 > fed, "a target arrived before the first feedback was sent");
     assert_eq!(targets[0].1, start.to_vec(), "the first target is the measured pose");
     let names = rig.standin.named("arm_target")[0]["names"].clone();
-    assert_eq!(names, serde_json::json!(rig.profile.ros2.joint_names), "the targets name the joints");
+    assert_eq!(
+        names,
+        serde_json::json!(Ros2Params::of(&rig.profile).unwrap().joint_names),
+        "the targets name the joints"
+    );
 
     // Drive it: joints 1 and 4 by 0.2 rad and back... out, over 2 s, the gripper to 0.03 m.
     let traj = excursion(start, 0.2, 2.0);
@@ -380,7 +385,8 @@ fn standin_goes_silent(_attempt: u32) -> Attempt {
     // Commands go on for another half second: the HAL must publish nothing that moves.
     rig.stream(1, 0.5, 0.08, |t| traj(seq_t + t));
     rig.watch(Duration::from_millis(200));
-    let timeout_ns = (rig.profile.ros2.feedback_timeout_ms(rig.profile.command_timeout_ms) * 1e6) as u64;
+    let timeout_ns =
+        (Ros2Params::of(&rig.profile).unwrap().feedback_timeout_ms(rig.profile.command_timeout_ms) * 1e6) as u64;
     let period_ns = (1e9 / rig.profile.rate_hz) as u64;
     let took_ms = fault.timestamp_ns.saturating_sub(last_feedback_ns) as f64 * 1e-6;
     // The feedback is judged stale on the first tick after the timeout (one period), and taken from DDS up to
@@ -568,7 +574,7 @@ fn the_robot_s_jpeg_cameras_arrive_as_rgb_image_frames_decoded_off_the_hal_loop(
     let profile = Profile::load(&r1_lite()).unwrap();
     let mut rig = Rig::start_with(start_pose(&profile), true);
     let ns = RobotNamespace::new(&rig.robot).unwrap();
-    let cams = rig.profile.ros2.cameras.clone();
+    let cams = Ros2Params::of(&rig.profile).unwrap().cameras;
     assert_eq!(cams.len(), 2, "the R1 Lite profile bridges its head and wrist cameras");
     let readers: Vec<ImageReader> = cams.iter().map(|c| ImageReader::new(&rig._node, &ns, &c.id).unwrap()).collect();
     let mut seen: Vec<Vec<Seen>> = vec![vec![]; cams.len()];

@@ -1,6 +1,6 @@
-//! Robot profiles: joint count, rate, limits, safety policy, sim parameters, and each driver's own table as
-//! data ([`fci_params`], [`ros2_params`]: the drivers read the profile, never the other way), read from TOML and
-//! validated before anything moves.
+//! Robot profiles: joint count, rate, limits, safety policy, sim parameters, read from TOML and validated before
+//! anything moves; and each driver's own table (`[fci]`, `[ros2]`) kept as TOML, which that driver reads and checks
+//! ([`Profile::driver_table`]): the profile knows no driver, and marsd reads limits without linking one.
 
 use std::path::Path;
 
@@ -8,8 +8,6 @@ use mars_ipc::MAX_JOINTS;
 use serde::Deserialize;
 
 pub mod faults;
-pub mod fci_params;
-pub mod ros2_params;
 pub mod velocity_limits;
 
 use faults::FaultConfig;
@@ -107,10 +105,12 @@ pub struct Profile {
     pub backend: BackendKind,
     #[serde(default)]
     pub sim: SimParams,
+    /// The fci backend's table (`[fci]`): the HAL's `fci::FciParams` reads and checks it.
     #[serde(default)]
-    pub fci: fci_params::FciParams,
+    pub fci: toml::Table,
+    /// The ros2 backend's table (`[ros2]`): the HAL's `ros2::Ros2Params` reads and checks it.
     #[serde(default)]
-    pub ros2: ros2_params::Ros2Params,
+    pub ros2: toml::Table,
 }
 
 /// The robot behind the HAL.
@@ -214,7 +214,6 @@ impl Profile {
             self.check_joint_limits()?;
             self.check_gripper()?;
             self.check_sim()?;
-            self.check_backend()?;
             Ok(())
         };
         checks().map_err(|msg| ProfileError::Invalid { name: self.name.clone(), msg })
@@ -394,25 +393,19 @@ impl Profile {
         Ok(())
     }
 
-    /// The driver's own settings, for the backend this profile names.
-    fn check_backend(&self) -> Result<(), String> {
-        if self.backend == BackendKind::Fci {
-            if self.joints != fci_params::JOINTS || self.rate_hz != 1000.0 {
-                return Err(format!(
-                    "backend = \"fci\" drives a Franka arm: 7 joints at 1000 Hz, not {} at {} Hz",
-                    self.joints, self.rate_hz
-                ));
-            }
-            if let Err(msg) = self.fci.validate() {
-                return Err(format!("fci.{msg}"));
-            }
-        }
-        if self.backend == BackendKind::Ros2
-            && let Err(msg) = self.ros2.validate(self.joints, self.rate_hz, self.command_timeout_ms)
-        {
-            return Err(format!("ros2.{msg}"));
-        }
-        Ok(())
+    /// A driver's own table (`[fci]`, `[ros2]`: `table`, named `name`) as that driver's parameters: what it leaves
+    /// out takes the driver's defaults; an error names the table and the field.
+    pub fn driver_table<T: serde::de::DeserializeOwned>(
+        &self,
+        name: &str,
+        table: &toml::Table,
+    ) -> Result<T, ProfileError> {
+        toml::Value::Table(table.clone()).try_into().map_err(|e| self.invalid(format!("{name}: {e}")))
+    }
+
+    /// An [`ProfileError::Invalid`] of this profile.
+    pub fn invalid(&self, msg: String) -> ProfileError {
+        ProfileError::Invalid { name: self.name.clone(), msg }
     }
 }
 

@@ -9,6 +9,8 @@ use std::time::Duration;
 use mars_hal::backend::Backend;
 use mars_hal::control::HalControl;
 use mars_hal::fault::FaultInjector;
+use mars_hal::fci::FciParams;
+use mars_hal::ros2::Ros2Params;
 use mars_hal::safety::SafetyFilter;
 use mars_hal::sim::SimBackend;
 use mars_profile::Profile;
@@ -52,7 +54,14 @@ pub fn hal_profile() -> Arc<dyn Target> {
     Bundles::of_files("hal-profile", files, true, |_, bytes| {
         let Some(Ok(p)) = text(bytes).map(|t| Profile::parse(t, "profile.toml")) else { return false };
         let _ = (Duration::from_secs_f64(p.period_s()), p.timeout_ns(), p.gripper_interval_ticks());
-        let _ = (p.position_limits(), p.planning_velocity_bounds(), p.ros2.feedback_timeout_ms(p.command_timeout_ms));
+        let _ = (p.position_limits(), p.planning_velocity_bounds());
+        // Each driver's table as that driver reads and checks it (the HAL does so before anything moves).
+        if let Ok(r) = Ros2Params::of(&p) {
+            let _ = (r.check(&p), r.feedback_timeout_ms(p.command_timeout_ms));
+        }
+        if let Ok(f) = FciParams::of(&p) {
+            let _ = f.check(&p);
+        }
         run_filter(&p);
         let mut faults = FaultInjector::new(p.sim.faults.clone());
         for tick in 0..4 {

@@ -31,7 +31,7 @@ use super::recent_cycles::{CycleRecord, RecentCycles};
 use super::report::RobotLoopReport;
 use super::setpoint_sync::{ResyncFrom, RobotSetpoints};
 use super::state::measurement;
-use super::{Fci, LateCommands, Realtime, connect};
+use super::{Fci, FciParams, LateCommands, Realtime, connect};
 use crate::backend::{Backend, BackendError, Measurement, RobotReport};
 use crate::gripper::GripperMove;
 use crate::runner::{Ended, HalLoop, Next, Report, RunOptions};
@@ -138,10 +138,10 @@ enum Phase {
     Lost(String),
 }
 
-/// Runs the HAL on the FCI robot at `addr` until the duration ends, a termination request (at rest), or the
-/// connection breaks. Refuses to start (nothing commanded) when the robot cannot be read or is not ready.
-pub fn run(profile: &Profile, addr: &str, opts: &RunOptions) -> anyhow::Result<Report> {
-    let p = &profile.fci;
+/// Runs the HAL on the FCI robot at `addr` with the settings `p` (its `[fci]` table, checked) until the duration
+/// ends, a termination request (at rest), or the connection breaks. Refuses to start (nothing commanded) when the
+/// robot cannot be read or is not ready.
+pub fn run(profile: &Profile, p: &FciParams, addr: &str, opts: &RunOptions) -> anyhow::Result<Report> {
     if p.realtime == Realtime::Enforce && !realtime_kernel() {
         return Err(FciStartRefusal::NoRealtimeKernel.into());
     }
@@ -158,7 +158,7 @@ pub fn run(profile: &Profile, addr: &str, opts: &RunOptions) -> anyhow::Result<R
     info!(addr, fci = ?fci.fci_version(), gripper = p.gripper, "driving the robot over FCI");
 
     let ended = loop {
-        match control(&fci, &mut hal, hand.as_mut(), profile, &mut report) {
+        match control(&fci, &mut hal, hand.as_mut(), p, &mut report) {
             Phase::Done(e) => break e,
             Phase::Lost(why) => {
                 warn!(addr, "lost the connection to the robot: {why}");
@@ -191,11 +191,11 @@ fn control(
     fci: &Fci,
     hal: &mut HalLoop,
     mut hand: Option<&mut Hand>,
-    profile: &Profile,
+    p: &FciParams,
     report: &mut RobotLoopReport,
 ) -> Phase {
     let mut done = None;
-    let mut motion = Motion::new(profile.fci.late_commands == LateCommands::Applied);
+    let mut motion = Motion::new(p.late_commands == LateCommands::Applied);
     let result = fci.robot().control_joint_positions(
         |state, period| {
             let start = Stamp::now();
@@ -218,8 +218,8 @@ fn control(
             cmd
         },
         ControllerMode::JointImpedance,
-        profile.fci.limit_rate,
-        profile.fci.cutoff_hz,
+        p.limit_rate,
+        p.cutoff_hz,
     );
     match (result, done) {
         (Ok(()), Some(e)) => Phase::Done(e),

@@ -14,6 +14,7 @@ pub mod error;
 pub mod hand;
 pub mod history;
 mod late_reads;
+pub mod params;
 pub mod recent_cycles;
 pub mod recover;
 pub mod report;
@@ -28,5 +29,5 @@ mod sim_checker;
 
 pub use connect::{Fci, connect};
 pub use error::FciError;
-pub use mars_profile::fci_params::{FciParams, JOINTS, LateCommands, Realtime};
+pub use params::{FciParams, JOINTS, LateCommands, Realtime};
 pub use report::RobotLoopReport;

@@ -25,6 +25,7 @@ use mars_ipc::MAX_JOINTS;
 use mars_rt::monotonic_ns;
 
 use super::io::{Link, Newest, Target};
+use super::params::Ros2Params;
 use crate::backend::{Backend, BackendError, Measurement};
 use crate::gripper::GripperMove;
 use mars_profile::Profile;
@@ -109,8 +110,7 @@ pub struct Ros2Backend {
 }
 
 impl Ros2Backend {
-    pub fn new(profile: &Profile, link: Link) -> Self {
-        let p = &profile.ros2;
+    pub fn new(profile: &Profile, p: &Ros2Params, link: Link) -> Self {
         let timeout_ms = p.feedback_timeout_ms(profile.command_timeout_ms);
         Self {
             link,

@@ -32,7 +32,7 @@ use zune_jpeg::zune_core::colorspace::ColorSpace;
 use zune_jpeg::zune_core::options::DecoderOptions;
 
 use super::message::{CompressedImage, Time, wall_clock};
-use mars_profile::ros2_params::{CameraParams, MAX_CAMERA_SIDE};
+use super::params::{CameraParams, MAX_CAMERA_SIDE};
 
 /// How often a camera thread looks for a frame (cameras send every 33–100 ms: this adds at most 2 ms).
 pub const POLL: Duration = Duration::from_millis(2);

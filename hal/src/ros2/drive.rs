@@ -19,21 +19,22 @@ use tracing::info;
 
 use super::backend::Ros2Backend;
 use super::io::Link;
+use super::params::Ros2Params;
 use crate::control::StartError;
 use crate::events::LoopEvent;
 use crate::runner::{HalLoop, Next, Report, RunOptions};
 use mars_profile::Profile;
 
-/// Runs the HAL on the ROS 2 robot of `profile.ros2` until the duration ends or a termination request (both at
-/// rest). Refuses to start (a [`StartError`], nothing published) without feedback from the robot.
-pub fn run(profile: &Profile, opts: &RunOptions) -> anyhow::Result<Report> {
-    let p = &profile.ros2;
+/// Runs the HAL on the ROS 2 robot of `profile`, over the topics and QoS of `p` (its `[ros2]` table, checked),
+/// until the duration ends or a termination request (both at rest). Refuses to start (a [`StartError`], nothing
+/// published) without feedback from the robot.
+pub fn run(profile: &Profile, p: &Ros2Params, opts: &RunOptions) -> anyhow::Result<Report> {
     let link = Link::open(p, profile.joints, &opts.robot)?;
     info!(
         domain = p.domain_id, localhost_only = p.localhost_only, feedback = %p.arm_feedback_topic,
         target = %p.arm_target_topic, gripper = p.gripper, "ROS 2 open; waiting for the robot's feedback"
     );
-    let mut backend = Ros2Backend::new(profile, link);
+    let mut backend = Ros2Backend::new(profile, p, link);
     let stop = opts.stop.clone();
     let first = backend
         .wait_first(Duration::from_secs_f64(p.connect_timeout_s), || {

@@ -27,7 +27,7 @@ use tracing::warn;
 
 use super::camera::{CameraCounts, Cameras};
 use super::message::{COMPRESSED_IMAGE_TYPE, CompressedImage, Header, JOINT_STATE_TYPE, JointState, SENSOR_MSGS, Time};
-use mars_profile::ros2_params::{Reliability, Ros2Params};
+use super::params::{Reliability, Ros2Params};
 
 /// How often the I/O thread looks for feedback when nothing woke it (a target to publish wakes it at once).
 pub const POLL: Duration = Duration::from_micros(500);

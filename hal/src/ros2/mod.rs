@@ -30,7 +30,8 @@ pub mod domain;
 pub mod drive;
 pub mod io;
 pub mod message;
+pub mod params;
 pub mod topics;
 
 pub use backend::Ros2Backend;
-pub use mars_profile::ros2_params::{Reliability, Ros2Params};
+pub use params::{Reliability, Ros2Params};

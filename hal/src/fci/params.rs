@@ -1,5 +1,7 @@
-//! The `[fci]` table of a profile: where the robot is and how the HAL talks to it.
+//! The `[fci]` table of a profile: where the robot is and how the HAL talks to it. The profile keeps the table as
+//! TOML; this driver reads it ([`FciParams::of`]) and checks it against the profile ([`FciParams::check`]).
 
+use mars_profile::{Profile, ProfileError};
 use serde::Deserialize;
 
 /// Joints of an FR3 (and of an FER): the length of every joint array in `franka::RobotState`.
@@ -80,7 +82,25 @@ impl Default for FciParams {
 }
 
 impl FciParams {
-    pub fn validate(&self) -> Result<(), String> {
+    /// The profile's `[fci]` table (the defaults for what it leaves out), not yet checked: `mars-hal`'s options may
+    /// override it first.
+    pub fn of(profile: &Profile) -> Result<Self, ProfileError> {
+        profile.driver_table("fci", &profile.fci)
+    }
+
+    /// Whether these settings can drive the robot of `profile`: a Franka arm (7 joints at 1 kHz), each setting in
+    /// its range. Called before anything moves.
+    pub fn check(&self, profile: &Profile) -> Result<(), ProfileError> {
+        if profile.joints != JOINTS || profile.rate_hz != 1000.0 {
+            return Err(profile.invalid(format!(
+                "backend = \"fci\" drives a Franka arm: 7 joints at 1000 Hz, not {} at {} Hz",
+                profile.joints, profile.rate_hz
+            )));
+        }
+        self.validate().map_err(|msg| profile.invalid(format!("fci.{msg}")))
+    }
+
+    fn validate(&self) -> Result<(), String> {
         if !(self.connect_timeout_s.is_finite() && self.connect_timeout_s > 0.0 && self.connect_timeout_s <= 600.0) {
             return Err(format!("connect_timeout_s = {} must be in (0, 600] s", self.connect_timeout_s));
         }
@@ -98,5 +118,34 @@ impl FciParams {
             return Err(format!("grasp_force_n = {} must be in [0, 70] N", self.grasp_force_n));
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn fr3() -> Profile {
+        Profile::load(&std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/fr3.toml")).unwrap()
+    }
+
+    /// The driver reads its own table from the profile, and refuses a bad one naming the field: a value out of
+    /// range when checked, a value of the wrong type when read, and a profile that is no Franka arm.
+    #[test]
+    fn the_fci_table_is_read_and_checked_by_the_driver() {
+        let p = fr3();
+        let f = FciParams::of(&p).unwrap();
+        f.check(&p).unwrap();
+        let mut bad = p.clone();
+        bad.fci.insert("cutoff_hz".into(), toml::Value::Float(0.0));
+        let msg = FciParams::of(&bad).unwrap().check(&bad).unwrap_err().to_string();
+        assert!(msg.contains("fci.cutoff_hz"), "{msg}");
+        bad.fci.insert("cutoff_hz".into(), toml::Value::String("fast".into()));
+        let msg = FciParams::of(&bad).unwrap_err().to_string();
+        assert!(msg.contains("fci") && msg.contains("cutoff_hz"), "{msg}");
+        let mut six = p.clone();
+        six.joints = 6;
+        let msg = f.check(&six).unwrap_err().to_string();
+        assert!(msg.contains("drives a Franka arm"), "{msg}");
     }
 }

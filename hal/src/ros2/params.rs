@@ -1,6 +1,8 @@
 //! The `[ros2]` table of a profile: which DDS domain and topics the robot speaks on, with which QoS, and how
-//! long its feedback may be silent.
+//! long its feedback may be silent. The profile keeps the table as TOML; this driver reads it ([`Ros2Params::of`])
+//! and checks it against the profile ([`Ros2Params::check`]).
 
+use mars_profile::{Profile, ProfileError};
 use serde::Deserialize;
 
 /// A topic's DDS reliability.
@@ -104,13 +106,26 @@ impl Default for Ros2Params {
 }
 
 impl Ros2Params {
+    /// The profile's `[ros2]` table (the defaults for what it leaves out), not yet checked: `mars-hal`'s options
+    /// may override it first.
+    pub fn of(profile: &Profile) -> Result<Self, ProfileError> {
+        profile.driver_table("ros2", &profile.ros2)
+    }
+
+    /// Whether these settings can drive the robot of `profile` (its joints, rate and command timeout). Called before
+    /// anything moves.
+    pub fn check(&self, profile: &Profile) -> Result<(), ProfileError> {
+        let (joints, rate, timeout) = (profile.joints, profile.rate_hz, profile.command_timeout_ms);
+        self.validate(joints, rate, timeout).map_err(|msg| profile.invalid(format!("ros2.{msg}")))
+    }
+
     /// The feedback timeout (ms) for a profile whose command timeout is `command_timeout_ms`.
     pub fn feedback_timeout_ms(&self, command_timeout_ms: f64) -> f64 {
         self.feedback_timeout_ms.unwrap_or(command_timeout_ms)
     }
 
     /// Checks the table for a profile of `joints` joints at `rate_hz`.
-    pub fn validate(&self, joints: usize, rate_hz: f64, command_timeout_ms: f64) -> Result<(), String> {
+    fn validate(&self, joints: usize, rate_hz: f64, command_timeout_ms: f64) -> Result<(), String> {
         // RTPS's port mapping (7400 + 250 × domain + …) leaves room for domains 0–232 only.
         if self.domain_id > 232 {
             return Err(format!("domain_id = {} must be in 0..=232 (RTPS's port range)", self.domain_id));
@@ -156,7 +171,7 @@ impl Ros2Params {
         }
         let period_ms = 1e3 / rate_hz;
         let timeout = self.feedback_timeout_ms(command_timeout_ms);
-        let max = super::MAX_TIMEOUT_MS;
+        let max = mars_profile::MAX_TIMEOUT_MS;
         if !(timeout.is_finite() && timeout >= 2.0 * period_ms && timeout <= max) {
             return Err(format!(
                 "feedback_timeout_ms = {timeout} must be at least two feedback periods ({:.3} ms) and at most {max} ms",
@@ -202,7 +217,6 @@ mod tests {
     use std::path::Path;
 
     use super::*;
-    use crate::{BackendKind, Profile};
 
     #[test]
     fn the_r1_lite_topics_are_valid_ros_names_and_malformed_ones_are_not() {
@@ -220,10 +234,10 @@ mod tests {
 
     #[test]
     fn the_r1_lite_profile_s_table_is_valid_and_names_the_r1_lite_s_topics() {
-        let mut p = r1_lite();
-        p.backend = BackendKind::Ros2;
-        p.validate().unwrap();
-        let (r, d) = (&p.ros2, Ros2Params::default());
+        let p = r1_lite();
+        let r = Ros2Params::of(&p).unwrap();
+        r.check(&p).unwrap();
+        let (r, d) = (&r, Ros2Params::default());
         assert_eq!(
             [&r.arm_feedback_topic, &r.arm_target_topic, &r.gripper_feedback_topic, &r.gripper_target_topic],
             [&d.arm_feedback_topic, &d.arm_target_topic, &d.gripper_feedback_topic, &d.gripper_target_topic]
@@ -235,7 +249,7 @@ mod tests {
     }
 
     #[test]
-    fn a_bad_table_is_refused_when_the_backend_is_ros2() {
+    fn a_bad_table_is_refused_by_the_ros2_driver() {
         type Spoil = fn(&mut Ros2Params);
         let cases: [(&str, Spoil); 8] = [
             ("cameras[1].id", |r| r.cameras[1].id = "head_left".into()),
@@ -250,11 +264,10 @@ mod tests {
             ("gripper_stroke_max", |r| r.gripper_stroke_max = 0.0),
         ];
         for (field, spoil) in cases {
-            let mut p = r1_lite();
-            spoil(&mut p.ros2);
-            p.validate().expect("the sim backend does not look at [ros2]");
-            p.backend = BackendKind::Ros2;
-            let msg = p.validate().unwrap_err().to_string();
+            let p = r1_lite();
+            let mut r = Ros2Params::of(&p).unwrap();
+            spoil(&mut r);
+            let msg = r.check(&p).unwrap_err().to_string();
             assert!(msg.contains(&format!("ros2.{field}")), "{field}: {msg}");
         }
     }
