@@ -74,26 +74,24 @@ pub fn at_most_one_rerun(test: &str, mut attempt: impl FnMut(u32) -> Attempt) {
 /// Prints `RERUN <test>: <excuse>` past libtest's capture and appends it to `$MARS_RERUN_LOG` (an absolute path; a
 /// rerun that cannot be recorded there fails the test).
 pub fn report(test: &str, excuse: &Excuse) {
-    let line = format!("RERUN {test}: {excuse}");
-    let _ = writeln!(std::io::stderr(), "{line}");
-    // A rerun the summary would not count is a rerun hidden: the test fails instead.
-    if let Some(path) = std::env::var_os("MARS_RERUN_LOG")
-        && let Err(e) = append(std::path::Path::new(&path), &line)
-    {
-        // Not `line` first: `.ci/stress` counts lines that start with "RERUN", and the one above is already there.
-        panic!("{test}: its rerun cannot be recorded in MARS_RERUN_LOG {}: {e}", path.to_string_lossy());
-    }
+    // Not the line in the panic: `.ci/stress` counts lines that start with "RERUN", and it is printed already.
+    print_and_record(test, &format!("RERUN {test}: {excuse}"), "its rerun");
 }
 
 /// Prints `TAKEN <test>: <what>` past libtest's capture and appends it to `$MARS_RERUN_LOG`, as [`report`] does a
 /// rerun: what the machine took from a loop tick that the test therefore did not count as the loop's.
 pub fn report_machine_time(test: &str, what: &str) {
-    let line = format!("TAKEN {test}: {what}");
+    print_and_record(test, &format!("TAKEN {test}: {what}"), "what the machine took");
+}
+
+/// `line` to the real stderr and to `$MARS_RERUN_LOG`, if set. What the summary would not count is hidden: the
+/// test fails instead, saying which `record` could not be kept.
+fn print_and_record(test: &str, line: &str, record: &str) {
     let _ = writeln!(std::io::stderr(), "{line}");
     if let Some(path) = std::env::var_os("MARS_RERUN_LOG")
-        && let Err(e) = append(std::path::Path::new(&path), &line)
+        && let Err(e) = append(std::path::Path::new(&path), line)
     {
-        panic!("{test}: what the machine took cannot be recorded in MARS_RERUN_LOG {}: {e}", path.to_string_lossy());
+        panic!("{test}: {record} cannot be recorded in MARS_RERUN_LOG {}: {e}", path.to_string_lossy());
     }
 }
 

@@ -37,6 +37,24 @@ fn a_core_taken_for_40_ms_is_witnessed_on_that_core_and_excuses_a_failure_there(
     assert!(w.excuse("a failure", from, to, 1e9).is_none(), "an excuse needs as long a stall as asked for");
 }
 
+/// Takes core 0 for `span`, 20 times at phases spread over the witness's period (`step` apart), and returns
+/// what `unseen` says of each stall (its window) the witness missed; `None` where the witness cannot witness.
+fn stalls_missed(span: Duration, step: u64, unseen: impl Fn(u64, u64) -> Option<String>) -> Option<Vec<String>> {
+    if let Some(why) = witness().unable() {
+        eprintln!("the witness cannot witness here: {why}");
+        return None;
+    }
+    std::thread::sleep(Duration::from_millis(5));
+    let mut missed = Vec::new();
+    for i in 0..20u64 {
+        std::thread::sleep(Duration::from_micros(2_000 + i * step));
+        let from = monotonic_ns();
+        assert!(take_core_for(0, span), "a root test run can take SCHED_FIFO 99");
+        missed.extend(unseen(from, monotonic_ns()));
+    }
+    Some(missed)
+}
+
 /// A stall about the HAL's 1 ms period is seen wherever it falls between the witness's wake-ups: one of 1.1 ms
 /// (what the VM's unseen absences charged to a HAL tick were), 20 times at phases spread over a period. A witness
 /// waking every 1 ms sees such a stall only when one of its deadlines falls ≥ 500 µs before the stall's end (6
@@ -44,21 +62,11 @@ fn a_core_taken_for_40_ms_is_witnessed_on_that_core_and_excuses_a_failure_there(
 #[test]
 fn a_core_taken_for_1100_us_is_seen_wherever_it_falls_between_wake_ups() {
     let w = witness();
-    if let Some(why) = w.unable() {
-        eprintln!("the witness cannot witness here: {why}");
-        return;
-    }
-    std::thread::sleep(Duration::from_millis(5));
-    let mut unseen = Vec::new();
-    for i in 0..20u64 {
-        std::thread::sleep(Duration::from_micros(2_000 + i * 97));
-        let from = monotonic_ns();
-        assert!(take_core_for(0, Duration::from_micros(1100)), "a root test run can take SCHED_FIFO 99");
-        let to = monotonic_ns();
-        if w.stall_on(Some(0), from, to, 0.45).is_none() {
-            unseen.push(w.seen_in(from, to).map_or("not watched".into(), |e| e.to_string()));
-        }
-    }
+    let unseen = stalls_missed(Duration::from_micros(1100), 97, |from, to| {
+        let seen = || w.seen_in(from, to).map_or("not watched".into(), |e| e.to_string());
+        w.stall_on(Some(0), from, to, 0.45).is_none().then(seen)
+    });
+    let Some(unseen) = unseen else { return };
     assert!(unseen.is_empty(), "{} of 20 stalls of 1.1 ms unseen: {}", unseen.len(), unseen.join("; "));
 }
 
@@ -69,28 +77,13 @@ fn a_core_taken_for_1100_us_is_seen_wherever_it_falls_between_wake_ups() {
 #[test]
 fn a_core_taken_for_700_us_is_taken_from_the_tick_around_it_wherever_it_falls() {
     let w = witness();
-    if let Some(why) = w.unable() {
-        eprintln!("the witness cannot witness here: {why}");
-        return;
-    }
-    std::thread::sleep(Duration::from_millis(5));
-    let mut unseen = Vec::new();
-    for i in 0..20u64 {
-        std::thread::sleep(Duration::from_micros(2_000 + i * 71));
-        let from = monotonic_ns();
-        assert!(take_core_for(0, Duration::from_micros(700)), "a root test run can take SCHED_FIFO 99");
-        let to = monotonic_ns();
+    let unseen = stalls_missed(Duration::from_micros(700), 71, |from, to| {
         let taken = w.taken_from_tick(0, from, to);
-        if taken.late_ns < core_watch::FINE_LATE_NS {
-            unseen.push(taken.to_string());
-        }
-    }
-    assert!(
-        unseen.is_empty(),
-        "{} of 20 stalls of 700 µs not taken from the tick: {}",
-        unseen.len(),
-        unseen.join("; ")
-    );
+        (taken.late_ns < core_watch::FINE_LATE_NS).then(|| taken.to_string())
+    });
+    let Some(unseen) = unseen else { return };
+    let n = unseen.len();
+    assert!(unseen.is_empty(), "{n} of 20 stalls of 700 µs not taken from the tick: {}", unseen.join("; "));
 }
 
 #[test]
