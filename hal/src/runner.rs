@@ -362,6 +362,13 @@ impl HalLoop {
         self.tick
     }
 
+    /// Takes the arm over again as `m` measures it, a newer measurement than the one it started from (a robot's
+    /// first state of a motion): the setpoint is held there, and the next tick reads the backend.
+    pub fn take_over_at(&mut self, m: &Measurement) -> Result<(), crate::control::StartError> {
+        self.first = None;
+        self.control.resume_from(m)
+    }
+
     /// Logs `event` off the loop thread (a driver's own events between ticks: see [`crate::events`]).
     pub fn log(&mut self, event: crate::events::LoopEvent) {
         self.ev.send(event);

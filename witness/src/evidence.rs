@@ -30,6 +30,14 @@ impl Evidence {
     }
 }
 
+impl Evidence {
+    /// Whether the window was calm: the host's ordinary noise ([`crate::CALM_MS`], [`crate::CALM_LONGEST_MS`]).
+    pub fn is_calm(&self) -> bool {
+        let longest = self.lateness.map_or(0.0, |l| l.longest_ms);
+        self.outranked.is_none() && self.stalled_ms() < crate::CALM_MS && longest < crate::CALM_LONGEST_MS
+    }
+}
+
 impl fmt::Display for Evidence {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         let (from, to) = self.window;
@@ -69,4 +77,27 @@ pub fn time_of_day(monotonic_ns: u64) -> String {
     let tod = (now_wall - now_mono + monotonic_ns as f64 * 1e-9).rem_euclid(86_400.0);
     let ms = (tod * 1e3).round() as u64;
     format!("{:02}:{:02}:{:02}.{:03}", ms / 3_600_000, ms / 60_000 % 60, ms / 1000 % 60, ms % 1000)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn seen(late_ms: f64, longest_ms: f64, steal_ms: f64) -> Evidence {
+        let lateness = Some(LatenessSeen { core: 0, ms: late_ms, longest_ms, count: 1 });
+        Evidence {
+            window: (0, 2_000_000_000),
+            lateness,
+            steal: Some(StealSeen { cpu: 1, ms: steal_ms }),
+            outranked: None,
+        }
+    }
+
+    #[test]
+    fn a_window_is_calm_with_the_host_s_ordinary_noise_and_not_with_a_long_or_large_stall() {
+        assert!(seen(30.0, 4.0, 40.0).is_calm(), "1–4 % of a 2 s window in short stretches: ordinary");
+        assert!(!seen(30.0, 6.0, 40.0).is_calm(), "one stretch longer than a few robot cycles");
+        assert!(!seen(60.0, 4.0, 10.0).is_calm(), "late too long in all");
+        assert!(!seen(10.0, 2.0, 60.0).is_calm(), "too much stolen");
+    }
 }

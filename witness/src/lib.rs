@@ -67,6 +67,13 @@ use steal::StealWatch;
 /// own threads at 99.
 pub const PRIORITY: i32 = 95;
 
+/// A window [`Witness::wait_for_calm`] watches (2 s) is calm with late wake-ups, or steal, under this much (ms) in
+/// it on every core, none of them this long (ms). This VM's host takes 1–4 % of an idle 2 s in stretches up to
+/// ~15 ms (`cargo run --release -p stall-witness --example calm_probe`); the failures reruns were excused for
+/// lost 8–47 % of their windows. A calm window is the host's ordinary noise, not none.
+pub const CALM_MS: f64 = 50.0;
+pub const CALM_LONGEST_MS: f64 = 5.0;
+
 /// The stall witness of this process: a [`CoreWatch`] per core and a [`StealWatch`].
 pub struct Witness {
     cores: Vec<CoreWatch>,
@@ -231,6 +238,26 @@ impl Witness {
         let lateness = lateness.into_iter().max_by(|a, b| a.ms.total_cmp(&b.ms));
         let steal = self.steal.largest_in(window, core);
         Some(Evidence { window, lateness, steal, outranked: self.outrank.seen() })
+    }
+
+    /// Waits until the witness has watched a calm `window_ns` ([`CALM_MS`], [`CALM_LONGEST_MS`]) or `max_ns`
+    /// passed; how long it waited (ns) and whether it saw calm. A stall seldom comes alone
+    /// on a busy host (the excused attempt's minute is often busy throughout), and a rerun is one try: it is made
+    /// on a machine the witness saw calm, where one can be had. It returns at once where the witness cannot
+    /// witness.
+    pub fn wait_for_calm(&self, window_ns: u64, max_ns: u64) -> (u64, bool) {
+        let start = monotonic_ns();
+        loop {
+            let now = monotonic_ns();
+            let calm = match self.seen_in(now.saturating_sub(window_ns).max(start), now) {
+                Some(e) => now - start >= window_ns && e.is_calm(),
+                None => return (now - start, false),
+            };
+            if calm || now - start >= max_ns {
+                return (now - start, calm);
+            }
+            std::thread::sleep(std::time::Duration::from_millis(100));
+        }
     }
 
     /// Whole periods of `period_ns` lost on `core` within `[from_ns, to_ns]`: its witness's late wake-ups, each

@@ -62,10 +62,22 @@ impl fmt::Display for Excuse {
 /// (an attempt returns `Err` only where it would otherwise fail; `?` passes an excuse on).
 pub type Attempt = Result<(), Excuse>;
 
-/// Runs `attempt(1)`; if it was excused, reports the rerun and runs `attempt(2)`, which must pass.
+/// How long a calm machine the witness must watch before a rerun, and how long to wait for one at most.
+const CALM_WINDOW_NS: u64 = 2_000_000_000;
+const CALM_WAIT_MAX_NS: u64 = 20_000_000_000;
+
+/// Runs `attempt(1)`; if it was excused, reports the rerun, waits for the witness to see a calm machine (at most
+/// 20 s: [`crate::Witness::wait_for_calm`]), and runs `attempt(2)`, which must pass.
 pub fn at_most_one_rerun(test: &str, mut attempt: impl FnMut(u32) -> Attempt) {
     let Err(first) = attempt(1) else { return };
     report(test, &first);
+    let (waited_ns, calm) = crate::witness().wait_for_calm(CALM_WINDOW_NS, CALM_WAIT_MAX_NS);
+    let seen = if calm { "calm" } else { "still not calm" };
+    let _ = writeln!(
+        std::io::stderr(),
+        "{test}: rerun after {:.1} s, the witness saw the machine {seen}",
+        waited_ns as f64 * 1e-9
+    );
     if let Err(second) = attempt(2) {
         panic!("{test}: failed on its one rerun too ({second}); a test is rerun at most once");
     }

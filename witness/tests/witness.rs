@@ -92,3 +92,15 @@ fn a_window_before_the_witness_began_is_not_witnessed() {
     assert!(w.stall_in(0, 1, 0.0).is_none());
     assert!(w.seen_in(0, 1).is_none());
 }
+
+/// A rerun waits for a calm machine, but not for ever: a window longer than the wait cannot be watched calm, and
+/// the wait ends on time.
+#[test]
+fn the_wait_for_a_calm_machine_ends_when_its_time_is_up() {
+    let w = witness();
+    let (waited_ns, calm) = w.wait_for_calm(2_000_000_000, 300_000_000);
+    assert!(!calm, "a 2 s window cannot be watched in 0.3 s");
+    if w.unable().is_none() {
+        assert!((300_000_000..1_000_000_000).contains(&waited_ns), "waited {waited_ns} ns");
+    }
+}

@@ -186,7 +186,25 @@ pub fn run(profile: &Profile, p: &FciParams, addr: &str, opts: &RunOptions) -> a
     Ok(hal.finish(ended, 0, Some(Box::new(report))))
 }
 
-/// One motion: the robot's callback runs the HAL tick until the HAL ends (at rest) or the robot stops.
+/// Why a motion ended at its first state: the arm no longer passed the take-over checks it passed when the HAL read
+/// it (it moved, or left its range, in between).
+const MOVED_BEFORE_THE_MOTION: &str =
+    "the arm moved between the HAL's read of it and the motion's first state: nothing was commanded";
+
+/// The state with the setpoint the robot holds the arm at as the position to take over at: `q_d`, from which the
+/// robot judges our first command and libfranka's rate limiter continues it (libfranka's examples start a joint
+/// motion from it too). At rest it is the measured pose within the internal controller's tracking error.
+fn held_by_the_robot(state: &RobotState, hand: Option<&Hand>) -> Measurement {
+    let mut m = measured(state, hand);
+    m.position[..JOINTS].copy_from_slice(&state.q_d);
+    m
+}
+
+/// One motion: the robot's callback runs the HAL tick until the HAL ends (at rest) or the robot stops. The HAL
+/// takes the arm over again at the motion's first state, at the robot's own setpoint: the read before (at start,
+/// or after a recovery) may be hundreds of ms old, an arm still settling from the last motion has moved since, and
+/// a first command away from `q_d` is rate-limited by libfranka into a setpoint the HAL then resyncs to (0.4 mrad
+/// from the held pose, seen on franka-sim on a loaded machine).
 fn control(
     fci: &Fci,
     hal: &mut HalLoop,
@@ -199,6 +217,10 @@ fn control(
     let result = fci.robot().control_joint_positions(
         |state, period| {
             let start = Stamp::now();
+            if motion.cycles == 0 && hal.take_over_at(&held_by_the_robot(state, hand.as_deref())).is_err() {
+                done = Some(Ended::BackendFailed(BackendError::Fatal(MOVED_BEFORE_THE_MOTION)));
+                return JointPositions { motion_finished: true, ..JointPositions::new(state.q) };
+            }
             let (missed, bunched) = motion.timing(start.at, period, state, hal, report);
             let resynced = motion.follow_the_robot(state, missed, hal, report);
             let mut cycle = Cycle {
