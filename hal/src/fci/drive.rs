@@ -186,18 +186,24 @@ pub fn run(profile: &Profile, p: &FciParams, addr: &str, opts: &RunOptions) -> a
     Ok(hal.finish(ended, 0, Some(Box::new(report))))
 }
 
-/// Why a motion ended at its first state: the arm no longer passed the take-over checks it passed when the HAL read
-/// it (it moved, or left its range, in between).
-const MOVED_BEFORE_THE_MOTION: &str =
-    "the arm moved between the HAL's read of it and the motion's first state: nothing was commanded";
+/// Why a motion ended at its first state: the take-over checks the arm passed when the HAL read it failed there
+/// (it moved, or left its range, in between), or the robot's setpoint was not where the arm is.
+const MOVED_BEFORE_THE_MOTION: &str = "at the motion's first state the arm moved, or the robot's setpoint was away \
+     from it (more than 0.01 rad), since the HAL read it: nothing was commanded";
+
+/// How far (rad) the robot's own setpoint may be from the measured pose for the HAL to take the arm over at it:
+/// an internal controller's tracking error at rest is far smaller (0.4 mrad seen on franka-sim, settling).
+const HELD_SETPOINT_GAP_RAD: f64 = 0.01;
 
 /// The state with the setpoint the robot holds the arm at as the position to take over at: `q_d`, from which the
 /// robot judges our first command and libfranka's rate limiter continues it (libfranka's examples start a joint
-/// motion from it too). At rest it is the measured pose within the internal controller's tracking error.
-fn held_by_the_robot(state: &RobotState, hand: Option<&Hand>) -> Measurement {
+/// motion from it too). At rest it is the measured pose within the internal controller's tracking error; `None`
+/// where it is not (the HAL would move the arm to a pose it did not measure).
+fn held_by_the_robot(state: &RobotState, hand: Option<&Hand>) -> Option<Measurement> {
+    let near = state.q_d.iter().zip(&state.q).all(|(d, q)| (d - q).abs() <= HELD_SETPOINT_GAP_RAD);
     let mut m = measured(state, hand);
     m.position[..JOINTS].copy_from_slice(&state.q_d);
-    m
+    near.then_some(m)
 }
 
 /// One motion: the robot's callback runs the HAL tick until the HAL ends (at rest) or the robot stops. The HAL
@@ -217,7 +223,9 @@ fn control(
     let result = fci.robot().control_joint_positions(
         |state, period| {
             let start = Stamp::now();
-            if motion.cycles == 0 && hal.take_over_at(&held_by_the_robot(state, hand.as_deref())).is_err() {
+            if motion.cycles == 0
+                && held_by_the_robot(state, hand.as_deref()).is_none_or(|m| hal.take_over_at(&m).is_err())
+            {
                 done = Some(Ended::BackendFailed(BackendError::Fatal(MOVED_BEFORE_THE_MOTION)));
                 return JointPositions { motion_finished: true, ..JointPositions::new(state.q) };
             }
@@ -442,6 +450,20 @@ mod tests {
             e.0[Errors::index_of(n).unwrap()] = true;
         }
         e
+    }
+
+    #[test]
+    fn a_motion_takes_the_arm_over_at_the_robot_s_setpoint_only_where_it_is_near_the_measured_pose() {
+        let q = [0.1, -0.2, 0.0, -1.5, 0.0, 1.6, 0.8];
+        let settling = RobotState { q, q_d: q.map(|x| x + 4e-4), ..RobotState::default() };
+        let m = held_by_the_robot(&settling, None).expect("0.4 mrad: the robot's tracking error");
+        assert_eq!(&m.position[..JOINTS], &settling.q_d, "the robot's own setpoint");
+        assert_eq!(&m.velocity[..JOINTS], &settling.dq, "measured velocities, for the take-over checks");
+        let mut away = settling;
+        away.q_d[3] += 0.02;
+        assert!(held_by_the_robot(&away, None).is_none(), "a setpoint 0.02 rad away is not taken over");
+        away.q_d[3] = f64::NAN;
+        assert!(held_by_the_robot(&away, None).is_none());
     }
 
     #[test]
