@@ -7,7 +7,8 @@
 //!
 //! Around it, what a robot engineer expects:
 //! - **Start**: the robot is read before anything else; a robot in reflex, user-stopped or with errors set is
-//!   refused with its reasons (nothing commanded), and the first setpoint is the measured pose.
+//!   refused with its reasons (nothing commanded). Each motion starts where the robot holds the arm: its own
+//!   setpoint `q_d` at the motion's first state, taken over only within 0.01 rad of the measured pose.
 //! - **Reflex** (any `ControlException`): the HAL reports the robot's reasons (log, state frame bits, exit
 //!   report), holds, keeps publishing the robot's state, and does **not** recover on its own. SIGUSR1 (or
 //!   `mars-hal recover` with no HAL running) runs the robot's error recovery; the HAL resumes from the pose it
