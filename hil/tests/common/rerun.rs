@@ -23,16 +23,24 @@ pub fn is_timing_trip(trip: &str) -> bool {
     ["no usable state frame", "servo ticks overran", "the HAL stopped following this controller (CommandTimeout)"]
         .iter()
         .any(|t| trip.contains(t))
+        || is_inference_trip(trip)
+}
+
+/// The policy's inference did not fit one ODE step in its deadline: timing, on the policy's core.
+fn is_inference_trip(trip: &str) -> bool {
+    trip.contains("inference could not fit one ODE step")
 }
 
 /// marsd tripped with `trip` at `trip_ns` (CLOCK_MONOTONIC): a timing trip with the witness's stall around it on
-/// the servo's core (which the tests' HAL shares: `spawn_hal`).
+/// the core of the loop that tripped: the policy's for an inference over its deadline, otherwise the servo's
+/// (which the tests' HAL shares: `spawn_hal`).
 pub fn trip_excuse(trip: &str, trip_ns: u64) -> Option<Excuse> {
     if !is_timing_trip(trip) {
         return None;
     }
+    let core = if is_inference_trip(trip) { super::policy_core() } else { super::servo_core() };
     let (failure, from) = (format!("marsd tripped ({trip})"), trip_ns.saturating_sub(BEFORE_TRIP_NS));
-    witness().excuse_on(super::servo_core(), failure, from, trip_ns + AFTER_TRIP_NS, MIN_TRIP_STALL_MS)
+    witness().excuse_on(core, failure, from, trip_ns + AFTER_TRIP_NS, MIN_TRIP_STALL_MS)
 }
 
 /// The trip of a marsd whose summary is `s`, at the time of its "watchdog trip" log line.
