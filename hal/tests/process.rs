@@ -122,15 +122,31 @@ impl Rig {
 
 #[test]
 fn state_frames_arrive_at_the_profile_rate() {
+    witness();
+    at_most_one_rerun("state frames at the profile's rate", frames_at_the_profile_rate);
+}
+
+/// One attempt of the test above: within 10 % of the rate, or fewer only by the periods the witness saw the machine
+/// take (a frame is published per tick; a tick the machine delays past its period is skipped, not made up).
+fn frames_at_the_profile_rate(_attempt: u32) -> Attempt {
     let rig = Rig::start("fr3.toml");
     let first = rig.latest();
     std::thread::sleep(Duration::from_millis(1000));
     let last = rig.latest();
-    let rate = (last.seq - first.seq) as f64 / ((last.timestamp_ns - first.timestamp_ns) as f64 * 1e-9);
-    assert!((rate - rig.profile.rate_hz).abs() < 0.1 * rig.profile.rate_hz, "{rate} Hz");
+    let secs = (last.timestamp_ns - first.timestamp_ns) as f64 * 1e-9;
+    let rate = (last.seq - first.seq) as f64 / secs;
+    assert!(rate < 1.1 * rig.profile.rate_hz, "{rate} Hz");
+    if rate <= 0.9 * rig.profile.rate_hz {
+        let short_ms = (0.9 * rig.profile.rate_hz - rate) * secs / rig.profile.rate_hz * 1e3;
+        let failure = format!("{rate:.0} Hz of state frames, under 90 % of {} Hz", rig.profile.rate_hz);
+        return Err(witness()
+            .excuse(failure.clone(), first.timestamp_ns, last.timestamp_ns, short_ms)
+            .unwrap_or_else(|| panic!("{failure}")));
+    }
     assert_eq!(last.num_joints, 7);
     assert_eq!(HoldReason::from_u32(last.hold_reason), Some(HoldReason::NoSession));
     assert!(last.is(status::HOLDING) && last.is(status::AT_REST));
+    Ok(())
 }
 
 #[test]
@@ -217,9 +233,18 @@ fn command_timeout_scenario(_attempt: u32) -> Attempt {
     let after_old = rig.stream(1, 0.3, |_| far.clone());
     assert!(after_old.is(status::HOLDING));
     assert_eq!(&after_old.applied_position[..7], &held_at[..7]);
-    // ... and a new session resumes.
+    // ... and a new session resumes (held again only if the machine stalled its stream past the timeout: on the
+    // witness's stall of half the timeout while it streamed).
+    let streamed_from = clock::monotonic_ns();
     let after_new = rig.stream(2, 0.3, |_| far.clone());
-    assert!(after_new.is(status::ACTIVE) && after_new.session == 2);
+    if after_new.session == 2 && HoldReason::from_u32(after_new.hold_reason) == Some(HoldReason::CommandTimeout) {
+        let failure = "the new session timed out while it streamed";
+        let half_timeout_ms = timeout_ns as f64 * 0.5e-6;
+        if let Some(e) = witness().excuse(failure, streamed_from, after_new.timestamp_ns, half_timeout_ms) {
+            return Err(e);
+        }
+    }
+    assert!(after_new.is(status::ACTIVE) && after_new.session == 2, "{after_new:?}");
     assert!(after_new.applied_position[0] < held_at[0] - 0.01);
     Ok(())
 }
