@@ -284,7 +284,11 @@ pub fn report_and_exit_code(outcome: anyhow::Result<Report>) -> i32 {
         Ok(report) => {
             println!("{report}");
             use crate::runner::Ended;
-            if matches!(report.ended, Ended::BackendFailed(_) | Ended::ConnectionLost) { 1 } else { 0 }
+            if matches!(report.ended, Ended::BackendFailed(_) | Ended::ConnectionLost | Ended::NotTakenOver(_)) {
+                1
+            } else {
+                0
+            }
         }
         Err(e) => {
             eprintln!("mars-hal: {e:#}");

@@ -23,6 +23,7 @@ pub fn to_json(r: &Report) -> Value {
         Ended::Signal => "signal".to_string(),
         Ended::BackendFailed(e) => format!("backend failed: {e}"),
         Ended::ConnectionLost => "connection lost".to_string(),
+        Ended::NotTakenOver(why) => format!("not taken over: {why}"),
     };
     let robot = r.robot.as_ref().map(|rb| rb.to_json());
     json!({

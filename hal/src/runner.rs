@@ -63,6 +63,9 @@ pub enum Ended {
     BackendFailed(BackendError),
     /// The connection to a real robot broke (nothing can be commanded; the robot's own reflex stops it).
     ConnectionLost,
+    /// A motion's first state failed the take-over checks (why): the motion ended there, nothing was commanded and
+    /// the robot held the arm itself.
+    NotTakenOver(&'static str),
 }
 
 /// Loop timing and safety counters, printed at exit.
@@ -127,6 +130,7 @@ impl std::fmt::Display for Report {
             Ended::Signal => "a termination request".to_string(),
             Ended::BackendFailed(e) => format!("{e} (braked to rest first)"),
             Ended::ConnectionLost => "the connection to the robot breaking (see below)".to_string(),
+            Ended::NotTakenOver(why) => format!("refusing to take the arm over: {why}"),
         };
         writeln!(f, "mars-hal: {} ticks, ended by {ended}", self.ticks)?;
         writeln!(

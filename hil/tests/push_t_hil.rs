@@ -89,11 +89,7 @@ fn push_t_attempt(attempt: u32) -> Attempt {
     }
     // A frame older than the task's max_age_ms (100 ms) is refused before the policy sees it.
     assert!(latency(&s, "camera_age", "max") <= 100_000.0, "{}", s["latency"]);
-    // Capture → the chunk's first command: the lead, plus the frame's age (up to a camera period), plus 5 ms; beyond
-    // that only on the stall witness's evidence of as long a stall in the run.
-    let p99_ms = latency(&s, "capture_to_command", "p99") * 1e-3;
-    let run = (r.states[0].0.timestamp_ns, r.states.last().unwrap().0.timestamp_ns);
-    witness().within_or_excused("capture → command p99", p99_ms, LEAD_MS + CAMERA_PERIOD_MS + 5.0, run.0, run.1)?;
+    assert_capture_to_command_within(&s, adopted);
 
     // The table: every reference inside the workspace and reached by IK.
     assert_eq!(s["effector"]["outside_workspace"], 0, "{}", s["effector"]);
@@ -112,6 +108,54 @@ fn push_t_attempt(attempt: u32) -> Attempt {
     #[cfg(feature = "video")]
     assert_recorded_every_period(&s, &dataset);
     Ok(())
+}
+
+/// Capture → the chunk's first command: p99 within the lead, plus the frame's age (up to a camera period), plus
+/// 5 ms — measured per chunk less what the stall witness saw the machine take inside that chunk's own span (its
+/// late stretches on the core that lost most), so a stall elsewhere in the run excuses nothing, and nothing is
+/// rerun. The raw p99 is checked against the histogram's; a chunk with machine time taken is printed as `TAKEN`.
+fn assert_capture_to_command_within(s: &serde_json::Value, adopted: u64) {
+    const TEST: &str = "Push-T through the runtime";
+    let bound_ms = LEAD_MS + CAMERA_PERIOD_MS + 5.0;
+    let spans = s["capture_to_command"].as_array().expect("capture_to_command spans in the summary");
+    assert_eq!(spans.len() as u64, adopted, "one span per adopted chunk");
+    let mut raw = Vec::with_capacity(spans.len());
+    let mut less = Vec::with_capacity(spans.len());
+    for span in spans {
+        let (from, to) = (span["capture_ns"].as_u64().unwrap(), span["command_ns"].as_u64().unwrap());
+        let ms = to.saturating_sub(from) as f64 * 1e-6;
+        // Nothing is taken off where the witness cannot witness (no SCHED_FIFO: tests/README.md).
+        let taken = witness().stalled_in_span(from, to).unwrap_or(0.0);
+        if ms > bound_ms && taken > 0.0 {
+            let e = witness().seen_in(from, to).expect("watched: stalled_in_span said so");
+            report_machine_time(TEST, &format!("capture → command {ms:.1} ms, less {taken:.1} ms taken — {e}"));
+        }
+        raw.push(ms);
+        less.push(ms - taken);
+    }
+    let (raw_p99, less_p99) = (p99(&mut raw), p99(&mut less));
+    // The same quantile as the histogram's, which rounds to 3 significant digits.
+    let hist_p99 = latency(s, "capture_to_command", "p99") * 1e-3;
+    assert!(
+        (raw_p99 - hist_p99).abs() <= 0.01 * hist_p99 + 0.01,
+        "spans' p99 {raw_p99:.2} ms, histogram's {hist_p99:.2}"
+    );
+    eprintln!(
+        "capture → command p99: {raw_p99:.1} ms as measured, {less_p99:.1} ms less the stalls the witness saw in each \
+         chunk ({} chunks); bound {bound_ms:.0} ms",
+        spans.len()
+    );
+    assert!(
+        less_p99 <= bound_ms,
+        "capture → command p99 {less_p99:.1} ms less the witnessed stalls, over {bound_ms} ms"
+    );
+}
+
+/// The 99th percentile as HdrHistogram reads it: the smallest sample with at least 99 % of them at or below it.
+fn p99(samples: &mut [f64]) -> f64 {
+    samples.sort_by(f64::total_cmp);
+    let rank = ((samples.len() as f64 * 0.99).ceil() as usize).clamp(1, samples.len());
+    samples[rank - 1]
 }
 
 /// The recording: a frame per period whose image is that period's view — between calls the pusher moves, so

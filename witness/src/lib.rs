@@ -56,7 +56,7 @@ pub mod steal;
 use std::sync::OnceLock;
 
 pub use evidence::Evidence;
-pub use rerun::{Attempt, Excuse, at_most_one_rerun};
+pub use rerun::{Attempt, Excuse, at_most_one_rerun, report_machine_time};
 
 use core_watch::CoreWatch;
 use irq_trace::{InterruptTime, IrqTrace};
@@ -216,6 +216,15 @@ impl Witness {
             late_ns: late.iter().map(|(from, to)| to - from).sum(),
             interrupts_while_late_ns: in_late.map(|t| t.ns).sum(),
         }
+    }
+
+    /// What the machine took from a span of work that crossed processes and cores (a camera frame's way to a
+    /// command), in ms: the late stretches inside `[from_ns, to_ns]` of the watched core that lost most (each at
+    /// least [`core_watch::LATE_NS`]), not the steal (/proc/stat places it only to 10 ms). 0 when something
+    /// outranked the witness; `None` when it cannot witness or did not watch the whole span.
+    pub fn stalled_in_span(&self, from_ns: u64, to_ns: u64) -> Option<f64> {
+        let e = self.seen_in(from_ns, to_ns)?;
+        Some(if e.outranked.is_some() { 0.0 } else { e.lateness.map_or(0.0, |l| l.ms) })
     }
 
     /// Why the kernel's interrupt trace records nothing here (no tracefs, not root), if it does not.

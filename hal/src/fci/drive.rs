@@ -227,7 +227,7 @@ fn control(
             if motion.cycles == 0
                 && held_by_the_robot(state, hand.as_deref()).is_none_or(|m| hal.take_over_at(&m).is_err())
             {
-                done = Some(Ended::BackendFailed(BackendError::Fatal(MOVED_BEFORE_THE_MOTION)));
+                done = Some(Ended::NotTakenOver(MOVED_BEFORE_THE_MOTION));
                 return JointPositions { motion_finished: true, ..JointPositions::new(state.q) };
             }
             let (missed, bunched) = motion.timing(start.at, period, state, hal, report);

@@ -6,7 +6,7 @@
 use std::path::Path;
 
 #[allow(unused_imports)] // each test binary uses a part
-pub use stall_witness::{Attempt, Excuse, at_most_one_rerun, witness};
+pub use stall_witness::{Attempt, Excuse, at_most_one_rerun, report_machine_time, witness};
 
 use super::{Proc, Recorded, u64_at};
 

@@ -143,6 +143,8 @@ pub struct Summary {
     /// Whether SCHED_FIFO, the core pinning and mlockall were applied, per loop thread.
     pub realtime: Vec<RtStatus>,
     pub latency: Totals,
+    /// A camera task's adopted chunks, timed (the first [`crate::servo::servo_loop::CAPTURE_SPANS_KEPT`]).
+    pub capture_to_command: Vec<crate::servo::servo_loop::CaptureSpan>,
     /// The last `traces_kept` episodes' results (the counts above cover every episode).
     pub episode_results: Vec<EpisodeResult>,
     /// Episode traces dropped from the plot (only the last `traces_kept` are kept).
@@ -227,6 +229,7 @@ impl Summary {
             servo_samples_sent: s.samples_sent_after_warmup,
             realtime: run.realtime,
             latency,
+            capture_to_command: s.capture_spans.clone(),
             episode_results: t.recent.iter().cloned().collect(),
             traces_dropped: p.traces_dropped,
             camera: p.camera.clone(),

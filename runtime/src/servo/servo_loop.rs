@@ -88,7 +88,7 @@ pub struct ServoChannels {
 }
 
 /// How the loop ended.
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone)]
 pub struct ServoReport {
     pub cause: Option<StopCause>,
     pub counters: ServoCounters,
@@ -111,6 +111,19 @@ pub struct ServoReport {
     /// Samples sent over the same span: each may take exactly one pooled block (iceoryx2's bookkeeping).
     pub samples_sent_after_warmup: u64,
     pub ticks_counted: u64,
+    /// The first [`CAPTURE_SPANS_KEPT`] adopted chunks of a camera task, timed: what a stall of the machine must
+    /// cover to explain one's capture → command (the histogram has only their lengths).
+    pub capture_spans: Vec<CaptureSpan>,
+}
+
+/// Adopted camera chunks whose [`CaptureSpan`] the report keeps: a Push-T episode takes tens of chunks.
+pub const CAPTURE_SPANS_KEPT: usize = 4096;
+
+/// One adopted chunk: its camera frame's capture and the first command sent from it (CLOCK_MONOTONIC ns).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+pub struct CaptureSpan {
+    pub capture_ns: u64,
+    pub command_ns: u64,
 }
 
 /// The loop's timing and its own fault limits.
@@ -240,6 +253,7 @@ pub fn run_servo(
     // (allocation counts, samples sent, ticks) when the warm-up ended.
     let mut allocs_at_warmup: Option<(crate::alloc_count::Counts, u64, u64)> = None;
     let mut ticks_with_hal = 0u64;
+    let mut capture_spans = Vec::with_capacity(CAPTURE_SPANS_KEPT);
     crate::alloc_count::init_rt_pool();
     loop {
         let wake = ticker.wait();
@@ -271,8 +285,13 @@ pub fn run_servo(
             if sent && newest.is_some() {
                 rec.record(Channel::StateToCommand, monotonic_ns().saturating_sub(t0));
             }
-            if let (true, Some(capture)) = (sent, out.adopted_capture_ns) {
-                rec.record(Channel::CaptureToCommand, monotonic_ns().saturating_sub(capture));
+            if let (true, Some(capture_ns)) = (sent, out.adopted_capture_ns) {
+                let command_ns = monotonic_ns();
+                rec.record(Channel::CaptureToCommand, command_ns.saturating_sub(capture_ns));
+                // Kept within the capacity reserved at start: no allocation.
+                if capture_spans.len() < CAPTURE_SPANS_KEPT {
+                    capture_spans.push(CaptureSpan { capture_ns, command_ns });
+                }
             }
         }
         if let Some(obs) = out.observed {
@@ -312,5 +331,6 @@ pub fn run_servo(
         hal: tick.hal_counts(),
         first_violation: tick.first_violation,
         effector: tick.effector().map(|e| e.counts),
+        capture_spans,
     }
 }
