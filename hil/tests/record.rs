@@ -226,6 +226,9 @@ fn recorded_demo(attempt: u32) -> Attempt {
     let replay_summary: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
     let replay_missed = u64_at(&replay_summary["episode_results"][0], "/servo_missed_periods");
+    // A replayed chunk was computed from no camera frame: nothing recorded as capture → command (it once was, into
+    // a recorder that does not keep that channel).
+    assert_eq!(u64_at(&replay_summary, "/latency/stray"), 0, "{}", replay_summary["latency"]);
     let on_time = late == 0 && missed == 0 && replay_missed == 0;
     let timing = format!(
         "in episode 0 the recorded run had {late} late chunks and {missed} missed servo periods, the replay \

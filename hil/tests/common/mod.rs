@@ -364,11 +364,14 @@ pub fn shipped_config() -> PathBuf {
     root().join("configs/marsd.toml")
 }
 
-/// `summary.json` of a marsd run spawned by [`spawn_marsd_named`].
+/// `summary.json` of a marsd run spawned by [`spawn_marsd_named`]. Every run's latency samples went to a
+/// recorder that keeps their channel (a stray one is a loop recording what it should not).
 pub fn summary(logs: &TempDir, name: &str) -> serde_json::Value {
     let path = logs.join(&format!("{name}-out/summary.json"));
     let text = std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("reading {}: {e}", path.display()));
-    serde_json::from_str(&text).unwrap()
+    let s: serde_json::Value = serde_json::from_str(&text).unwrap();
+    assert_eq!(s["latency"]["stray"], 0, "{name}: samples for channels their recorder does not own: {}", s["latency"]);
+    s
 }
 
 pub fn u64_at(v: &serde_json::Value, pointer: &str) -> u64 {

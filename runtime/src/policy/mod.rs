@@ -479,7 +479,8 @@ impl PolicyLoop {
             let ready_ns = monotonic_ns();
             let (episode, seq, period_ns) = (run.episode, run.seq, run.period_ns);
             let first_due_ns = need_ns + period_ns;
-            let stamp = ChunkStamp { episode, seq, period_ns, first_due_ns, ready_ns, capture_ns: ready_ns };
+            // Computed from no camera frame now: no capture → command to measure.
+            let stamp = ChunkStamp { episode, seq, period_ns, first_due_ns, ready_ns, capture_ns: 0 };
             Self::publish(&mut self.ch.chunks, &stamp, &run.replayed, run.d);
             run.history.copy_from_slice(&run.replayed);
             if self.recording.is_some() {
