@@ -9,7 +9,6 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
-use mars_ipc::clock::monotonic_ns;
 use mars_ipc::node::create_node;
 use mars_ipc::{ImageEncoding, ImageReader, RobotNamespace, SCHEMA_VERSION, SchemaMismatch};
 use mars_runtime::observe::camera::{Camera, CameraRefusal, CameraSpec};
@@ -72,7 +71,7 @@ fn frames_from_the_python_example_arrive_pixel_for_pixel() {
     let (mut seqs, started) = (Vec::new(), Instant::now());
     loop {
         let exited = child.0.try_wait().unwrap().is_some();
-        let polled = cam.poll(monotonic_ns());
+        let polled = cam.poll();
         assert_eq!(polled.refusal, None);
         let got = polled.frame.is_some();
         if let Some(f) = polled.frame {
@@ -123,7 +122,7 @@ fn every_kind_of_bad_python_frame_is_refused_with_its_reason() {
         assert!(line.starts_with(&format!("sent {kind}")), "the fixture said {line:?}");
         let started = Instant::now();
         loop {
-            let polled = cam.poll(monotonic_ns());
+            let polled = cam.poll();
             if let Some(f) = polled.frame {
                 return Ok(f.header().seq);
             }

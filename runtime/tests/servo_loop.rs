@@ -166,3 +166,32 @@ fn sends_that_fail_fewer_times_in_a_row_than_the_limit_do_not_trip() {
     assert_eq!(r.cause, Some(StopCause::Signal), "{:?}", r.cause);
     assert!(r.send_errors > 5 * limit, "{}", r.send_errors);
 }
+
+/// hil.rs's late-frames test (CI, 2026-11-30): with every HAL frame published 5 ms after its stamp and
+/// `stale_state_ms` = 3, marsd once used a frame and handshook. Its age was taken at the tick's wake-up, and the
+/// thread, held up before it read, received a frame published after that. Here every frame arrives 3 ms into the
+/// receive call, stamped 2 ms before the call began: 2 ms old by the wake-up, 5 ms when read. None may be used.
+#[test]
+fn a_frame_is_judged_stale_by_when_it_was_read_not_by_when_the_tick_woke() {
+    let status = Arc::new(Status::default());
+    let stop = status.clone();
+    let hal = FakeHal {
+        calls: Cell::new(0),
+        frame: move |n: u64| {
+            if n == 100 {
+                stop.stop_requested.store(true, Ordering::Release);
+            }
+            if n % 2 == 1 {
+                return Ok(None);
+            }
+            let began = mars_ipc::clock::monotonic_ns();
+            std::thread::sleep(Duration::from_millis(3));
+            Ok(Some(RobotState { timestamp_ns: began - 2_000_000, ..hal_frame(n + 1, 0) }))
+        },
+        send: |_: &JointCommand| panic!("nothing may be commanded on stale frames"),
+    };
+    let r = run(hal, status);
+    assert_eq!(r.frames.used, 0, "{:?}", r.frames);
+    assert!(r.frames.stale >= 40, "{:?}", r.frames);
+    assert_eq!(r.counters.commands_sent, 0);
+}

@@ -702,9 +702,8 @@ impl PolicyLoop {
                 Ok(0)
             }
             HilTask::PushT(t) => {
-                let now = monotonic_ns();
                 let scene = self.scene.as_mut().expect("a Push-T task has its scene opened");
-                let polled = scene.camera.poll(now);
+                let polled = scene.camera.poll();
                 let cam = report.camera.get_or_insert_with(CameraReport::default);
                 if let Some(r) = polled.refusal
                     && cam.first_refusal.is_none()

@@ -261,13 +261,16 @@ pub fn run_servo(
         rec.record(Channel::WakeJitter, wake.late_ns);
 
         let newest = newest_state(&wire, &mut tick, &mut refusals);
+        // A frame is judged by when it was read, not by the tick's wake-up: a thread held up between the two would
+        // take a frame published meanwhile for younger than it is (and use a stale one).
+        let read_ns = monotonic_ns();
         if let Some(s) = &newest {
-            rec.record(Channel::StateAge, t0.saturating_sub(s.timestamp_ns));
+            rec.record(Channel::StateAge, read_ns.saturating_sub(s.timestamp_ns));
             phase_lock(&mut ticker, s.timestamp_ns, wake.deadline_ns, period_ns);
         }
         let chunk = if ch.chunks.update() { Some(ch.chunks.output_buffer()) } else { None };
         let input = TickInput {
-            now_ns: t0,
+            now_ns: read_ns,
             missed: wake.missed,
             frame: newest.as_ref(),
             chunk,
@@ -283,7 +286,7 @@ pub fn run_servo(
                 tick.trip(trip);
             }
             if sent && newest.is_some() {
-                rec.record(Channel::StateToCommand, monotonic_ns().saturating_sub(t0));
+                rec.record(Channel::StateToCommand, monotonic_ns().saturating_sub(read_ns));
             }
             if let (true, Some(capture_ns)) = (sent, out.adopted_capture_ns) {
                 let command_ns = monotonic_ns();

@@ -84,8 +84,9 @@ pub fn run(a: &CameraArgs) -> anyhow::Result<CameraReport> {
     let mut kinds_seen = Vec::new();
     let started = Instant::now();
     while started.elapsed().as_secs_f64() < a.seconds && a.frames.is_none_or(|n| camera.check.counts.used < n) {
+        let polled = camera.poll();
+        // Read after the poll: no frame it used was read later than this.
         let now = monotonic_ns();
-        let polled = camera.poll(now);
         if let Some(r) = polled.refusal {
             let kind = std::mem::discriminant(&r);
             if !kinds_seen.contains(&kind) {
@@ -95,7 +96,7 @@ pub fn run(a: &CameraArgs) -> anyhow::Result<CameraReport> {
         }
         if let Some(f) = polled.frame {
             let t = f.header().timestamp_ns;
-            ages.saturating_record(((now - t) / 1000).max(1));
+            ages.saturating_record((now.saturating_sub(t) / 1000).max(1));
             first.get_or_insert(t);
             last = t;
         }
