@@ -110,7 +110,12 @@ pub fn marsd(args: MarsdArgs) -> ExitCode {
         }
     };
     match daemon::run(prepared) {
-        Ok(outcome) => ExitCode::from(outcome.exit),
+        Ok(outcome) => {
+            // The last of marsd's own work (the arm held, the report written): what follows is the kernel taking
+            // the process down, which a test times apart.
+            tracing::info!(status = outcome.exit, "marsd done, exiting");
+            ExitCode::from(outcome.exit)
+        }
         Err(e) => {
             tracing::error!("{e:#}");
             ExitCode::from(exit::FAILURE)
