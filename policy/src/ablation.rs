@@ -215,5 +215,133 @@ pub fn render(rows: &[AblationRow], o: &AblateOptions, config: &Path, layout: &P
             per_seed.join(", ")
         );
     }
+    if let Some((base, rest)) = rows.split_first()
+        && !rest.is_empty()
+    {
+        render_paired(&mut s, base, rest);
+    }
     s
+}
+
+/// A figure of one run that settings are compared by: its heading, how it is read, the decimal places printed.
+type Figure = (&'static str, fn(&AblationRun) -> f64, usize);
+
+/// What each setting is compared with the first by. The outer passages' share is Fig. S4's claim (an ungated
+/// L_rec pulls FM from the outer passages to the central ones: 20 + 24 % → 10 + 4 % in the paper).
+const PAIRED: [Figure; 4] = [
+    ("success (points)", |r| f64::from(r.success_pct), 1),
+    ("outer passages' share", |r| outer_share(&r.passage_counts), 3),
+    ("γ", |r| f64::from(r.gamma), 2),
+    ("TV to the demos", |r| f64::from(r.tv), 3),
+];
+
+/// The share of the successful rollouts through the layout's first and last passages (NaN with none).
+pub fn outer_share(counts: &[usize]) -> f64 {
+    let total: usize = counts.iter().sum();
+    match counts {
+        [first, .., last] if total > 0 => (first + last) as f64 / total as f64,
+        _ => f64::NAN,
+    }
+}
+
+/// `row` − `base` of one figure, seed by seed (both trained on that seed's demos); `None` when a seed has no
+/// value (no successful rollout) or no seed pairs.
+fn paired(base: &AblationRow, row: &AblationRow, figure: fn(&AblationRun) -> f64) -> Option<Estimate> {
+    let d: Vec<f64> = row
+        .runs
+        .iter()
+        .filter_map(|r| base.runs.iter().find(|b| b.seed == r.seed).map(|b| figure(r) - figure(b)))
+        .collect();
+    mean_over_seeds(&d)
+}
+
+/// "differ" when the 95 % interval excludes 0, "undecided" when it does not (one seed never decides).
+fn verdict(e: Estimate) -> &'static str {
+    if e.lo > 0.0 || e.hi < 0.0 { "differ" } else { "undecided" }
+}
+
+/// Every setting against the first, paired by seed: the difference's mean with its 95 % t interval and a verdict.
+fn render_paired(s: &mut String, base: &AblationRow, rows: &[AblationRow]) {
+    let _ = writeln!(
+        s,
+        "\nAgainst {}, paired by seed (same demos, same rollout seeds): the difference's mean with its 95 % t \
+         interval over seeds, \"differ\" when it excludes 0, \"undecided\" when not.\n",
+        base.label
+    );
+    let heads: Vec<&str> = PAIRED.iter().map(|f| f.0).collect();
+    let _ = writeln!(s, "| setting − {} | {} |", base.label, heads.join(" | "));
+    let _ = writeln!(s, "|---|{}", "---|".repeat(PAIRED.len()));
+    for row in rows {
+        let cells: Vec<String> = PAIRED
+            .iter()
+            .map(|&(_, figure, places)| match paired(base, row, figure) {
+                Some(e) => format!("{e:.places$} {}", verdict(e)),
+                None => "– (a seed with no successful rollout)".into(),
+            })
+            .collect();
+        let _ = writeln!(s, "| {} | {} |", row.label, cells.join(" | "));
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn run(value: f64, seed: u64, success_pct: f32, passage_counts: Vec<usize>) -> AblationRun {
+        AblationRun {
+            value,
+            seed,
+            final_loss: 0.1,
+            losses: vec![0.1],
+            success_pct,
+            passage_counts,
+            gamma: 0.5,
+            tv: 0.1,
+        }
+    }
+
+    fn options(values: Vec<f64>, seeds: u64) -> AblateOptions {
+        AblateOptions {
+            knob: Knob::FmLambdaRec,
+            values,
+            demos: 10,
+            epochs: Some(1),
+            rollouts: 100,
+            seeds,
+            exec_horizon: 8,
+            jobs: 1,
+            resume: false,
+        }
+    }
+
+    #[test]
+    fn outer_share_is_the_first_and_last_passages_of_the_successes() {
+        assert_eq!(outer_share(&[20, 24, 29, 27]), 0.47);
+        assert!(outer_share(&[0, 0, 0, 0]).is_nan());
+        assert!(outer_share(&[5]).is_nan());
+    }
+
+    #[test]
+    fn a_steady_shift_to_the_centre_differs_and_one_seed_is_undecided() {
+        let o = options(vec![0.0, 1.0], 5);
+        let mut runs = Vec::new();
+        for seed in 0..5 {
+            let wobble = seed as usize;
+            runs.push(run(0.0, seed, 90.0, vec![20 + wobble, 30, 30, 20]));
+            runs.push(run(1.0, seed, 90.0 - seed as f32, vec![5, 40 + wobble, 45, 10]));
+        }
+        let rows: Vec<AblationRow> = o.values.iter().map(|&v| aggregate(&o, 1, v, &runs)).collect();
+        let md = render(&rows, &o, Path::new("c.toml"), Path::new("l.toml"));
+        let line = md.lines().find(|l| l.starts_with("| λ_rec 1 |") && l.contains("differ")).expect(&md);
+        let cells: Vec<&str> = line.split(" | ").collect();
+        assert!(cells[1].starts_with("-2.0 (") && cells[1].ends_with("differ"), "success: {line}");
+        assert!(cells[2].starts_with("-0.") && cells[2].ends_with("differ"), "outer share: {line}");
+        assert!(cells[3].ends_with("undecided"), "γ the same everywhere: {line}");
+
+        let o = options(vec![0.0, 1.0], 1);
+        let one: Vec<AblationRun> = runs.into_iter().filter(|r| r.seed == 0).collect();
+        let rows: Vec<AblationRow> = o.values.iter().map(|&v| aggregate(&o, 1, v, &one)).collect();
+        let md = render(&rows, &o, Path::new("c.toml"), Path::new("l.toml"));
+        assert!(!md.contains(") differ"), "one seed decides nothing: {md}");
+    }
 }
