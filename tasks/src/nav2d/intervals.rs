@@ -27,9 +27,33 @@ const FAILED: usize = 0;
 const NO_PASSAGE: usize = 1;
 const FIRST_PASSAGE: usize = 2;
 
+/// The rollouts' passages among a resample's category counts.
+fn passages(c: &[usize]) -> Vec<usize> {
+    c[FIRST_PASSAGE..].to_vec()
+}
+
+/// A resample's success rate.
+fn success(c: &[usize]) -> f64 {
+    let n: usize = c.iter().sum();
+    (n - c[FAILED]) as f64 / n.max(1) as f64
+}
+
+/// A resample's γ.
+fn gamma(c: &[usize]) -> f64 {
+    f64::from(modal_balance(&passages(c)))
+}
+
+/// One policy's success and γ less another's, each with its 95 % interval (two independent bootstraps paired
+/// resample by resample): what a claim comparing two policies of one run is judged by.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct EvalDifference {
+    pub success: Estimate,
+    pub gamma: Estimate,
+}
+
 impl EvalReport {
-    /// The intervals of this evaluation, against `demo_shares` (the demos' passage shares), seeded by `seed`.
-    pub fn intervals(&self, demo_shares: &[f64], seed: u64) -> EvalIntervals {
+    /// The bootstrap of this evaluation's outcome counts (failure, success through no passage, through passage i).
+    fn bootstrap(&self, seed: u64) -> Bootstrap {
         let mut counts = vec![0; FIRST_PASSAGE + self.passage_counts.len()];
         for e in &self.episodes {
             let category = match (e.success(), e.mode) {
@@ -39,19 +63,30 @@ impl EvalReport {
             };
             counts[category] += 1;
         }
-        let boot = Bootstrap::new(&counts, crate::stats::bootstrap::RESAMPLES, seed);
-        let passages = |c: &[usize]| c[FIRST_PASSAGE..].to_vec();
+        Bootstrap::new(&counts, crate::stats::bootstrap::RESAMPLES, seed)
+    }
+
+    /// The intervals of this evaluation, against `demo_shares` (the demos' passage shares), seeded by `seed`.
+    pub fn intervals(&self, demo_shares: &[f64], seed: u64) -> EvalIntervals {
+        let boot = self.bootstrap(seed);
         let share = |i: usize| move |c: &[usize]| modes::shares(&passages(c)).map_or(0.0, |s| s[i]);
         EvalIntervals {
             rollouts: self.episodes.len(),
-            success: boot.estimate(|c| {
-                let n: usize = c.iter().sum();
-                (n - c[FAILED]) as f64 / n.max(1) as f64
-            }),
+            success: boot.estimate(success),
             shares: (0..self.passage_counts.len()).map(|i| boot.estimate(share(i))).collect(),
-            gamma: boot.estimate(|c| f64::from(modal_balance(&passages(c)))),
+            gamma: boot.estimate(gamma),
             tv: boot.estimate(|c| modes::tv_to(&passages(c), demo_shares)),
         }
+    }
+
+    /// This evaluation's success and γ less `other`'s (`seed` and `seed + 1` draw the two bootstraps); `None` when
+    /// either has no rollouts or they differ in passages.
+    pub fn difference(&self, other: &EvalReport, seed: u64) -> Option<EvalDifference> {
+        if self.passage_counts.len() != other.passage_counts.len() {
+            return None;
+        }
+        let (a, b) = (self.bootstrap(seed), other.bootstrap(seed.wrapping_add(1)));
+        Some(EvalDifference { success: a.difference(&b, success)?, gamma: a.difference(&b, gamma)? })
     }
 }
 
@@ -103,6 +138,27 @@ mod tests {
         assert_eq!(r, report().intervals(&[0.25; 4], 1), "seeded");
         let text = r.to_string();
         assert!(text.starts_with("100 rollouts: success 90.0 (") && text.contains(" %, γ 0.40 ("), "{text}");
+    }
+
+    #[test]
+    fn a_difference_is_bounded_by_both_evaluations_spreads() {
+        let a = report();
+        let mut e: Vec<Episode> = (0..40).map(|_| episode(Termination::Timeout, None)).collect();
+        e.extend((0..60).map(|i| episode(Termination::Success, Some(i % 2))));
+        let b = EvalReport::from_episodes(4, e);
+        let d = a.difference(&b, 3).unwrap();
+        assert!((d.success.value - 0.30).abs() < 1e-12, "{}", d.success);
+        // Wider than either alone: ±1.96·√(0.9·0.1/100 + 0.6·0.4/100) ≈ ±0.11.
+        assert!(
+            d.success.lo > 0.15 && d.success.lo < 0.22 && d.success.hi > 0.38 && d.success.hi < 0.45,
+            "{}",
+            d.success
+        );
+        // b uses two passages of four: γ 0, so the difference is a's γ and its interval a's.
+        assert!((d.gamma.value - a.intervals(&[0.25; 4], 3).gamma.value).abs() < 1e-6);
+        assert_eq!(a.difference(&b, 3), Some(d), "seeded");
+        assert!(a.difference(&EvalReport::from_episodes(2, vec![]), 3).is_none(), "no pairing across layouts");
+        assert!(EvalReport::from_episodes(4, vec![]).difference(&b, 3).is_none(), "no rollouts, no interval");
     }
 
     #[test]

@@ -16,5 +16,5 @@ pub use batch::evaluate_batched;
 pub use env::{Nav2dEnv, StepOutcome};
 pub use eval::{Episode, EpisodeRun, EvalReport, Termination, evaluate, modal_balance, run_episode};
 pub use expert::generate_demos;
-pub use intervals::EvalIntervals;
+pub use intervals::{EvalDifference, EvalIntervals};
 pub use layout::{Layout, LayoutError, Rect};
