@@ -314,8 +314,17 @@ fn ablate_trains_fm_per_value_and_seed_and_writes_the_table() {
         let out = ablate(&[]);
         assert!(out.status.success(), "{knob}: {}", String::from_utf8_lossy(&out.stderr));
         let md = std::fs::read_to_string(out_dir.join("ablation.md")).unwrap();
-        let rows: Vec<&str> = md.lines().filter(|l| l.starts_with("| std ") || l.starts_with("| λ_rec ")).collect();
+        let setting = |l: &&str| l.starts_with("| std ") || l.starts_with("| λ_rec ");
+        let (rows, paired): (Vec<&str>, Vec<&str>) = md.lines().filter(setting).partition(|l| l.contains(" ± "));
         assert_eq!(rows.len(), 2, "{md}");
+        // The second value against the first, paired by seed: four differences, each with its verdict or none.
+        assert_eq!(paired.len(), 1, "{md}");
+        let judged = ["differ", "undecided", "(a seed with no successful rollout)"];
+        assert_eq!(
+            paired[0].split(" | ").filter(|c| judged.iter().any(|j| c.trim_end_matches(" |").ends_with(j))).count(),
+            4,
+            "{md}"
+        );
         assert!(
             rows.iter()
                 .all(|r| r.contains(" ± ") && r.trim_end_matches(" |").rsplit(" | ").next().unwrap().contains(", ")),
