@@ -17,7 +17,10 @@ use crate::monotonic_ns;
 /// at a 1 ms period a 1 ms absence went unseen on CI (a HAL tick of 1 024 µs of "CPU"), at 500 µs one of 1.6 ms
 /// in ~500 µs pieces (`hil/tests/franka_sim.rs`, the stalled HAL, 1 run in 12). The price, what the witness costs
 /// the core it watches (`absence_probe 10 1` with and without `--witness`, time taken from a spinner at SCHED_FIFO
-/// 80, charged and not): 3.6 % at 1 ms, 7.7 % at 500 µs, 15 % at 250 µs.
+/// 80, charged and not): 3.6 % at 1 ms, 7.7 % at 500 µs, 15 % at 250 µs. Whether it also draws more of the
+/// hypervisor's absences is not settled: `examples/witness_cost.rs 8 30` (2026-11-30, idle VM, windows with and
+/// without a witness in swapped pairs) gave steal +31 (−3–65) ms/s and a 1 kHz loop's late time +3 (−9–15) ms/s
+/// with it, both intervals across 0, the host's own drift (5–133 ms/s of steal) larger than either.
 pub const PERIOD_NS: u64 = 250_000;
 /// A wake-up at least this late is recorded (the witness's own wake-up lateness on an idle VM is tens of µs). Not
 /// lower: on a kernel that does not preempt itself (`preempt=none`) a thread of the rig in a system call on this
