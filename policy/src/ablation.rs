@@ -7,6 +7,7 @@ use crate::benchmark::{demos_kept_or_made, trained_with};
 use crate::cli::eval;
 use crate::config::{PolicyConfig, PolicyKind};
 use crate::demo_file::load_demos;
+use crate::family_diff::verdict;
 use crate::stats::MeanStd;
 use crate::train::train_with_progress;
 use anyhow::Context;
@@ -253,11 +254,6 @@ fn paired(base: &AblationRow, row: &AblationRow, figure: fn(&AblationRun) -> f64
         .filter_map(|r| base.runs.iter().find(|b| b.seed == r.seed).map(|b| figure(r) - figure(b)))
         .collect();
     mean_over_seeds(&d)
-}
-
-/// "differ" when the 95 % interval excludes 0, "undecided" when it does not (one seed never decides).
-fn verdict(e: Estimate) -> &'static str {
-    if e.lo > 0.0 || e.hi < 0.0 { "differ" } else { "undecided" }
 }
 
 /// Every setting against the first, paired by seed: the difference's mean with its 95 % t interval and a verdict.

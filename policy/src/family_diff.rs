@@ -21,7 +21,8 @@ fn paired(a: &PolicyStats, b: &PolicyStats, figure: fn(&SeedFigures) -> f64) -> 
     mean_over_seeds(&d).unwrap_or(Estimate::new(f64::NAN, f64::NAN, f64::NAN))
 }
 
-fn verdict(e: Estimate) -> &'static str {
+/// "differ" when a difference's 95 % interval excludes 0, "undecided" when it does not (one seed never decides).
+pub(crate) fn verdict(e: Estimate) -> &'static str {
     if e.lo > 0.0 || e.hi < 0.0 { "differ" } else { "undecided" }
 }
 

@@ -175,7 +175,8 @@ fn shares_pct(shares: &[Estimate]) -> String {
     shares.iter().map(|e| format!("{:.0}", e.scaled(100.0))).collect::<Vec<_>>().join(" / ")
 }
 
-/// The mean over episodes of each episode's mean K, with its 95 % t interval over the episodes.
+/// The mean over episodes of each episode's mean K, with its 95 % t interval over the episodes (the t interval of
+/// a mean that `mean_over_seeds` computes, here over episodes).
 fn episodes_mean_k(r: &EvalReport) -> Option<Estimate> {
     let per_episode: Vec<f64> = r
         .episodes
@@ -193,8 +194,7 @@ mod tests {
     use mars_tasks::nav2d::{Episode, Termination};
     use std::time::Duration;
 
-    /// An evaluation of 400 rollouts: `failed` fail, the rest split over four passages as `split` (fractions),
-    /// every call with `k` steps.
+    /// An evaluation: `failed` rollouts fail, `split[i]` succeed through passage i; every call with `k` steps.
     fn row(kind: PolicyKind, failed: usize, split: [usize; 4], k: usize) -> Row {
         let call = CallRecord { latency: Duration::ZERO, k, w_inf: 0.0 };
         let episode = |termination, mode| Episode {
