@@ -2,20 +2,18 @@
 //!
 //! Prints one table per section: latency for K = 1, 3, 10 (medians, engine vs the candle forward path, ratio
 //! measured in this run), achieved FLOP/s against this machine's single-thread gemm peak measured in the
-//! same run, heap allocations per call, the deadline behaviour, and the MARS-vs-FM latency on the nav2d
-//! checkpoints replaying the demos' observations and histories (so K varies as in use); and the image encoder
-//! (ResNet-18) against candle and ONNX Runtime at each configured size (`support/image_encoder.rs`).
+//! same run, heap allocations per call, the deadline behaviour, the MARS-vs-FM latency on trained nav2d
+//! checkpoints with the demos' observations and histories replayed (so K varies as in use; over every training
+//! seed found, `support/mars_vs_fm.rs`); and the image encoder (ResNet-18) against candle and ONNX Runtime at
+//! each configured size (`support/image_encoder.rs`).
 
 use candle_core::{Device, Tensor};
 use mars_engine::{Engine, EngineConfig};
 use mars_policy::checkpoint::{self, CheckpointMeta};
 use mars_policy::config::PolicyConfig;
-use mars_policy::dataset::history_window;
-use mars_policy::inference::MarsPolicy;
 use mars_policy::model::MarsModel;
 use mars_policy::normalize::{Normalizer, Stats};
 use mars_policy::train::{Trained, init_model, randn};
-use mars_tasks::rollout::ChunkPolicy;
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
 use std::path::{Path, PathBuf};
@@ -29,6 +27,9 @@ static GLOBAL: counting::Counting = counting::Counting;
 
 #[path = "support/image_encoder.rs"]
 mod image_encoder;
+
+#[path = "support/mars_vs_fm.rs"]
+mod mars_vs_fm;
 
 /// Runs `f`, returning its result and the allocations + reallocations it made on this thread.
 fn counted<R>(f: impl FnOnce() -> R) -> (R, u64) {
@@ -302,77 +303,6 @@ fn deadline_table(dir: &Path) {
     }
 }
 
-fn mars_vs_fm(root: &Path) {
-    println!("\n## MARS vs FM on nav2d (demo observations and histories replayed, K = K(w), no deadline)\n");
-    let (mars, fm, demos) =
-        (root.join("runs/nav2d/mars"), root.join("runs/nav2d/fm"), root.join("runs/nav2d/demos.json"));
-    let missing: Vec<&Path> = [&mars, &fm, &demos].into_iter().filter(|p| !p.exists()).map(PathBuf::as_path).collect();
-    if !missing.is_empty() {
-        println!(
-            "NOTE: skipped — not found: {missing:?}. Run `mars benchmark` (or `mars demos` + `mars train`) first."
-        );
-        return;
-    }
-    let set = mars_policy::demo_file::load_demos(&demos).unwrap();
-    let meta = checkpoint::load_meta(&mars).unwrap();
-    let h = meta.model.history_len;
-    let (mut obs, mut hist) = (Vec::new(), Vec::new());
-    for demo in &set.demos {
-        for t in 0..demo.len() {
-            let mut w = Vec::with_capacity(h * demo.rest_action.len());
-            history_window(&demo.actions, &demo.rest_action, t, h, &mut w);
-            obs.push(demo.observations[t].clone());
-            hist.push(w);
-        }
-    }
-    // At most 2000 evenly spaced samples: enough for stable means, bounded time for the candle rows.
-    let stride = obs.len().div_ceil(2000).max(1);
-    let idx: Vec<usize> = (0..obs.len()).step_by(stride).collect();
-    println!(
-        "{} demo steps from {} demos, every {stride} → {} calls per policy\n",
-        obs.len(),
-        set.demos.len(),
-        idx.len()
-    );
-    println!("| policy | mean K | engine mean | engine median | candle predict mean | candle/engine |");
-    println!("|---|---:|---:|---:|---:|---:|");
-    let mut means = Vec::new();
-    for dir in [&mars, &fm] {
-        let mut engine = Engine::load(dir, EngineConfig::with_seed(0)).unwrap();
-        let (mut policy, meta) = MarsPolicy::load(dir, 0).unwrap();
-        let mut te = Vec::with_capacity(idx.len());
-        let mut k_sum = 0;
-        for &i in &idx {
-            let t = Instant::now();
-            let out = engine.infer(&obs[i], &hist[i], Duration::MAX).unwrap();
-            te.push(t.elapsed());
-            k_sum += out.k_used;
-        }
-        let candle_n = idx.len().min(500);
-        let mut tc = Vec::with_capacity(candle_n);
-        for &i in idx.iter().take(candle_n) {
-            let t = Instant::now();
-            std::hint::black_box(policy.predict(&obs[i], &hist[i]).unwrap());
-            tc.push(t.elapsed());
-        }
-        let (me, mc) = (mean(&te), mean(&tc));
-        println!(
-            "| {} | {:.2} | {} | {} | {} | {:.2}× |",
-            meta.kind,
-            k_sum as f64 / idx.len() as f64,
-            us(me),
-            us(median(&mut te)),
-            us(mc),
-            mc.as_secs_f64() / me.as_secs_f64()
-        );
-        means.push(me);
-    }
-    println!(
-        "\nMARS/FM engine latency ratio (means): {:.2} (FM always runs K_max steps)",
-        means[0].as_secs_f64() / means[1].as_secs_f64()
-    );
-}
-
 fn main() {
     // SAFETY: the first statement of main, before any thread exists; candle reads it at its first matmul.
     unsafe { std::env::set_var("RAYON_NUM_THREADS", "1") };
@@ -386,12 +316,20 @@ fn main() {
         image_encoder::encoder_table(peak, |f| counted(f).1);
         return;
     }
+    // `cargo bench -p mars-engine -- mars-vs-fm [DIR]`: that section only, on the seeds found under DIR.
+    let args: Vec<String> = std::env::args().collect();
+    if let Some(i) = args.iter().position(|a| a == "mars-vs-fm") {
+        // Relative to the workspace, not to engine/ where cargo runs benchmarks.
+        let dir = root.join(args.get(i + 1).filter(|a| !a.starts_with('-')).map_or("runs/nav2d", String::as_str));
+        mars_vs_fm::mars_vs_fm(&dir);
+        return;
+    }
     let (dir, label, temporary) = model_dir(&root);
     latency_table(&dir, &label, peak);
     // FM asks for K_max on every input, so the deadline's effect shows at every budget.
     let fm = root.join("runs/nav2d/fm");
     deadline_table(if fm.join(checkpoint::META_FILE).exists() { &fm } else { &dir });
-    mars_vs_fm(&root);
+    mars_vs_fm::mars_vs_fm(&root.join("runs/nav2d"));
     image_encoder::encoder_table(peak, |f| counted(f).1);
     if temporary {
         let _ = std::fs::remove_dir_all(&dir);

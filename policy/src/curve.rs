@@ -375,7 +375,7 @@ pub fn run(
     bar.finish_and_clear();
     let curves = aggregate(&scores, &o.policies, &o.thresholds);
     let title = task.title();
-    let md = render(&curves, &title, command, o);
+    let md = render(&curves, &title, command, o) + &paired_against_first(&scores, &o.policies);
     std::fs::write(out.join("curves.md"), &md).with_context(|| format!("cannot write {}", out.display()))?;
     std::fs::write(out.join("curves.json"), serde_json::to_string_pretty(&(&curves, &scores))?)
         .with_context(|| format!("cannot write {}", out.display()))?;
@@ -442,6 +442,41 @@ pub fn render(curves: &[PolicyCurve], title: &str, command: &str, o: &CurveOptio
         let tv = c.late_tv.map_or_else(|| "–".into(), |e| format!("{e:.2}"));
         let (success, gamma) = (c.late_success_pct, c.late_gamma);
         let _ = writeln!(s, "| {} | {} | {success:.1} | {gamma:.2} | {tv} | {k} |", c.kind, to.join(" | "));
+    }
+    s
+}
+
+/// Every policy after the first against the first, per snapshot epoch: the success difference paired by training
+/// seed (the two were trained on that seed's demos and scored on the same episodes), its mean over the seeds with
+/// the 95 % t interval, and whether they differ. "Converges faster" is a claim about these early epochs.
+pub fn paired_against_first(scores: &[SnapshotScore], policies: &[PolicyKind]) -> String {
+    let Some((&base, others)) = policies.split_first() else { return String::new() };
+    let mut epochs: Vec<usize> = scores.iter().map(|s| s.epoch).collect();
+    epochs.sort_unstable();
+    epochs.dedup();
+    let success = |kind: PolicyKind, seed: u64, epoch: usize| {
+        scores.iter().find(|s| s.kind == kind && s.seed == seed && s.epoch == epoch).map(|s| s.score.success_pct)
+    };
+    let mut s = format!("\nSuccess against {base}, paired by seed (points, mean over seeds, 95 % t interval):\n\n");
+    let _ =
+        writeln!(s, "| epoch | {} |", others.iter().map(|k| format!("{k} − {base}")).collect::<Vec<_>>().join(" | "));
+    let _ = writeln!(s, "|---:|{}", "---|".repeat(others.len()));
+    for epoch in epochs {
+        let cells: Vec<String> = others
+            .iter()
+            .map(|&kind| {
+                let diffs: Vec<f64> = scores
+                    .iter()
+                    .filter(|x| x.kind == base && x.epoch == epoch)
+                    .filter_map(|x| Some(f64::from(success(kind, x.seed, epoch)? - x.score.success_pct)))
+                    .collect();
+                match mean_over_seeds(&diffs) {
+                    Some(e) => format!("{e:.1} {}", crate::family_diff::verdict(e)),
+                    None => "–".into(),
+                }
+            })
+            .collect();
+        let _ = writeln!(s, "| {epoch} | {} |", cells.join(" | "));
     }
     s
 }
@@ -542,6 +577,24 @@ mod tests {
         assert!((mars.late_tv.unwrap().value - 0.4).abs() < 1e-6);
         // One seed: the interval is unbounded (undecided), never a spread of zero.
         assert!(c[1].late_success_pct.hi.is_infinite());
+    }
+
+    #[test]
+    fn the_paired_table_differences_each_seed_against_the_first_policy() {
+        let mut scores = Vec::new();
+        for (seed, mars, fm) in [(0, 60.0, 20.0), (1, 70.0, 25.0), (2, 65.0, 30.0)] {
+            scores.push(score(PolicyKind::Mars, seed, 5, mars, 0.5));
+            scores.push(score(PolicyKind::Fm, seed, 5, fm, 0.5));
+            // At epoch 10 the two are alike: FM ahead on one seed, behind on the others (0 ± 4.303·√7/√3 = ±6.57).
+            scores.push(score(PolicyKind::Mars, seed, 10, 90.0, 0.5));
+            scores.push(score(PolicyKind::Fm, seed, 10, 90.0 + [-2.0, 3.0, -1.0][seed as usize], 0.5));
+        }
+        let md = paired_against_first(&scores, &[PolicyKind::Mars, PolicyKind::Fm]);
+        // FM − MARS at epoch 5: −40, −45, −35 → −40 ± 4.303·5/√3 = −40 ± 12.42.
+        assert!(md.contains("| 5 | -40.0 (-52.4–-27.6) differ |"), "{md}");
+        assert!(md.contains("| 10 | 0.0 (-6.6–6.6) undecided |"), "{md}");
+        // A policy alone has nothing to be paired with.
+        assert_eq!(paired_against_first(&scores, &[]), "");
     }
 
     #[test]
