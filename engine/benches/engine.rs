@@ -309,19 +309,19 @@ fn main() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
     let root = root.canonicalize().unwrap_or(root);
     println!("# mars-engine benchmark (RAYON_NUM_THREADS=1; engine: Parallelism::None, one thread)");
-    let peak = gemm_peak();
-    // `cargo bench -p mars-engine -- encoder`: the image-encoder section only.
-    if std::env::args().any(|a| a == "encoder") {
-        println!("   gemm single-thread peak (512³ f32, Parallelism::None, best of 8): {:.1} GFLOP/s", peak / 1e9);
-        image_encoder::encoder_table(peak, |f| counted(f).1);
-        return;
-    }
     // `cargo bench -p mars-engine -- mars-vs-fm [DIR]`: that section only, on the seeds found under DIR.
     let args: Vec<String> = std::env::args().collect();
     if let Some(i) = args.iter().position(|a| a == "mars-vs-fm") {
         // Relative to the workspace, not to engine/ where cargo runs benchmarks.
         let dir = root.join(args.get(i + 1).filter(|a| !a.starts_with('-')).map_or("runs/nav2d", String::as_str));
         mars_vs_fm::mars_vs_fm(&dir);
+        return;
+    }
+    let peak = gemm_peak();
+    // `cargo bench -p mars-engine -- encoder`: the image-encoder section only.
+    if std::env::args().any(|a| a == "encoder") {
+        println!("   gemm single-thread peak (512³ f32, Parallelism::None, best of 8): {:.1} GFLOP/s", peak / 1e9);
+        image_encoder::encoder_table(peak, |f| counted(f).1);
         return;
     }
     let (dir, label, temporary) = model_dir(&root);

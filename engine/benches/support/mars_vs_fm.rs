@@ -140,7 +140,7 @@ pub fn mars_vs_fm(dir: &Path) {
         let r = measure(seed);
         println!(
             "| {} | {:.2} | {} | {} | {:.3} | {} | {} | {:.3} |",
-            seed.strip_prefix(dir).ok().filter(|p| !p.as_os_str().is_empty()).unwrap_or(seed).display(),
+            seed.strip_prefix(dir.parent().unwrap_or(dir)).unwrap_or(seed).display(),
             r.mars_k,
             us(r.mars_median),
             us(r.fm_median),
