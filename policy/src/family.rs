@@ -1,6 +1,7 @@
 //! `mars family`: the benchmark on every nav2d layout of a folder, over several training seeds (each with its own
 //! demos), and the method's targets judged by their 95 % intervals over the seeds: met, not met or undecided.
-//! MARS and FM trained on one seed's demos are compared seed by seed (paired differences).
+//! MARS and FM trained on one seed's demos are compared seed by seed (paired differences); A2A and Noise-A2A are
+//! judged on whether they keep one passage only (the paper's Table 1).
 
 use crate::benchmark::{BenchmarkOptions, Row, benchmark};
 use crate::config::PolicyKind;
@@ -134,9 +135,21 @@ fn paired(m: &PolicyStats, f: &PolicyStats, figure: fn(&SeedFigures) -> f64) -> 
     over_seeds(&d)
 }
 
+/// The largest passage's share of one seed's successful rollouts (NaN with none).
+fn largest_share(s: &SeedFigures) -> f64 {
+    let total: usize = s.passage_counts.iter().sum();
+    s.passage_counts.iter().max().map_or(f64::NAN, |&m| m as f64 / total as f64)
+}
+
 fn verdicts(policies: &[PolicyStats], t: &Targets) -> Vec<(String, Verdict)> {
     let get = |k: PolicyKind| policies.iter().find(|p| p.kind == k);
     let mut v = Vec::new();
+    // The paper's Table 1: the history-sourced baselines keep one mode.
+    for a2a in [PolicyKind::A2a, PolicyKind::NoiseA2a].into_iter().filter_map(get) {
+        let top = over_seeds(&a2a.per_seed.iter().map(largest_share).collect::<Vec<_>>()).scaled(100.0);
+        let claim = format!("{} collapses onto one passage (its largest share ≥ 90 %): {top:.1} %", a2a.kind);
+        v.push((claim, Verdict::at_least(top, 90.0)));
+    }
     let Some(m) = get(PolicyKind::Mars) else { return v };
     if let Some(f) = get(PolicyKind::Fm) {
         let tv = paired(m, f, |s| s.tv);
@@ -310,6 +323,22 @@ mod tests {
         let faithful = [vec![25, 45, 30], vec![26, 44, 30], vec![24, 46, 30], vec![25, 46, 29], vec![24, 45, 31]];
         let r = aggregate("three", &demos, &runs(&fm, &faithful, 2.5), &Targets::default());
         assert!(r.verdicts.iter().all(|v| v.1 == Verdict::Met), "{:?}", r.verdicts);
+    }
+
+    #[test]
+    fn a2a_on_one_passage_is_judged_collapsed_and_one_on_two_is_not() {
+        let demos = [25, 45, 30];
+        let one = [vec![0, 95, 0], vec![0, 90, 2], vec![1, 93, 0], vec![0, 96, 0], vec![0, 92, 1]];
+        let two = [vec![40, 50, 0], vec![45, 45, 0], vec![30, 60, 0], vec![50, 40, 0], vec![41, 49, 0]];
+        let a2a_runs = |counts: &[Vec<usize>; 5]| -> Vec<Vec<Row>> {
+            counts.iter().map(|c| vec![row(PolicyKind::A2a, c.clone(), 100, 1.0)]).collect()
+        };
+        let r = aggregate("three", &demos, &a2a_runs(&one), &Targets::default());
+        assert_eq!(r.verdicts.len(), 1, "no MARS, so no MARS target: {:?}", r.verdicts);
+        assert!(r.verdicts[0].0.starts_with("a2a collapses onto one passage"), "{:?}", r.verdicts);
+        assert_eq!(r.verdicts[0].1, Verdict::Met, "{:?}", r.verdicts);
+        let r = aggregate("three", &demos, &a2a_runs(&two), &Targets::default());
+        assert_eq!(r.verdicts[0].1, Verdict::NotMet, "{:?}", r.verdicts);
     }
 
     #[test]

@@ -101,8 +101,8 @@ enum Command {
         #[arg(long)]
         out: Option<PathBuf>,
     },
-    /// The benchmark on every layout of a folder over several training seeds; checks MARS's mode targets
-    /// against FM on the means; writes family.md and family.json.
+    /// The benchmark on every layout of a folder over several training seeds; judges MARS's mode targets
+    /// against FM, and A2A's collapse, by their intervals over the seeds; writes family.md and family.json.
     Family(FamilyArgs),
 }
 
