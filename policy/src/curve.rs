@@ -450,7 +450,9 @@ pub fn render(curves: &[PolicyCurve], title: &str, command: &str, o: &CurveOptio
 /// seed (the two were trained on that seed's demos and scored on the same episodes), its mean over the seeds with
 /// the 95 % t interval, and whether they differ. "Converges faster" is a claim about these early epochs.
 pub fn paired_against_first(scores: &[SnapshotScore], policies: &[PolicyKind]) -> String {
-    let Some((&base, others)) = policies.split_first() else { return String::new() };
+    let Some((&base, others)) = policies.split_first().filter(|(_, others)| !others.is_empty()) else {
+        return String::new();
+    };
     let mut epochs: Vec<usize> = scores.iter().map(|s| s.epoch).collect();
     epochs.sort_unstable();
     epochs.dedup();
@@ -595,6 +597,7 @@ mod tests {
         assert!(md.contains("| 10 | 0.0 (-6.6–6.6) undecided |"), "{md}");
         // A policy alone has nothing to be paired with.
         assert_eq!(paired_against_first(&scores, &[]), "");
+        assert_eq!(paired_against_first(&scores, &[PolicyKind::Mars]), "");
     }
 
     #[test]
