@@ -3,7 +3,9 @@
 //! in use, over every training seed found, with the ratio's 95 % interval over the seeds.
 //!
 //! A seed is a folder holding `mars/`, `fm/` and `demos.json`: `runs/nav2d` as `mars benchmark` writes it, or
-//! each `<layout>/seed<N>` of a `mars family` run (`cargo bench -p mars-engine -- mars-vs-fm runs/family50`).
+//! each `<layout>/seed<N>` of a `mars family` run and each `seed<N>` of a `mars curve` run
+//! (`cargo bench -p mars-engine -- mars-vs-fm runs/curve_nav2d5`). A folder that cannot be read or loaded is named
+//! with its error and left out; the rest are measured.
 //! The two policies' calls alternate, one of each per replayed sample, the order swapped every sample, so a
 //! slow spell of the host lands on both alike and the ratio is measured side by side.
 
@@ -66,9 +68,12 @@ fn seed_dirs(dir: &Path) -> Vec<PathBuf> {
     found
 }
 
+/// Observations and the histories beside them, one of each per replayed demo step.
+type Inputs = (Vec<Vec<f32>>, Vec<Vec<f32>>);
+
 /// The demos' (observation, history) pairs, at most `CALLS` evenly spaced.
-fn replayed_inputs(seed: &Path, history_len: usize) -> (Vec<Vec<f32>>, Vec<Vec<f32>>) {
-    let set = mars_policy::demo_file::load_demos(&seed.join("demos.json")).unwrap();
+fn replayed_inputs(seed: &Path, history_len: usize) -> Result<Inputs, String> {
+    let set = mars_policy::demo_file::load_demos(&seed.join("demos.json")).map_err(|e| format!("demos.json: {e:#}"))?;
     let (mut obs, mut hist) = (Vec::new(), Vec::new());
     for demo in &set.demos {
         for t in 0..demo.len() {
@@ -79,14 +84,17 @@ fn replayed_inputs(seed: &Path, history_len: usize) -> (Vec<Vec<f32>>, Vec<Vec<f
         }
     }
     let stride = obs.len().div_ceil(CALLS).max(1);
-    (obs.into_iter().step_by(stride).collect(), hist.into_iter().step_by(stride).collect())
+    Ok((obs.into_iter().step_by(stride).collect(), hist.into_iter().step_by(stride).collect()))
 }
 
-fn measure(seed: &Path) -> SeedTiming {
-    let h = checkpoint::load_meta(&seed.join("mars")).unwrap().model.history_len;
-    let (obs, hist) = replayed_inputs(seed, h);
-    let mut mars = Engine::load(&seed.join("mars"), EngineConfig::with_seed(0)).unwrap();
-    let mut fm = Engine::load(&seed.join("fm"), EngineConfig::with_seed(0)).unwrap();
+fn measure(seed: &Path) -> Result<SeedTiming, String> {
+    let h = checkpoint::load_meta(&seed.join("mars")).map_err(|e| format!("mars/: {e:#}"))?.model.history_len;
+    let (obs, hist) = replayed_inputs(seed, h)?;
+    if obs.is_empty() {
+        return Err("demos.json holds no step".into());
+    }
+    let load = |p: &str| Engine::load(&seed.join(p), EngineConfig::with_seed(0)).map_err(|e| format!("{p}/: {e}"));
+    let (mut mars, mut fm) = (load("mars")?, load("fm")?);
     let timed = |engine: &mut Engine, i: usize| {
         let t = Instant::now();
         let k = engine.infer(&obs[i], &hist[i], Duration::MAX).unwrap().k_used;
@@ -109,13 +117,13 @@ fn measure(seed: &Path) -> SeedTiming {
         tf.push(f);
         k_sum += k;
     }
-    SeedTiming {
+    Ok(SeedTiming {
         mars_k: k_sum as f64 / obs.len() as f64,
         mars_mean: mean(&tm),
         fm_mean: mean(&tf),
         mars_median: median(&mut tm),
         fm_median: median(&mut tf),
-    }
+    })
 }
 
 /// Prints one row per seed folder found under `dir`, then the ratios' means over the seeds with their 95 % t
@@ -126,7 +134,7 @@ pub fn mars_vs_fm(dir: &Path) {
     if seeds.is_empty() {
         println!(
             "NOTE: skipped — no folder with mars/, fm/ and demos.json under {}. Run `mars benchmark` or \
-             `mars family` first.",
+             `mars family` (or `mars curve`) first.",
             dir.display()
         );
         return;
@@ -137,7 +145,13 @@ pub fn mars_vs_fm(dir: &Path) {
     println!("|---|---:|---:|---:|---:|---:|---:|---:|");
     let mut rows = Vec::new();
     for seed in &seeds {
-        let r = measure(seed);
+        let r = match measure(seed) {
+            Ok(r) => r,
+            Err(e) => {
+                println!("| {} | left out: {e} |||||||", seed.display());
+                continue;
+            }
+        };
         println!(
             "| {} | {:.2} | {} | {} | {:.3} | {} | {} | {:.3} |",
             seed.strip_prefix(dir.parent().unwrap_or(dir)).unwrap_or(seed).display(),
