@@ -1,0 +1,106 @@
+//! The robot's side: one query per chunk to the host that serves this robot, bounded by the time the robot can
+//! wait; whatever does not come back in time is an error the caller replaces (marsd runs its local engine).
+
+use std::time::Duration;
+
+use zenoh::Wait;
+use zenoh::query::ConsolidationMode;
+
+use crate::clock::{ClockEstimate, Ping};
+use crate::link::{self, LinkConfig, LinkError};
+use crate::monotonic_ns;
+use crate::wire::{Reply, Request, Status, WireError};
+
+#[derive(Debug, thiserror::Error)]
+pub enum RemoteError {
+    #[error(transparent)]
+    Link(#[from] LinkError),
+    #[error("no reply from the inference host within {0:?}")]
+    Timeout(Duration),
+    #[error("no inference host answers `{0}`")]
+    NoHost(String),
+    #[error("the inference host answered with an error: {0}")]
+    Host(String),
+    #[error("the inference host's reply: {0}")]
+    Wire(#[from] WireError),
+    #[error("the inference host answered {0:?} for seq {1}")]
+    Status(Status, u64),
+    #[error("the reply answers seq {got}, the request was seq {want}")]
+    Seq { got: u64, want: u64 },
+    #[error("zenoh: {0}")]
+    Zenoh(String),
+}
+
+/// The policy of one robot, served by a host on the Zenoh network.
+pub struct RemotePolicy {
+    session: zenoh::Session,
+    key: String,
+    clock_key: String,
+    bytes: Vec<u8>,
+}
+
+impl RemotePolicy {
+    /// Joins the network and names the robot's key; reaches no host yet (see [`RemotePolicy::probe_clock`]).
+    pub fn connect(link: &LinkConfig, prefix: &str, robot: &str) -> Result<Self, RemoteError> {
+        let key = link::infer_key(prefix, robot)?;
+        let clock_key = link::clock_key(prefix)?;
+        Ok(Self { session: link.open()?, key, clock_key, bytes: Vec::new() })
+    }
+
+    /// The key this robot's queries go to.
+    pub fn key(&self) -> &str {
+        &self.key
+    }
+
+    /// Asks the host's clock `n` times (each bounded by `timeout`): the offset and round trips, or `NoHost`
+    /// when no ping came back.
+    pub fn probe_clock(&mut self, n: usize, timeout: Duration) -> Result<ClockEstimate, RemoteError> {
+        let mut pings = Vec::with_capacity(n);
+        for _ in 0..n {
+            let asked_ns = monotonic_ns();
+            let Ok(reply) = self.ask(&self.clock_key, Vec::new(), timeout) else { continue };
+            let answered_ns = monotonic_ns();
+            let Ok(host) = <[u8; 8]>::try_from(&reply[..]) else {
+                return Err(RemoteError::Host(format!("a clock reply of {} bytes, not 8", reply.len())));
+            };
+            pings.push(Ping { asked_ns, host_ns: u64::from_le_bytes(host), answered_ns });
+        }
+        ClockEstimate::from_pings(&pings).ok_or_else(|| RemoteError::NoHost(self.clock_key.clone()))
+    }
+
+    /// The host's chunk for `request`, or an error once `wait` has passed (or sooner, when no host answers).
+    pub fn infer(&mut self, request: &Request, wait: Duration) -> Result<Reply, RemoteError> {
+        request.encode_into(&mut self.bytes);
+        let payload = self.bytes.clone();
+        let reply = Reply::decode(&self.ask(&self.key, payload, wait)?)?;
+        if reply.seq != request.seq {
+            return Err(RemoteError::Seq { got: reply.seq, want: request.seq });
+        }
+        match reply.status {
+            Status::Chunk => Ok(reply),
+            other => Err(RemoteError::Status(other, reply.seq)),
+        }
+    }
+
+    /// One query and its first reply's bytes, within `wait`.
+    fn ask(&self, key: &str, payload: Vec<u8>, wait: Duration) -> Result<Vec<u8>, RemoteError> {
+        let replies = self
+            .session
+            .get(key)
+            .payload(payload)
+            .consolidation(ConsolidationMode::None)
+            .express(true)
+            .timeout(wait)
+            .wait()
+            .map_err(|e| RemoteError::Zenoh(e.to_string()))?;
+        match replies.recv_timeout(wait) {
+            Ok(Some(reply)) => match reply.into_result() {
+                Ok(sample) => Ok(sample.payload().to_bytes().into_owned()),
+                Err(e) => Err(RemoteError::Host(e.payload().try_to_string().map_or_else(|_| "?".into(), |s| s.into()))),
+            },
+            Ok(None) => Err(RemoteError::Timeout(wait)),
+            // The query ended with no reply: nothing matched the key, or the host vanished.
+            Err(_) => Err(RemoteError::NoHost(key.to_owned())),
+        }
+    }
+}
