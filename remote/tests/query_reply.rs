@@ -1,77 +1,13 @@
 //! A host and a robot on two Zenoh sessions joined over TCP on localhost: the host's chunk is the local engine's,
 //! bit for bit (same checkpoint, same seed); every way a query can fail comes back as an error, within its wait.
 
-use std::path::PathBuf;
-use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::thread::JoinHandle;
+mod support;
+
 use std::time::{Duration, Instant};
 
-use mars_engine::{Engine, EngineConfig};
-use mars_remote::client::{RemoteError, RemotePolicy};
-use mars_remote::link::LinkConfig;
-use mars_remote::server::{ServeReport, ServedRobot, serve};
-use mars_remote::wire::{Request, Status};
-
-fn checkpoint() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../assets/checkpoints/fr3_pick_cup/mars")
-}
-
-fn engine() -> Engine {
-    Engine::load(&checkpoint(), EngineConfig::default()).expect("the committed FR3 checkpoint loads")
-}
-
-/// A TCP port nothing listens on now (the kernel's choice), so parallel tests and other runs do not meet.
-fn free_port() -> u16 {
-    std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port()
-}
-
-struct Host {
-    stop: Arc<AtomicBool>,
-    thread: Option<JoinHandle<ServeReport>>,
-    locator: String,
-}
-
-impl Host {
-    fn start(prefix: &str, robots: &[&str]) -> Self {
-        let locator = format!("tcp/127.0.0.1:{}", free_port());
-        let session = LinkConfig::listening(&locator).open().expect("the host's session opens");
-        let served = robots.iter().map(|r| ServedRobot { robot: (*r).to_owned(), engine: engine() }).collect();
-        let stop = Arc::new(AtomicBool::new(false));
-        let (s, prefix) = (stop.clone(), prefix.to_owned());
-        let thread = std::thread::spawn(move || serve(&session, &prefix, served, &s).expect("serving"));
-        Self { stop, thread: Some(thread), locator }
-    }
-
-    fn stop(mut self) -> ServeReport {
-        self.stop.store(true, Ordering::Release);
-        self.thread.take().unwrap().join().unwrap()
-    }
-}
-
-/// The robot's client, once the host answers its clock (declarations take a moment to reach a new peer).
-fn robot(host: &Host, prefix: &str, name: &str) -> RemotePolicy {
-    let mut r = RemotePolicy::connect(&LinkConfig::connecting(&host.locator), prefix, name).unwrap();
-    let t0 = Instant::now();
-    while r.probe_clock(1, Duration::from_millis(200)).is_err() {
-        assert!(t0.elapsed() < Duration::from_secs(10), "the host never answered its clock");
-    }
-    r
-}
-
-fn request(e: &Engine, seq: u64) -> Request {
-    let m = e.meta();
-    Request {
-        seq,
-        episode: 1,
-        period: 8 * seq,
-        budget_ns: 2_000_000_000,
-        seed: 40 + seq,
-        observation: m.normalizer.obs.mean.clone(),
-        history: m.normalizer.action.mean.repeat(e.chunk_len()),
-        ..Default::default()
-    }
-}
+use mars_remote::client::RemoteError;
+use mars_remote::wire::Status;
+use support::*;
 
 #[test]
 fn the_hosts_chunk_is_the_local_engines_bit_for_bit() {

@@ -154,6 +154,10 @@ pub enum MarsdTool {
     /// step counts the run used, and compare with the actions it executed: identical bit for bit on an unchanged
     /// checkpoint, else the first call that differs. Exits 0 when identical, 2 when they differ.
     Replay(crate::tools::replay::ReplayArgs),
+    /// Be the inference host of robots whose marsd has `[remote]`: a checkpoint per robot (`--robot NAME=DIR`),
+    /// their queries answered over Zenoh earliest deadline first, until SIGTERM/SIGINT or `--duration-s`; prints
+    /// per robot the chunks sent, mean K, queries expired unrun and replies sent late.
+    Serve(crate::tools::serve::ServeArgs),
 }
 
 /// Runs marsd's command line: the daemon, or the tool it names (exit status per [`daemon::exit`] for the daemon;
@@ -184,6 +188,16 @@ pub fn run_command_line(cl: MarsdCommandLine) -> ExitCode {
             Ok(report) => {
                 print!("{report}");
                 std::process::ExitCode::from(if report.healthy() { 0 } else { 2 })
+            }
+            Err(e) => {
+                eprintln!("error: {e:#}");
+                std::process::ExitCode::FAILURE
+            }
+        },
+        Some(MarsdTool::Serve(s)) => match crate::tools::serve::run(&s) {
+            Ok(served) => {
+                print!("{served}");
+                std::process::ExitCode::SUCCESS
             }
             Err(e) => {
                 eprintln!("error: {e:#}");

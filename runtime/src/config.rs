@@ -68,6 +68,10 @@ pub struct DaemonConfig {
     /// Record every episode as a LeRobot v3.0 dataset at this path (which must not exist yet).
     #[serde(default)]
     pub record: Option<PathBuf>,
+    /// The policy on an inference host (`marsd serve`) reached over Zenoh; the local engine stays loaded and
+    /// answers whenever the host's chunk is not back in time.
+    #[serde(default)]
+    pub remote: Option<RemoteConfig>,
     /// The file this configuration was read from (empty when parsed from text): a recording names it, so a
     /// replay runs with the same configuration.
     #[serde(skip)]
@@ -144,6 +148,55 @@ impl Default for HistogramConfig {
     fn default() -> Self {
         Self { interval_s: 0.25 }
     }
+}
+
+/// `[remote]`: where the inference host is, and what the robot keeps for itself.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RemoteConfig {
+    /// Key prefix shared with the host (`marsd serve --prefix`): this robot's queries go to
+    /// `<prefix>/<robot>/infer`.
+    #[serde(default = "default_remote_prefix")]
+    pub prefix: String,
+    /// This robot's name on the Zenoh network, which the host serves (`marsd serve --robot NAME=…`); default:
+    /// `robot`. Apart from `robot` because that one is also the iceoryx2 namespace, which the HIL demo makes per run.
+    #[serde(default)]
+    pub name: Option<String>,
+    /// Zenoh locators to connect to (the inference host or a router), e.g. `["tcp/192.168.1.20:7447"]`.
+    #[serde(default)]
+    pub connect: Vec<String>,
+    /// Zenoh locators to listen on (when the host connects to the robot instead).
+    #[serde(default)]
+    pub listen: Vec<String>,
+    /// Also find the host by UDP multicast scouting.
+    #[serde(default)]
+    pub multicast_scouting: bool,
+    /// Time kept for the local engine when the host's chunk is not back (ms): the host's wait ends this long
+    /// before the handoff margin. At least one local call at full K (the FR3 demo's: ~2 ms).
+    #[serde(default = "default_local_reserve_ms")]
+    pub local_reserve_ms: f64,
+}
+
+impl RemoteConfig {
+    /// The name the host knows this robot by.
+    pub fn name<'a>(&'a self, robot: &'a str) -> &'a str {
+        self.name.as_deref().unwrap_or(robot)
+    }
+
+    pub fn link(&self) -> mars_remote::link::LinkConfig {
+        mars_remote::link::LinkConfig {
+            connect: self.connect.clone(),
+            listen: self.listen.clone(),
+            multicast_scouting: self.multicast_scouting,
+        }
+    }
+}
+
+fn default_remote_prefix() -> String {
+    "mars".into()
+}
+fn default_local_reserve_ms() -> f64 {
+    10.0
 }
 
 /// Fault injection for HIL tests; all off by default.
@@ -276,6 +329,24 @@ impl DaemonConfig {
             return bad("histograms.interval_s", format!("must be in [{lo}, {hi}] s, got {interval:?}"));
         }
         in_range("faults.engine_step_delay_ms", self.faults.engine_step_delay_ms, true, MAX_LOOP_MS, "ms")?;
+        if let Some(r) = &self.remote {
+            if let Err(e) = mars_remote::link::infer_key(&r.prefix, r.name(&self.robot)) {
+                let key =
+                    if matches!(e, mars_remote::link::LinkError::Prefix(_)) { "remote.prefix" } else { "remote.name" };
+                return bad(key, e.to_string());
+            }
+            let room = self.policy.lead_ms - self.policy.handoff_margin_ms;
+            in_range(
+                "remote.local_reserve_ms",
+                r.local_reserve_ms,
+                false,
+                room,
+                "ms (policy.lead_ms less the margin)",
+            )?;
+            if r.connect.is_empty() && r.listen.is_empty() && !r.multicast_scouting {
+                return bad("remote", "names no way to the host: give connect, listen or multicast_scouting".into());
+            }
+        }
         in_range("faults.record_writer_delay_ms", self.faults.record_writer_delay_ms, true, MAX_LOOP_MS, "ms")?;
         Ok(())
     }

@@ -53,6 +53,8 @@ pub struct Prepared {
     pub engine: Engine,
     /// A recorded episode's chunks to run instead of the engine's ([`Prepared::replaying`]).
     pub replay: Option<RecordedActions>,
+    /// `[remote]`: the inference host, joined (and its clock measured) before the loops start.
+    pub remote: Option<crate::policy::remote::Remote>,
 }
 
 impl Prepared {
@@ -119,7 +121,11 @@ pub fn prepare(cfg: DaemonConfig) -> anyhow::Result<Prepared> {
         "policy.rate_hz = {} but the task's demos were recorded at {rate} Hz",
         cfg.policy.rate_hz
     );
-    Ok(Prepared { cfg, profile, task, engine, replay: None })
+    let remote = match &cfg.remote {
+        Some(r) => Some(crate::policy::remote::Remote::connect(&cfg, r).context("[remote]")?),
+        None => None,
+    };
+    Ok(Prepared { cfg, profile, task, engine, replay: None, remote })
 }
 
 pub struct Outcome {
@@ -129,7 +135,7 @@ pub struct Outcome {
 
 /// Runs the loops to the end and writes the report into `cfg.out`.
 pub fn run(p: Prepared) -> anyhow::Result<Outcome> {
-    let Prepared { cfg, profile, task, engine, replay } = p;
+    let Prepared { cfg, profile, task, engine, replay, remote } = p;
     let mode_names = task.mode_names();
     // The report draws with the task's geometry (Push-T's camera view); the task itself moves to the policy thread.
     let task_view = task.clone();
@@ -180,7 +186,7 @@ pub fn run(p: Prepared) -> anyhow::Result<Outcome> {
 
     let policy_ch =
         PolicyChannels { chunks: chunk_in, observed: obs_out, requests: requests_in, status: status.clone() };
-    let parts = PolicyParts { engine, task, ch: policy_ch, rec: policy_rec, recording, replay };
+    let parts = PolicyParts { engine, task, ch: policy_ch, rec: policy_rec, recording, replay, remote };
     let policy = match start_policy(&cfg, parts, status.clone()) {
         Ok(p) => p,
         Err(e) => {
@@ -323,6 +329,7 @@ struct PolicyParts {
     rec: crate::report::latency::Recorder,
     recording: Option<crate::record::Recorder>,
     replay: Option<RecordedActions>,
+    remote: Option<crate::policy::remote::Remote>,
 }
 
 /// Starts the policy thread; returns once it has opened Push-T's camera and scene (on that thread: iceoryx2's
@@ -334,7 +341,7 @@ fn start_policy(cfg: &DaemonConfig, parts: PolicyParts, status: Arc<Status>) -> 
     let thread = std::thread::Builder::new()
         .name("marsd-policy".into())
         .spawn(move || {
-            let PolicyParts { engine, task, ch, rec, recording, replay } = parts;
+            let PolicyParts { engine, task, ch, rec, recording, replay, remote } = parts;
             let scene = match &task {
                 HilTask::PushT(t) => match SceneLink::open(&cfg.robot, t, recording.is_some()) {
                     Ok(s) => Some(s),
@@ -360,6 +367,7 @@ fn start_policy(cfg: &DaemonConfig, parts: PolicyParts, status: Arc<Status>) -> 
                 last_image,
                 view_image,
                 replay,
+                remote,
             };
             Some((policy.run(&cfg), rt))
         })

@@ -21,7 +21,8 @@ use super::{Bundles, read, repo, text};
 use crate::runner::Target;
 
 pub fn marsd_config() -> Arc<dyn Target> {
-    let files = ["configs/marsd.toml", "configs/marsd_push_t.toml", "configs/marsd_r1_lite.toml"];
+    let files =
+        ["configs/marsd.toml", "configs/marsd_push_t.toml", "configs/marsd_r1_lite.toml", "configs/marsd_remote.toml"];
     Bundles::of_files("marsd-config", files.iter().map(|f| read(f)).collect(), true, |_, bytes| {
         let Some(Ok(cfg)) = text(bytes).map(|t| DaemonConfig::parse(t, "marsd.toml")) else { return false };
         let _ = (cfg.handshake_timeout(), cfg.histogram_interval(), cfg.engine_step_delay(), cfg.record_writer_delay());

@@ -14,6 +14,7 @@ use crate::runner::Target;
 mod checkpoint;
 mod configs;
 mod lerobot;
+mod remote;
 mod ros2;
 mod wire;
 
@@ -30,6 +31,7 @@ pub fn all() -> Vec<Arc<dyn Target>> {
         configs::marsd_task(),
         configs::hal_profile(),
         wire::frames(),
+        remote::messages(),
         ros2::cdr(),
         ros2::jpeg(),
     ]

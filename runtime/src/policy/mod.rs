@@ -12,6 +12,7 @@
 //! overlaps the execution of the current chunk, and a chunk one lead late costs nothing but smoothness.
 
 pub mod recorded_actions;
+pub mod remote;
 pub mod tally;
 
 use std::sync::Arc;
@@ -25,6 +26,7 @@ use serde::Serialize;
 
 use crate::config::DaemonConfig;
 use crate::observe::scene_link::SceneLink;
+use crate::policy::remote::Ask;
 use crate::report::latency::{Channel, Recorder};
 use crate::report::plots::EpisodeTrace;
 use crate::report::traces::{TRACE_CAPACITY, TraceRing};
@@ -74,6 +76,8 @@ pub struct PolicyReport {
     /// Push-T: the camera's frames as the policy judged them (used, superseded, refused by reason), and the
     /// chunks skipped because no usable frame was there.
     pub camera: Option<CameraReport>,
+    /// `[remote]`: the chunks the inference host computed, those the local engine took over, and why.
+    pub remote: Option<crate::policy::remote::RemoteReport>,
 }
 
 /// The camera as the policy loop saw it.
@@ -132,6 +136,8 @@ pub struct PolicyLoop {
     pub view_image: Vec<u8>,
     /// `--replay-actions`: a recorded episode's chunks instead of the engine's (see [`crate::policy::recorded_actions`]).
     pub replay: Option<crate::policy::recorded_actions::RecordedActions>,
+    /// `[remote]`: the inference host asked first for every chunk (see [`crate::policy::remote`]).
+    pub remote: Option<crate::policy::remote::Remote>,
 }
 
 /// Where and when a chunk's actions are due, and when it was made (see [`TimedChunk`]).
@@ -256,6 +262,7 @@ impl PolicyLoop {
             c.service = s.camera.service().to_owned();
             c.counts = s.camera.check.counts;
         }
+        report.remote = self.remote.take().map(crate::policy::remote::Remote::finish);
         report
     }
 
@@ -505,12 +512,21 @@ impl PolicyLoop {
         report: &mut PolicyReport,
     ) -> Option<()> {
         let Call { k, now, need_ns, capture_ns } = call;
-        let margin_ns = (cfg.policy.handoff_margin_ms * 1e6) as u64;
-        let budget = Duration::from_nanos((need_ns - margin_ns).saturating_sub(monotonic_ns()));
+        let handoff_ns = need_ns - (cfg.policy.handoff_margin_ms * 1e6) as u64;
         let started = monotonic_ns();
         // A seed per call: `marsd replay` reproduces any one call from the recording alone.
-        self.engine.reseed(crate::record::call_seed(cfg.seed, run.episode, k));
-        let result = self.engine.infer(&run.obs, &run.history, budget);
+        let seed = crate::record::call_seed(cfg.seed, run.episode, k);
+        let (episode, obs, history) = (run.episode, &run.obs[..], &run.history[..]);
+        let ask = Ask { episode, period: k, seed, capture_ns, handoff_ns, observation: obs, history };
+        let hosted = self.remote.as_mut().and_then(|r| r.ask(&ask));
+        let result = match &hosted {
+            Some(reply) => Ok(Inferred::hosted(reply)),
+            None => {
+                let budget = Duration::from_nanos(handoff_ns.saturating_sub(monotonic_ns()));
+                self.engine.reseed(seed);
+                self.engine.infer(obs, history, budget).map(Inferred::local)
+            }
+        };
         let ready = monotonic_ns();
         self.rec.record(Channel::Inference, ready - started);
         report.inferences += 1;
@@ -529,7 +545,7 @@ impl PolicyLoop {
             return self.trip_if(faults.over.bad(), Trip::InferenceOverBudget);
         }
         faults.over.good();
-        run.w_inf = out.w.iter().fold(0.0f32, |m, w| m.max(w.abs()));
+        run.w_inf = out.w_inf;
         self.rec.record(Channel::WInf, Channel::w_inf_units(run.w_inf));
         run.seq += 1;
         let (episode, seq, period_ns) = (run.episode, run.seq, run.period_ns);
@@ -757,6 +773,43 @@ impl PolicyLoop {
             std::thread::sleep(Duration::from_millis(1));
         }
         false
+    }
+}
+
+/// One chunk's call, from the local engine or the inference host: what the rest of the loop needs of it.
+struct Inferred<'a> {
+    chunk: &'a [f32],
+    w_inf: f32,
+    k_requested: usize,
+    k_used: usize,
+    capped: bool,
+    over_budget: bool,
+    encode: Duration,
+}
+
+impl<'a> Inferred<'a> {
+    fn local(out: mars_engine::Output<'a>) -> Self {
+        Self {
+            chunk: out.chunk,
+            w_inf: out.w.iter().fold(0.0f32, |m, w| m.max(w.abs())),
+            k_requested: out.k_requested,
+            k_used: out.k_used,
+            capped: out.capped,
+            over_budget: out.over_budget,
+            encode: out.encode,
+        }
+    }
+
+    fn hosted(r: &'a mars_remote::wire::Reply) -> Self {
+        Self {
+            chunk: &r.chunk,
+            w_inf: r.w_inf,
+            k_requested: r.k_requested as usize,
+            k_used: r.k_used as usize,
+            capped: r.capped,
+            over_budget: r.over_budget,
+            encode: Duration::from_nanos(r.encode_ns),
+        }
     }
 }
 

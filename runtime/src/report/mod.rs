@@ -151,6 +151,8 @@ pub struct Summary {
     pub traces_dropped: u64,
     /// A camera task: its frames as the policy judged them.
     pub camera: Option<crate::policy::CameraReport>,
+    /// `[remote]`: the inference host's chunks, the local engine's takeovers and why.
+    pub remote: Option<crate::policy::remote::RemoteReport>,
     /// A task acting on the table: references the servo's IK clamped or could not reach.
     pub effector: Option<crate::servo::effector::EffectorCounts>,
     /// `--record`: what the dataset got.
@@ -233,6 +235,7 @@ impl Summary {
             episode_results: t.recent.iter().cloned().collect(),
             traces_dropped: p.traces_dropped,
             camera: p.camera.clone(),
+            remote: p.remote.clone(),
             effector: s.effector,
             record: None,
             trip_seen_ns: None,
@@ -420,6 +423,9 @@ impl Summary {
                 c.first_refusal.as_deref().map(|r| format!("; first refusal: {r}")).unwrap_or_default()
             )?;
         }
+        if let Some(r) = &self.remote {
+            write_remote(f, r)?;
+        }
         if let Some(e) = &self.effector {
             writeln!(
                 f,
@@ -441,4 +447,44 @@ impl Summary {
         )?;
         Ok(())
     }
+}
+
+/// `[remote]`'s lines: whose chunks, why the local engine took over, the round trip and the host's clock.
+fn write_remote(f: &mut std::fmt::Formatter<'_>, r: &crate::policy::remote::RemoteReport) -> std::fmt::Result {
+    writeln!(
+        f,
+        "  inference host {}: {} chunks from the host, {} from the local engine (timeout {}, no host {}, expired {}, \
+         error {}, no time {}); round trip p50 {:.2} ms, p99 {:.2} ms, max {:.2} ms",
+        r.key,
+        r.host_chunks,
+        r.local_chunks,
+        r.timeouts,
+        r.no_host,
+        r.expired,
+        r.errors,
+        r.no_time,
+        r.round_trip_ms_p50,
+        r.round_trip_ms_p99,
+        r.round_trip_ms_max
+    )?;
+    match &r.clock {
+        Some(c) => writeln!(
+            f,
+            "  host clock − robot clock at start: {:.3} ms (± {:.3} ms; round trip min {:.3}, median {:.3} ms)",
+            c.offset_ns as f64 * 1e-6,
+            c.rtt_min_ns as f64 * 0.5e-6,
+            c.rtt_min_ns as f64 * 1e-6,
+            c.rtt_median_ns as f64 * 1e-6
+        )?,
+        None => writeln!(f, "  host clock: no host answered at start")?,
+    }
+    for s in &r.switches {
+        let to = if s.to_host {
+            "host".to_owned()
+        } else {
+            format!("local engine ({:?})", s.miss.unwrap_or(crate::policy::remote::Miss::Error))
+        };
+        writeln!(f, "    episode {} period {}: chunks from the {to}", s.episode, s.period)?;
+    }
+    Ok(())
 }

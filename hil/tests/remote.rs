@@ -1,0 +1,108 @@
+//! marsd with `[remote]`: Pick Cup's chunks computed by `marsd serve`, another process reached over Zenoh (TCP on
+//! localhost), against the mock FR3 HAL. The host is killed in the middle of the run and started again: the local
+//! engine computes the chunks while it is gone, the host's resume when it is back, and through both switches no
+//! chunk is late, nothing trips, and every command the HAL got is within the FR3's limits.
+
+mod common;
+
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+use common::*;
+
+/// A TCP port nothing listens on now (the kernel's choice).
+fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port()
+}
+
+/// `marsd serve` for `robot` with the demo's checkpoint, listening on `locator`; returns once it serves.
+fn spawn_host(robot: &str, prefix: &str, locator: &str, name: &str, logs: &TempDir) -> Proc {
+    let checkpoint = root().join("assets/checkpoints/fr3_pick_cup/mars");
+    let mut cmd = marsd_command();
+    cmd.arg("serve")
+        .arg("--robot")
+        .arg(format!("{robot}={}", checkpoint.display()))
+        .args(["--prefix", prefix, "--listen", locator]);
+    let mut host = spawn_named(cmd, name, logs);
+    let t0 = Instant::now();
+    while !host.stderr_text().contains("serving") {
+        assert!(host.running() && t0.elapsed() < Duration::from_secs(30), "the host did not start\n{}", host.logs());
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    host
+}
+
+fn wait_until(t0: Instant, at: Duration, marsd: &mut Proc) {
+    while t0.elapsed() < at {
+        assert!(marsd.running(), "marsd ended early\n{}", marsd.logs());
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+#[test]
+fn the_local_engine_takes_over_when_the_host_dies_and_hands_back_when_it_returns() {
+    let _rt = rt_rig_lock();
+    at_most_one_rerun("remote host killed and restarted", takeover_attempt);
+}
+
+fn takeover_attempt(attempt: u32) -> Attempt {
+    let logs = TempDir::new(&format!("remote{attempt}"));
+    let robot = robot(&format!("remote{attempt}"));
+    let prefix = format!("mars-test/{}/{attempt}", std::process::id());
+    let locator = format!("tcp/127.0.0.1:{}", free_port());
+    let mut host = spawn_host(&robot, &prefix, &locator, "host1", &logs);
+    let remote = format!("\n[remote]\nprefix = \"{prefix}\"\nconnect = [\"{locator}\"]\n");
+    let config = logs.join("marsd.toml");
+    std::fs::write(&config, config_text(&[], "") + &remote).unwrap();
+    let (mut hal, rec) = hal_of_with_recorder("configs/fr3.toml", &robot, &[], &logs);
+    let t0 = Instant::now();
+    let mut marsd = spawn_marsd(&robot, &config, 6, &[], &logs);
+    // Six episodes take ~45 s: the host dies in the second and is back in the fourth.
+    wait_until(t0, Duration::from_secs(12), &mut marsd);
+    host.signal(libc::SIGKILL);
+    host.expect_reaped(Duration::from_secs(5), "SIGKILL");
+    wait_until(t0, Duration::from_secs(24), &mut marsd);
+    let _host2 = spawn_host(&robot, &prefix, &locator, "host2", &logs);
+    let code = marsd.exit_code(Duration::from_secs(240));
+    std::thread::sleep(Duration::from_millis(100));
+    let r = rec.finish();
+    eprintln!("{}", witness_account(&r));
+    assert!(hal.running(), "the HAL died\n{}", hal.logs());
+    let s = summary(&logs, "marsd");
+    eprintln!("{}", marsd.stdout_text());
+    let late = u64_at(&s, "/deadline_misses/late_chunks");
+    if (code != 0 || late > 0)
+        && let Some(e) = run_excuse(&s, &marsd, &r, u64::MAX)
+    {
+        return Err(e);
+    }
+    assert_eq!(code, 0, "marsd failed\n{}", marsd.logs());
+    assert!(s["trip"].is_null(), "trip {}", s["trip"]);
+    assert_eq!(late, 0, "a chunk was late: {}", s["deadline_misses"]);
+    check_switches(&s["remote"], &logs.join("marsd-out"));
+    assert_eq!(u64_at(&s, "/episodes"), 6);
+    // The checkpoint succeeds 97–98 % in process: 3 or fewer of 6 happens by chance about 5e-4 of the time (5 of 6
+    // about 1 %, too often for a test that must pass every run); what this test is about is asserted above.
+    assert!(u64_at(&s, "/successes") >= 4, "{}", s["episode_results"]);
+    for check in ["final_check", "hal_rejected", "hal_clamped"] {
+        assert_eq!(u64_at(&s, &format!("/limit_violations/{check}")), 0, "{check}");
+    }
+    assert_eq!(u64_at(&s, "/servo_allocations/system"), 0, "the servo tick allocated");
+    assert_limits(&r, &Limits::of("configs/fr3.toml"), "remote");
+    Ok(())
+}
+
+/// Host first, then the local engine (the host gone), then the host again; chunks from both.
+fn check_switches(remote: &serde_json::Value, out: &Path) {
+    let switches = remote["switches"].as_array().unwrap_or_else(|| panic!("no remote report in {}", out.display()));
+    let to_host: Vec<bool> = switches.iter().map(|s| s["to_host"].as_bool().unwrap()).collect();
+    assert!(to_host.len() >= 3 && to_host[..3] == [true, false, true], "switches {switches:?}");
+    let first = &switches[0];
+    assert_eq!((first["episode"].as_u64(), first["period"].as_u64()), (Some(1), Some(0)), "{first}");
+    let miss = switches[1]["miss"].as_str().unwrap();
+    assert!(["no_host", "timeout"].contains(&miss), "the takeover's reason: {miss}");
+    assert!(u64_at(remote, "/host_chunks") > 20 && u64_at(remote, "/local_chunks") > 5, "{remote}");
+    assert_eq!(u64_at(remote, "/errors") + u64_at(remote, "/no_time"), 0, "{remote}");
+    let clock = &remote["clock"];
+    assert!(clock["offset_ns"].as_i64().unwrap().unsigned_abs() <= clock["rtt_min_ns"].as_u64().unwrap(), "{clock}");
+}
