@@ -56,12 +56,12 @@ fn takeover_attempt(attempt: u32) -> Attempt {
     std::fs::write(&config, config_text(&[], "") + &remote).unwrap();
     let (mut hal, rec) = hal_of_with_recorder("configs/fr3.toml", &robot, &[], &logs);
     let t0 = Instant::now();
-    let mut marsd = spawn_marsd(&robot, &config, 6, &[], &logs);
-    // Six episodes take ~45 s: the host dies in the second and is back in the fourth.
-    wait_until(t0, Duration::from_secs(12), &mut marsd);
+    let mut marsd = spawn_marsd(&robot, &config, 8, &[], &logs);
+    // Eight episodes take 45–55 s: the host dies in the second and is back by the fifth.
+    wait_until(t0, Duration::from_secs(10), &mut marsd);
     host.signal(libc::SIGKILL);
     host.expect_reaped(Duration::from_secs(5), "SIGKILL");
-    wait_until(t0, Duration::from_secs(24), &mut marsd);
+    wait_until(t0, Duration::from_secs(20), &mut marsd);
     let _host2 = spawn_host(&robot, &prefix, &locator, "host2", &logs);
     let code = marsd.exit_code(Duration::from_secs(240));
     std::thread::sleep(Duration::from_millis(100));
@@ -80,10 +80,10 @@ fn takeover_attempt(attempt: u32) -> Attempt {
     assert!(s["trip"].is_null(), "trip {}", s["trip"]);
     assert_eq!(late, 0, "a chunk was late: {}", s["deadline_misses"]);
     check_switches(&s["remote"], &logs.join("marsd-out"));
-    assert_eq!(u64_at(&s, "/episodes"), 6);
-    // The checkpoint succeeds 97–98 % in process: 3 or fewer of 6 happens by chance about 5e-4 of the time (5 of 6
-    // about 1 %, too often for a test that must pass every run); what this test is about is asserted above.
-    assert!(u64_at(&s, "/successes") >= 4, "{}", s["episode_results"]);
+    assert_eq!(u64_at(&s, "/episodes"), 8);
+    // The checkpoint succeeds 97–98 % in process: 4 or fewer of 8 happens by chance about 5e-5 of the time (7 of 8
+    // about 20 %); what this test is about is asserted above.
+    assert!(u64_at(&s, "/successes") >= 5, "{}", s["episode_results"]);
     for check in ["final_check", "hal_rejected", "hal_clamped"] {
         assert_eq!(u64_at(&s, &format!("/limit_violations/{check}")), 0, "{check}");
     }
@@ -101,8 +101,10 @@ fn check_switches(remote: &serde_json::Value, out: &Path) {
     assert_eq!((first["episode"].as_u64(), first["period"].as_u64()), (Some(1), Some(0)), "{first}");
     let miss = switches[1]["miss"].as_str().unwrap();
     assert!(["no_host", "timeout"].contains(&miss), "the takeover's reason: {miss}");
-    assert!(u64_at(remote, "/host_chunks") > 20 && u64_at(remote, "/local_chunks") > 5, "{remote}");
-    assert_eq!(u64_at(remote, "/errors") + u64_at(remote, "/no_time"), 0, "{remote}");
+    assert!(u64_at(remote, "/host_chunks") > 10 && u64_at(remote, "/local_chunks") > 5, "{remote}");
+    // No reply that failed to parse or was refused (a call that started too late for the host, `no_time`, is the
+    // machine's stall on the policy core: not asserted, its chunk still had to be on time, as checked above).
+    assert_eq!(u64_at(remote, "/errors"), 0, "{remote}");
     let clock = &remote["clock"];
     assert!(clock["offset_ns"].as_i64().unwrap().unsigned_abs() <= clock["rtt_min_ns"].as_u64().unwrap(), "{clock}");
 }
