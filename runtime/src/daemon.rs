@@ -216,6 +216,9 @@ pub fn run(p: Prepared) -> anyhow::Result<Outcome> {
     if let Some(v) = servo_report.first_violation {
         tracing::error!("the first command refused by the final limit check: {v:?}");
     }
+    if let Some(e) = servo_report.first_smoothing_error {
+        tracing::error!("the jerk-limited smoother refused: {e}");
+    }
     let run = crate::report::RunFacts { realtime: vec![servo_rt, policy_rt, supervisor_rt], heartbeat };
     let mut summary = Summary::new(&cfg, &mode_names, &servo_report, &policy_report, totals, run);
     summary.record = record;

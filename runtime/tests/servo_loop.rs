@@ -195,3 +195,27 @@ fn a_frame_is_judged_stale_by_when_it_was_read_not_by_when_the_tick_woke() {
     assert!(r.frames.stale >= 40, "{:?}", r.frames);
     assert_eq!(r.counters.commands_sent, 0);
 }
+
+/// A first state the smoother cannot start from (a joint at 10⁶ rad, finite): the loop commands nothing, trips, and
+/// its report keeps the smoother's own reason (the tick cannot log it; marsd logs it at the end).
+#[test]
+fn a_state_the_smoother_refuses_trips_with_its_reason_and_commands_nothing() {
+    let status = Arc::new(Status::default());
+    let stop = status.clone();
+    let hal = FakeHal {
+        calls: Cell::new(0),
+        frame: move |n: u64| {
+            if n == 400 {
+                stop.stop_requested.store(true, Ordering::Release); // so a loop that never trips still ends
+            }
+            let mut f = hal_frame(n / 2 + 1, 0);
+            (f.position[0], f.applied_position[0]) = (1e6, 1e6);
+            Ok(n.is_multiple_of(2).then_some(f))
+        },
+        send: |_: &JointCommand| panic!("nothing may be commanded from a state the smoother refused"),
+    };
+    let r = run(hal, status);
+    assert_eq!(r.cause, Some(StopCause::Trip(Trip::Smoothing)), "{:?}", r.cause);
+    let e = r.first_smoothing_error.expect("the smoother's reason is kept");
+    assert!(e.to_string().contains("position[0] = 1000000"), "{e}");
+}

@@ -181,6 +181,8 @@ pub struct ServoTick {
     timeliness: CommandTimeliness,
     /// The first command refused by the final check, for the report.
     pub first_violation: Option<crate::servo::limits::Violation>,
+    /// The smoother's first refusal (a trip; the tick cannot log), for the report.
+    pub first_smoothing_error: Option<SmoothingError>,
     pub counters: ServoCounters,
 }
 
@@ -224,6 +226,7 @@ impl ServoTick {
             hal_counts_at_start: HalCounts::default(),
             timeliness: CommandTimeliness::default(),
             first_violation: None,
+            first_smoothing_error: None,
             counters: ServoCounters::default(),
         })
     }
@@ -363,8 +366,9 @@ impl ServoTick {
         } else {
             &f.position[..self.n]
         };
-        if self.smoother.reset(start).is_err() {
+        if let Err(e) = self.smoother.reset(start) {
             // A position the smoother cannot start from (beyond any joint's range): command nothing.
+            self.first_smoothing_error.get_or_insert(e);
             self.stop_with(StopCause::Trip(Trip::Smoothing));
             return false;
         }
@@ -456,7 +460,8 @@ impl ServoTick {
         };
         match motion {
             Ok(k) => Some(k),
-            Err(_) => {
+            Err(e) => {
+                self.first_smoothing_error.get_or_insert(e);
                 self.stop_with(StopCause::Trip(Trip::Smoothing));
                 self.smoother.brake().ok().copied()
             }

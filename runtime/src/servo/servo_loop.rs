@@ -102,6 +102,8 @@ pub struct ServoReport {
     /// The HAL's own counters since the handshake (from its state frames).
     pub hal: HalCounts,
     pub first_violation: Option<crate::servo::limits::Violation>,
+    /// The smoother's first refusal, which tripped the loop (`Trip::Smoothing`).
+    pub first_smoothing_error: Option<crate::servo::smoothing::SmoothingError>,
     /// A task acting on the table: what the servo's IK did with the policy's (x, y) references.
     pub effector: Option<crate::servo::effector::EffectorCounts>,
     /// Heap allocations on the servo thread from [`ALLOC_WARMUP_TICKS`] ticks after the handshake to the end
@@ -333,6 +335,7 @@ pub fn run_servo(
         send_errors: sends.errors(),
         hal: tick.hal_counts(),
         first_violation: tick.first_violation,
+        first_smoothing_error: tick.first_smoothing_error,
         effector: tick.effector().map(|e| e.counts),
         capture_spans,
     }
