@@ -36,7 +36,6 @@ pub struct RemotePolicy {
     session: zenoh::Session,
     key: String,
     clock_key: String,
-    bytes: Vec<u8>,
 }
 
 impl RemotePolicy {
@@ -44,7 +43,7 @@ impl RemotePolicy {
     pub fn connect(link: &LinkConfig, prefix: &str, robot: &str) -> Result<Self, RemoteError> {
         let key = link::infer_key(prefix, robot)?;
         let clock_key = link::clock_key(prefix)?;
-        Ok(Self { session: link.open()?, key, clock_key, bytes: Vec::new() })
+        Ok(Self { session: link.open()?, key, clock_key })
     }
 
     /// The key this robot's queries go to.
@@ -70,8 +69,8 @@ impl RemotePolicy {
 
     /// The host's chunk for `request`, or an error once `wait` has passed (or sooner, when no host answers).
     pub fn infer(&mut self, request: &Request, wait: Duration) -> Result<Reply, RemoteError> {
-        request.encode_into(&mut self.bytes);
-        let payload = self.bytes.clone();
+        let mut payload = Vec::new();
+        request.encode_into(&mut payload);
         let reply = Reply::decode(&self.ask(&self.key, payload, wait)?)?;
         if reply.seq != request.seq {
             return Err(RemoteError::Seq { got: reply.seq, want: request.seq });

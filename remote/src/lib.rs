@@ -19,9 +19,4 @@ pub mod server;
 pub mod wire;
 
 /// CLOCK_MONOTONIC in ns: the clock of marsd's frames on the robot, and the host's own on the inference host.
-pub fn monotonic_ns() -> u64 {
-    let mut ts = libc::timespec { tv_sec: 0, tv_nsec: 0 };
-    // SAFETY: clock_gettime writes the timespec it is given; CLOCK_MONOTONIC always exists on Linux.
-    unsafe { libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut ts) };
-    ts.tv_sec as u64 * 1_000_000_000 + ts.tv_nsec as u64
-}
+pub use mars_ipc::clock::monotonic_ns;

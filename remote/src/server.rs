@@ -95,7 +95,6 @@ pub fn serve(
     let queries = session.declare_queryable(&infer_key).wait().map_err(|e| declare_error(&infer_key, e))?;
     tracing::info!(prefix, robots = robots.len(), "serving");
     let mut pending: Vec<Pending> = Vec::new();
-    let mut bytes = Vec::new();
     while !stop.load(Ordering::Acquire) {
         if pending.is_empty() {
             match queries.recv_timeout(Duration::from_millis(50)) {
@@ -111,9 +110,9 @@ pub fn serve(
         let p = pending.swap_remove(next);
         let robot = &mut robots[p.robot];
         let counts = report.robots.get_mut(&robot.robot).expect("every served robot has counts");
-        let reply = answer(&mut robot.engine, &p, counts);
-        reply.encode_into(&mut bytes);
-        let _ = p.query.reply(p.query.key_expr().clone(), bytes.clone()).wait();
+        let mut bytes = Vec::new();
+        answer(&mut robot.engine, &p, counts).encode_into(&mut bytes);
+        let _ = p.query.reply(p.query.key_expr().clone(), bytes).wait();
     }
     Ok(report)
 }

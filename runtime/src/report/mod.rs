@@ -479,11 +479,8 @@ fn write_remote(f: &mut std::fmt::Formatter<'_>, r: &crate::policy::remote::Remo
         None => writeln!(f, "  host clock: no host answered at start")?,
     }
     for s in &r.switches {
-        let to = if s.to_host {
-            "host".to_owned()
-        } else {
-            format!("local engine ({:?})", s.miss.unwrap_or(crate::policy::remote::Miss::Error))
-        };
+        // A switch to the local engine always has its reason; one back to the host has none.
+        let to = s.miss.map_or_else(|| "host".to_owned(), |m| format!("local engine ({m:?})"));
         writeln!(f, "    episode {} period {}: chunks from the {to}", s.episode, s.period)?;
     }
     Ok(())
