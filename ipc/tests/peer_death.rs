@@ -20,9 +20,13 @@ const PEER_ENV: &str = "MARS_PEER_DEATH_CHILD";
 const WATCH_PRIORITY: i32 = 60;
 /// The test's own thread, which polls the verdict: below the watch, above what is not real-time.
 const POLL_PRIORITY: i32 = 50;
-/// How late the verdict may come after the process's end: the watch thread's wake-up from its WaitSet and this
-/// test's 0.1 ms poll of the verdict.
-const VERDICT_AFTER_MS: f64 = 1.0;
+/// How late the verdict may come after the process's end, as the median of the rounds: the watch thread's
+/// wake-up from its WaitSet and this test's 0.1 ms poll of the verdict.
+const MEDIAN_VERDICT_AFTER_MS: f64 = 1.0;
+/// How late any one verdict may come: half the heartbeat deadline, so a verdict that waited for the deadline's
+/// route (or the registry's) fails, while a VM's 1–2 ms wake-up stall in one round does not decide the test.
+const EVERY_VERDICT_AFTER_MS: f64 = 5.0;
+const ROUNDS: usize = 8;
 
 /// The peer: beats the HAL side's heartbeat of the namespace in `PEER_ENV` until killed.
 #[test]
@@ -55,7 +59,7 @@ fn wait_for(watch: &PeerWatch, want: Peer, timeout: Duration) -> u64 {
 }
 
 #[test]
-fn a_killed_peer_is_declared_dead_within_a_ms_of_its_end_alive_or_late() {
+fn a_killed_peer_is_declared_dead_within_a_ms_of_its_end_alive_or_late_by_the_median() {
     if std::env::var(PEER_ENV).is_ok() {
         return;
     }
@@ -66,7 +70,9 @@ fn a_killed_peer_is_declared_dead_within_a_ms_of_its_end_alive_or_late() {
 fn rounds(attempt: u32) -> Attempt {
     // This thread reads the verdict: above ordinary threads (the dying peer, the build), below the watch.
     let _ = stall_witness::core_watch::sched_fifo(POLL_PRIORITY);
-    for round in 0..8 {
+    let mut after_end = Vec::with_capacity(ROUNDS);
+    let mut window = (u64::MAX, 0);
+    for round in 0..ROUNDS {
         let robot = format!("death{}-{attempt}-{round}", std::process::id());
         let ns = RobotNamespace::new(&robot).unwrap();
         let watch = PeerWatch::spawn_then(&ns, Side::Hal, || {
@@ -98,14 +104,30 @@ fn rounds(attempt: u32) -> Attempt {
             ms(gone, dead)
         );
         witness().within_or_excused(
-            "the verdict after the process's end",
+            "a verdict after the process's end",
             ms(gone, dead),
-            VERDICT_AFTER_MS,
+            EVERY_VERDICT_AFTER_MS,
             gone,
             dead,
         )?;
+        after_end.push(ms(gone, dead));
+        window = (window.0.min(gone), window.1.max(dead));
     }
-    Ok(())
+    let median = median(&mut after_end);
+    eprintln!("median verdict {median:.2} ms after the process's end over {ROUNDS} rounds");
+    witness().within_or_excused(
+        "the median verdict after the process's end",
+        median,
+        MEDIAN_VERDICT_AFTER_MS,
+        window.0,
+        window.1,
+    )
+}
+
+fn median(values: &mut [f64]) -> f64 {
+    values.sort_by(f64::total_cmp);
+    let n = values.len();
+    (values[(n - 1) / 2] + values[n / 2]) / 2.0
 }
 
 fn signal(child: &Child, sig: libc::c_int) {
