@@ -48,6 +48,8 @@ pub struct Buffers {
     pub w: Box<[f32]>,
     /// ε [C, D].
     pub eps: Box<[f32]>,
+    /// The committed actions of [`crate::Engine::infer_after`] (normalised) [C, D]; only their first rows are used.
+    pub committed: Box<[f32]>,
     /// The ODE state a (normalised) [C, D]: the source a0, then the chunk.
     pub a: Box<[f32]>,
     /// The chunk in task units [C, D].
@@ -94,6 +96,7 @@ impl Buffers {
             sched_hidden: a.zeros("scheduler hidden", &[sched.map_or(0, |s| s.hidden)])?,
             w: a.zeros("w", &[d.action])?,
             eps: a.zeros("noise", &cd)?,
+            committed: a.zeros("committed actions", &cd)?,
             a: a.zeros("ODE state", &cd)?,
             chunk: a.zeros("chunk", &cd)?,
             cond_input: a.zeros("conditioning input", &[if d.cond_input > d.embed { d.cond_input } else { 0 }])?,

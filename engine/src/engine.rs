@@ -6,6 +6,7 @@ use crate::budget::{CostEstimate, Estimator, Plan};
 use crate::buffers::Buffers;
 use crate::cameras::Cameras;
 use crate::config::EngineConfig;
+use crate::continuity::{GUIDANCE_CAP, guidance_weight, guide};
 use crate::dims::Dims;
 use crate::error::{EngineError, Input, LoadError};
 use crate::matmul::MatMul;
@@ -104,6 +105,17 @@ fn check(what: Input, x: &[f32], want: usize) -> Result<(), EngineError> {
     }
 }
 
+/// Committed actions are whole rows, fewer than the chunk's (a chunk wholly committed has nothing to compute).
+fn check_committed(x: &[f32], d: &Dims) -> Result<(), EngineError> {
+    if !x.len().is_multiple_of(d.action) || x.len() >= d.chunk_values() {
+        return Err(EngineError::CommittedRows { got: x.len(), chunk: d.chunk, action: d.action });
+    }
+    match x.iter().position(|v| !v.is_finite()) {
+        Some(index) => Err(EngineError::NonFinite { what: Input::Committed, index, value: x[index] }),
+        None => Ok(()),
+    }
+}
+
 impl Engine {
     /// Loads a checkpoint directory of any policy kind, allocates every buffer and runs the warm-up calls.
     ///
@@ -163,7 +175,7 @@ impl Engine {
             if i == 1 {
                 self.estimator = Estimator::default();
             }
-            self.run(&obs, &hist, Noise::Zero, Steps::Forced(self.dims.k_max))
+            self.run(&obs, &hist, &[], Noise::Zero, Steps::Forced(self.dims.k_max))
                 .map_err(|e| LoadError::Config(format!("warm-up call failed: {e}")))?;
         }
         Ok(())
@@ -173,7 +185,21 @@ impl Engine {
     /// actions, oldest first, C·D values), both in task units, with K = min(K(w), the most steps whose
     /// estimated cost fits `budget`). Noise comes from the engine's seeded generator. Allocation-free.
     pub fn infer(&mut self, observation: &[f32], history: &[f32], budget: Duration) -> Result<Output<'_>, EngineError> {
-        self.run(observation, history, Noise::Draw, Steps::Budget(budget))
+        self.run(observation, history, &[], Noise::Draw, Steps::Budget(budget))
+    }
+
+    /// [`Engine::infer`] for a chunk that arrives after the robot has executed its first rows from the previous
+    /// chunk: `committed` (task units, whole rows, fewer than C) are those actions, and every Euler step is guided
+    /// toward them ([`crate::continuity`]). With no committed rows this is [`Engine::infer`], bit for bit.
+    /// Allocation-free.
+    pub fn infer_after(
+        &mut self,
+        observation: &[f32],
+        history: &[f32],
+        committed: &[f32],
+        budget: Duration,
+    ) -> Result<Output<'_>, EngineError> {
+        self.run(observation, history, committed, Noise::Draw, Steps::Budget(budget))
     }
 
     /// [`Engine::infer`] with explicit noise ε (C·D values, normalised units; `None` draws from the generator)
@@ -187,14 +213,22 @@ impl Engine {
         steps: Option<usize>,
     ) -> Result<Output<'_>, EngineError> {
         let noise = noise.map_or(Noise::Draw, Noise::Given);
-        self.run(observation, history, noise, steps.map_or(Steps::Budget(Duration::MAX), Steps::Forced))
+        self.run(observation, history, &[], noise, steps.map_or(Steps::Budget(Duration::MAX), Steps::Forced))
     }
 
-    fn run(&mut self, obs: &[f32], hist: &[f32], noise: Noise<'_>, steps: Steps) -> Result<Output<'_>, EngineError> {
+    fn run(
+        &mut self,
+        obs: &[f32],
+        hist: &[f32],
+        committed: &[f32],
+        noise: Noise<'_>,
+        steps: Steps,
+    ) -> Result<Output<'_>, EngineError> {
         let start = Instant::now();
         let (d, mm) = (self.dims, self.mm);
         check(Input::Observation, obs, d.obs)?;
         check(Input::History, hist, d.chunk_values())?;
+        check_committed(committed, &d)?;
         if let Noise::Given(eps) = noise {
             check(Input::Noise, eps, d.chunk_values())?;
         }
@@ -206,6 +240,10 @@ impl Engine {
         let (wt, b, norm) = (&self.weights, &mut self.buf, &self.meta.normalizer);
 
         let k_requested = observe(wt, &d, norm, obs, hist, self.cameras.as_mut(), b, mm);
+        let n_committed = committed.len();
+        for (i, (y, &c)) in b.committed.iter_mut().zip(committed).enumerate() {
+            *y = (c - norm.action.mean[i % d.action]) / norm.action.std[i % d.action];
+        }
         let encode = start.elapsed();
         match noise {
             Noise::Draw => b.eps.iter_mut().for_each(|e| *e = self.rng.sample(StandardNormal)),
@@ -229,6 +267,11 @@ impl Engine {
         let dt32 = (1.0 / k as f64) as f32; // as the candle model rounds it
         for step in 0..k {
             velocity(wt, &d, b, step, mm);
+            if n_committed > 0 {
+                let tau = step as f32 * dt32;
+                let c = guidance_weight(tau, dt32, GUIDANCE_CAP);
+                guide(&mut b.v[..n_committed], &b.a[..n_committed], &b.committed[..n_committed], tau, c);
+            }
             spin_for(self.injected_step_delay);
             for (a, &v) in b.a.iter_mut().zip(b.v.iter()) {
                 *a += v * dt32;

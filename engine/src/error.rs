@@ -14,6 +14,8 @@ pub enum Input {
     Noise,
     /// A camera image ([`crate::ImageEncoder::encode`]).
     Image,
+    /// The committed actions of [`crate::Engine::infer_after`].
+    Committed,
 }
 
 impl std::fmt::Display for Input {
@@ -23,6 +25,7 @@ impl std::fmt::Display for Input {
             Input::History => "history",
             Input::Noise => "noise",
             Input::Image => "image",
+            Input::Committed => "committed actions",
         })
     }
 }
@@ -38,6 +41,9 @@ pub enum EngineError {
     /// The network overflowed (finite inputs far outside the training range): the chunk is not returned.
     #[error("the chunk is not finite: the inputs are far outside what the policy was trained on")]
     NonFiniteOutput,
+    /// Committed actions must be whole rows of the action dimension, fewer than the chunk's rows.
+    #[error("committed actions: {got} values are not fewer than {chunk} whole rows of {action}")]
+    CommittedRows { got: usize, chunk: usize, action: usize },
     /// Buffers are sized for K_max steps at load time, so a forced K must lie in 1..=K_max.
     #[error("a forced step count must lie in 1..={k_max}, got {k}")]
     Steps { k: usize, k_max: usize },

@@ -30,13 +30,15 @@
 //!
 //! Layout: `weights` (loading, kernel layout) → `matmul` (linear layers through gemm, allocation-free) and
 //! `kernels` (norms, activations, attention on slices) → `observe` (inputs → embedding, w, K(w), source) and
-//! `velocity` (the DiT) → `engine` (the call); `budget` (cost estimate and step cap), `buffers`, `dims`,
+//! `velocity` (the DiT) → `engine` (the call), `continuity` (guidance toward committed actions, for a chunk that arrives
+//! late); `budget` (cost estimate and step cap), `buffers`, `dims`,
 //! `config`, `error`.
 
 mod budget;
 mod buffers;
 mod cameras;
 mod config;
+pub mod continuity;
 mod conv;
 mod dims;
 mod engine;

@@ -1,6 +1,6 @@
 //! After load and one warm-up call, inference performs zero heap allocations: checked with a counting global
 //! allocator over 1000+ calls per model, through every path a call can take (each policy kind, budgets that
-//! cap K and that cannot fit one step, explicit noise, forced K, every kind of bad input, and a network that
+//! cap K and that cannot fit one step, explicit noise, forced K, committed rows to continue, every kind of bad input, and a network that
 //! overflows), and a vision policy whose calls encode a camera image.
 //!
 //! The allocator (`counting/`) counts only on threads that switched counting on (a thread-local flag), so the
@@ -27,7 +27,8 @@ const CALLS: usize = 1000;
 /// Warm-up call, then `CALLS` mixed calls measured; returns (calls made, K values seen).
 fn measure(dir: &Path, cfg: EngineConfig) -> (usize, Vec<usize>) {
     let mut engine = Engine::load(dir, cfg).unwrap();
-    let (obs_dim, cd) = (engine.obs_dim(), engine.chunk_len() * engine.action_dim());
+    let (obs_dim, action_dim) = (engine.obs_dim(), engine.action_dim());
+    let cd = engine.chunk_len() * action_dim;
     let mut rng = StdRng::seed_from_u64(5);
     // All inputs exist before counting starts.
     let cases: Vec<(Vec<f32>, Vec<f32>)> = (0..16).map(|_| inputs(&mut rng, obs_dim, cd)).collect();
@@ -46,6 +47,7 @@ fn measure(dir: &Path, cfg: EngineConfig) -> (usize, Vec<usize>) {
         for i in 0..CALLS {
             let (obs, hist) = &cases[i % cases.len()];
             let out = match i % 8 {
+                5 => engine.infer_after(obs, hist, &hist[..(1 + i % 3) * action_dim], budgets[i % budgets.len()]),
                 6 => engine.infer_with(obs, hist, Some(&eps), Some(1 + i % engine.k_max())),
                 7 => engine.infer_with(obs, hist, None, None),
                 _ => engine.infer(obs, hist, budgets[i % budgets.len()]),
@@ -63,6 +65,8 @@ fn measure(dir: &Path, cfg: EngineConfig) -> (usize, Vec<usize>) {
                     engine.infer_with(obs, hist, Some(&hist[1..]), None).err(),
                     engine.infer_with(obs, hist, None, Some(0)).err(),
                     engine.infer_with(obs, hist, None, Some(engine.k_max() + 1)).err(),
+                    engine.infer_after(obs, hist, &hist[..action_dim + 1], Duration::MAX).err(),
+                    engine.infer_after(obs, hist, hist, Duration::MAX).err(),
                 ];
                 assert!(errs.iter().all(Option::is_some));
                 // Overflow inside the network (an error after the whole computation ran).

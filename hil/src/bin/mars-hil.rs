@@ -1,7 +1,7 @@
 //! `mars-hil`: the FR3 hardware-in-the-loop task (Pick Cup, rim vs handle): expert demos recorded on the sim
 //! plant, and in-process evaluation of a checkpoint against it.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use clap::{Parser, Subcommand};
 
@@ -164,6 +164,22 @@ enum Command {
         #[arg(long)]
         out: Option<PathBuf>,
     },
+    /// Roll a checkpoint out in-process with each chunk adopted N policy periods after its observation (a round
+    /// trip of N periods to an inference host), for each way to continue the rows already executed (drop-late,
+    /// guided, history): success and boundary jerk with 95 % intervals, each against drop-late on the same seeds.
+    DelaySweep {
+        #[arg(long, default_value = "assets/checkpoints/fr3_pick_cup/mars")]
+        checkpoint: PathBuf,
+        #[command(flatten)]
+        task: TaskArgs,
+        /// Delays in policy periods (at most half a chunk).
+        #[arg(long, value_delimiter = ',', default_value = "0,1,2,4")]
+        delays: Vec<usize>,
+        #[arg(long, default_value_t = 200)]
+        episodes: usize,
+        #[arg(long, default_value_t = 1000)]
+        seed: u64,
+    },
 }
 
 fn main() -> std::process::ExitCode {
@@ -218,6 +234,9 @@ fn main() -> std::process::ExitCode {
         Command::EvalSim { checkpoint, task, episodes, seed, out } => {
             cli::eval(&checkpoint, &task.task, &task.profile, episodes, seed, out.as_deref()).map(|_| ())
         }
+        Command::DelaySweep { checkpoint, task, delays, episodes, seed } => {
+            delay_sweep(&checkpoint, &task, &delays, episodes, seed)
+        }
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,
@@ -226,6 +245,15 @@ fn main() -> std::process::ExitCode {
             std::process::ExitCode::FAILURE
         }
     }
+}
+
+fn delay_sweep(checkpoint: &Path, task: &TaskArgs, delays: &[usize], n: usize, seed: u64) -> anyhow::Result<()> {
+    use mars_hil::task::delay_sweep::{sweep, table};
+    let rows = sweep(checkpoint, &task.task, &task.profile, delays, n, seed)?;
+    let rate = cli::load_task(&task.task, &task.profile)?.0.cfg.policy_rate_hz;
+    println!("{} episodes per row (seeds {seed}..), {}", n, checkpoint.display());
+    print!("{}", table(&rows, rate));
+    Ok(())
 }
 
 fn curve(args: &mars_policy::curve::CurveArgs, task: &TaskArgs, in_process: bool) -> anyhow::Result<()> {

@@ -1,6 +1,7 @@
 //! In-process closed-loop evaluation of a checkpoint on a pick task (Pick Cup, Pick Vegetable): the allocation-free
 //! engine drives the HIL sim plant directly (no IPC, no daemon), executing whole chunks and re-planning after each,
-//! with the expert's servo. For validating checkpoints and for tests; the real runtime path is `marsd`.
+//! with the expert's servo; or, with a [`Delay`], each chunk adopted δ periods after its observation. For validating
+//! checkpoints and for tests; the real runtime path is `marsd`.
 
 use std::path::Path;
 
@@ -12,6 +13,8 @@ use mars_tasks::nav2d::eval::latency_percentiles;
 use mars_tasks::nav2d::modal_balance;
 use serde::{Deserialize, Serialize};
 
+use super::boundary::{Smoothness, smoothness};
+use super::delay::{Continuity, Delay, Schedule};
 use super::pick::{DoneReason, Pick, Progress, max_abs_diff};
 use super::sim_arm::SimArm;
 
@@ -42,6 +45,9 @@ pub struct EpisodeResult {
     /// Actions whose setpoints left the profile's position, velocity or gripper limits.
     pub limit_violations: usize,
     pub duration_s: f64,
+    /// The executed joint targets' acceleration and jerk at chunk boundaries and elsewhere.
+    #[serde(default)]
+    pub smoothness: Smoothness,
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -96,8 +102,9 @@ fn ms(v: Option<f64>) -> String {
     v.map_or_else(|| "-".into(), |v| format!("{v:.2} ms"))
 }
 
-/// One closed-loop episode from the start pose of `seed`, with the engine's noise re-seeded by `seed`.
-pub fn run_episode(engine: &mut Engine, task: &Pick, profile: &Profile, seed: u64) -> EpisodeResult {
+/// One closed-loop episode from the start pose of `seed`, with the engine's noise re-seeded by `seed`, each chunk
+/// adopted as `delay` says.
+pub fn run_episode(engine: &mut Engine, task: &Pick, profile: &Profile, seed: u64, delay: Delay) -> EpisodeResult {
     engine.reseed(seed);
     let (c, d) = (engine.chunk_len(), engine.action_dim());
     let start = task.start_pose(seed);
@@ -106,26 +113,32 @@ pub fn run_episode(engine: &mut Engine, task: &Pick, profile: &Profile, seed: u6
     let mut monitor = task.monitor();
     let mut progress = Progress::Running;
     let mut obs = vec![0.0f32; task.obs_dim()];
+    let rest = task.rest_action(&start);
     // The last C executed actions, oldest first; before the first one, "stay at the start".
-    let mut history: Vec<f32> = task.rest_action(&start).repeat(c);
-    let mut chunk = vec![0.0f32; c * d];
+    let mut history: Vec<f32> = rest.repeat(c);
+    let mut schedule = Schedule::new(delay, c, &rest);
+    let (mut committed, mut asked) = (Vec::with_capacity(c * d), vec![0.0f32; c * d]);
+    let (mut executed, mut adopted) = (Vec::new(), Vec::new());
     let mut action = [0.0f64; MAX_JOINTS + 1];
     let (mut steps, mut k_per_call, mut call_ms, mut limit_violations) = (0, Vec::new(), Vec::new(), 0);
     let mut closest = vec![f64::INFINITY; task.n_modes()];
     let ending = loop {
-        if steps % c == 0 {
+        if schedule.calls_at(steps) {
             task.observation(arm.q(), arm.gripper(), &mut obs);
+            schedule.committed(steps, &mut committed);
             let called = std::time::Instant::now();
-            match engine.infer_with(&obs, &history, None, None) {
-                Ok(out) => {
+            match ask(engine, delay.continuity, &obs, &history, &committed, &mut asked) {
+                Ok(k) => {
                     call_ms.push(called.elapsed().as_secs_f64() * 1e3);
-                    chunk.copy_from_slice(out.chunk);
-                    k_per_call.push(out.k_used);
+                    schedule.arrived(steps, &asked);
+                    k_per_call.push(k);
                 }
                 Err(e) => break Ending::PolicyError(e.to_string()),
             }
         }
-        let a = &chunk[(steps % c) * d..][..d];
+        let (a, new_chunk) = schedule.action(steps);
+        executed.extend_from_slice(a);
+        adopted.push(new_chunk);
         for (x, &v) in action.iter_mut().zip(a) {
             *x = v as f64;
         }
@@ -138,7 +151,7 @@ pub fn run_episode(engine: &mut Engine, task: &Pick, profile: &Profile, seed: u6
         });
         limit_violations += check.any() as usize;
         history.copy_within(d.., 0);
-        history[(c - 1) * d..].copy_from_slice(a);
+        history[(c - 1) * d..].copy_from_slice(&executed[executed.len() - d..]);
         steps += 1;
         if let Progress::Done { reason, .. } = progress {
             break Ending::Done(reason);
@@ -159,13 +172,50 @@ pub fn run_episode(engine: &mut Engine, task: &Pick, profile: &Profile, seed: u6
         closest_to_grasp_rad: closest,
         limit_violations,
         duration_s: arm.t_s(),
+        smoothness: smoothness(&executed, d, d - 1, &adopted, task.cfg.policy_rate_hz),
     }
+}
+
+/// One policy call for the chunk asked now, into `out`; its K. `committed` are the rows the robot will have executed
+/// from the previous chunk when this one arrives.
+fn ask(
+    engine: &mut Engine,
+    continuity: Continuity,
+    obs: &[f32],
+    history: &[f32],
+    committed: &[f32],
+    out: &mut [f32],
+) -> Result<usize, mars_engine::EngineError> {
+    let result = match continuity {
+        Continuity::DropLate => engine.infer_with(obs, history, None, None),
+        Continuity::Guided => engine.infer_after(obs, history, committed, std::time::Duration::MAX),
+        Continuity::History => {
+            // The history as it will be when the chunk starts: the committed rows after the executed ones.
+            let shifted: Vec<f32> = history[committed.len()..].iter().chain(committed).copied().collect();
+            engine.infer_with(obs, &shifted, None, None)
+        }
+    }?;
+    out.copy_from_slice(result.chunk);
+    Ok(result.k_used)
 }
 
 /// `n` episodes with seeds `seed + i` of the checkpoint in `dir`, aggregated.
 pub fn evaluate(dir: &Path, task: &Pick, profile: &Profile, n: usize, seed: u64) -> anyhow::Result<EvalReport> {
+    evaluate_delayed(dir, task, profile, n, seed, Delay::NONE)
+}
+
+/// [`evaluate`] with each chunk adopted as `delay` says.
+pub fn evaluate_delayed(
+    dir: &Path,
+    task: &Pick,
+    profile: &Profile,
+    n: usize,
+    seed: u64,
+    delay: Delay,
+) -> anyhow::Result<EvalReport> {
     ensure!(n > 0, "evaluate at least 1 episode");
     let mut engine = Engine::load(dir, EngineConfig::with_seed(seed))?;
+    delay.check(engine.chunk_len()).map_err(anyhow::Error::msg)?;
     ensure!(
         engine.obs_dim() == task.obs_dim() && engine.action_dim() == task.action_dim(),
         "checkpoint {} has obs_dim {} / action_dim {}, the task needs {} / {}",
@@ -176,7 +226,7 @@ pub fn evaluate(dir: &Path, task: &Pick, profile: &Profile, n: usize, seed: u64)
         task.action_dim()
     );
     let episodes: Vec<EpisodeResult> =
-        (0..n as u64).map(|i| run_episode(&mut engine, task, profile, seed.wrapping_add(i))).collect();
+        (0..n as u64).map(|i| run_episode(&mut engine, task, profile, seed.wrapping_add(i), delay)).collect();
     let mut mode_counts = vec![0; task.n_modes()];
     for m in episodes.iter().filter(|e| e.success).filter_map(|e| e.mode) {
         mode_counts[m] += 1;

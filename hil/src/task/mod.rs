@@ -5,7 +5,10 @@
 
 pub use mars_runtime::task::*;
 
+pub mod boundary;
 pub mod cli;
+pub mod delay;
+pub mod delay_sweep;
 pub mod eval;
 pub mod expert;
 pub mod push_t_cli;
