@@ -14,6 +14,7 @@ pub mod faults;
 pub mod franka_sim;
 pub mod hil_replay;
 pub mod scene;
+pub mod shaped_link;
 pub mod soak;
 pub mod stall_watch;
 pub mod standin;

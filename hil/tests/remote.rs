@@ -108,3 +108,60 @@ fn check_switches(remote: &serde_json::Value, out: &Path) {
     let clock = &remote["clock"];
     assert!(clock["offset_ns"].as_i64().unwrap().unsigned_abs() <= clock["rtt_min_ns"].as_u64().unwrap(), "{clock}");
 }
+
+/// The host behind a link that holds every byte 50 ms each way (a 100 ms round trip, longer than the 80 ms lead).
+/// Asked no earlier than the lead, no chunk can come back in time: all are the local engine's. Asked two periods
+/// ahead (`ask_ahead_periods = 2`), every chunk is the host's, guided toward the rows the previous chunk commits,
+/// none late, nothing out of limits.
+#[test]
+fn over_a_100_ms_round_trip_chunks_asked_two_periods_ahead_are_all_the_hosts() {
+    let _rt = rt_rig_lock();
+    at_most_one_rerun("remote host over a 100 ms round trip", delayed_attempt);
+}
+
+fn delayed_attempt(attempt: u32) -> Attempt {
+    let logs = TempDir::new(&format!("remote-delay{attempt}"));
+    let prefix = format!("mars-test/{}/delay{attempt}", std::process::id());
+    let port = free_port();
+    // Both runs' robots are `arm` to the host (`[remote] name`).
+    let _host = spawn_host("arm", &prefix, &format!("tcp/127.0.0.1:{port}"), "host", &logs);
+    let upstream = std::net::SocketAddr::from(([127, 0, 0, 1], port));
+    let link = mars_hil::shaped_link::ShapedLink::start(upstream, Duration::from_millis(50)).unwrap();
+    let remote = format!("\n[remote]\nprefix = \"{prefix}\"\nname = \"arm\"\nconnect = [\"tcp/{}\"]\n", link.local);
+    let mut runs = Vec::new();
+    for (ahead, episodes) in [(0, 1), (2, 4)] {
+        let name = format!("marsd-ahead{ahead}");
+        let robot = robot(&format!("rdelay{attempt}-{ahead}"));
+        let edits = [("handoff_margin_ms", &*format!("2.0\nask_ahead_periods = {ahead}"))];
+        let config = logs.join(&format!("{name}.toml"));
+        std::fs::write(&config, config_text(&edits, "") + &remote).unwrap();
+        let (mut hal, rec) = hal_of_with_recorder("configs/fr3.toml", &robot, &[], &logs);
+        let mut marsd = spawn_marsd_named(&name, &robot, &config, episodes, &[], &logs);
+        let code = marsd.exit_code(Duration::from_secs(120));
+        std::thread::sleep(Duration::from_millis(100));
+        let r = rec.finish();
+        eprintln!("{}", witness_account(&r));
+        assert!(hal.running(), "the HAL died\n{}", hal.logs());
+        let s = summary(&logs, &name);
+        eprintln!("ask ahead {ahead}:\n{}", marsd.stdout_text());
+        let late = u64_at(&s, "/deadline_misses/late_chunks");
+        if (code != 0 || late > 0)
+            && let Some(e) = run_excuse(&s, &marsd, &r, u64::MAX)
+        {
+            return Err(e);
+        }
+        assert_eq!(code, 0, "marsd failed\n{}", marsd.logs());
+        assert!(s["trip"].is_null(), "trip {}", s["trip"]);
+        assert_eq!(late, 0, "a chunk was late: {}", s["deadline_misses"]);
+        assert_limits(&r, &Limits::of("configs/fr3.toml"), &name);
+        runs.push(s);
+    }
+    let (now, ahead) = (&runs[0]["remote"], &runs[1]["remote"]);
+    assert!(u64_at(now, "/host_chunks") == 0 && u64_at(now, "/local_chunks") > 0, "asked at the lead: {now}");
+    assert!(u64_at(ahead, "/local_chunks") == 0 && u64_at(ahead, "/host_chunks") > 20, "asked ahead: {ahead}");
+    let rtt = f64_at(ahead, "/round_trip_ms_p50");
+    assert!(rtt >= 100.0, "the round trip did not cross the link: p50 {rtt} ms");
+    assert!(u64_at(&runs[1], "/successes") >= 2, "{}", runs[1]["episode_results"]);
+    assert!(link.shape().bytes() > 0);
+    Ok(())
+}

@@ -152,7 +152,8 @@ fn answer(engine: &mut Engine, p: &Pending, counts: &mut RobotCounts) -> Reply {
         return Reply::without_chunk(Status::Expired, req.seq, p.received_ns);
     }
     engine.reseed(req.seed);
-    let out = match engine.infer(&req.observation, &req.history, Duration::from_nanos(p.deadline_ns - now)) {
+    let budget = Duration::from_nanos(p.deadline_ns - now);
+    let out = match engine.infer_after(&req.observation, &req.history, &req.committed, budget) {
         Ok(out) => out,
         Err(e) => {
             counts.refused += 1;

@@ -10,11 +10,11 @@ pub const REQUEST_MAGIC: [u8; 4] = *b"MARQ";
 /// "MARP": a reply.
 pub const REPLY_MAGIC: [u8; 4] = *b"MARP";
 /// Bumped on any change of either layout.
-pub const VERSION: u16 = 1;
+pub const VERSION: u16 = 2;
 /// The most `f32` values one array may hold (16 MiB): a 4-camera 224 px observation fits, a corrupt length does not.
 pub const MAX_VALUES: usize = 1 << 22;
 
-const REQUEST_HEADER: usize = 4 + 2 + 2 + 7 * 8 + 2 * 4;
+const REQUEST_HEADER: usize = 4 + 2 + 2 + 7 * 8 + 3 * 4;
 const REPLY_HEADER: usize = 4 + 2 + 2 + 3 * 8 + 2 * 4 + 4 + 8 + 4 + 4;
 
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -56,6 +56,10 @@ pub struct Request {
     pub observation: Vec<f32>,
     /// The last chunk of actions executed or in force, oldest first (C·D values).
     pub history: Vec<f32>,
+    /// The chunk's first rows as the robot will have executed them from the previous chunk when this one arrives
+    /// (whole rows, fewer than C; empty when the robot asks no earlier than the chunk is needed): the host's call is
+    /// guided toward them (`mars_engine::Engine::infer_after`).
+    pub committed: Vec<f32>,
 }
 
 /// How the host answered.
@@ -110,7 +114,7 @@ impl Request {
     /// The message's bytes, appended to `out` (cleared first), so a caller reuses one buffer.
     pub fn encode_into(&self, out: &mut Vec<u8>) {
         out.clear();
-        out.reserve(REQUEST_HEADER + 4 * (self.observation.len() + self.history.len()));
+        out.reserve(REQUEST_HEADER + 4 * (self.observation.len() + self.history.len() + self.committed.len()));
         out.extend_from_slice(&REQUEST_MAGIC);
         out.extend_from_slice(&VERSION.to_le_bytes());
         out.extend_from_slice(&0u16.to_le_bytes());
@@ -119,8 +123,10 @@ impl Request {
         }
         out.extend_from_slice(&(self.observation.len() as u32).to_le_bytes());
         out.extend_from_slice(&(self.history.len() as u32).to_le_bytes());
+        out.extend_from_slice(&(self.committed.len() as u32).to_le_bytes());
         put_f32s(out, &self.observation);
         put_f32s(out, &self.history);
+        put_f32s(out, &self.committed);
     }
 
     pub fn decode(bytes: &[u8]) -> Result<Self, WireError> {
@@ -128,11 +134,12 @@ impl Request {
         let mut r = Reader::new(WHAT, bytes, REQUEST_HEADER, REQUEST_MAGIC)?;
         let _flags = r.u16();
         let [seq, episode, period, capture_ns, sent_ns, budget_ns, seed] = std::array::from_fn(|_| r.u64());
-        let (n_obs, n_hist) = (r.u32(), r.u32());
-        r.expect_values(&[("observation", n_obs), ("history", n_hist)])?;
+        let (n_obs, n_hist, n_committed) = (r.u32(), r.u32(), r.u32());
+        r.expect_values(&[("observation", n_obs), ("history", n_hist), ("committed", n_committed)])?;
         let observation = r.f32s("observation", n_obs as usize)?;
         let history = r.f32s("history", n_hist as usize)?;
-        Ok(Self { seq, episode, period, capture_ns, sent_ns, budget_ns, seed, observation, history })
+        let committed = r.f32s("committed", n_committed as usize)?;
+        Ok(Self { seq, episode, period, capture_ns, sent_ns, budget_ns, seed, observation, history, committed })
     }
 }
 
@@ -280,6 +287,7 @@ mod tests {
             seed: 99,
             observation: vec![0.5, -1.0, 3.25],
             history: vec![1.0; 16],
+            committed: vec![0.5; 4],
         }
     }
 
@@ -313,7 +321,7 @@ mod tests {
             assert!(Request::decode(&bytes[..cut]).is_err(), "a request cut at {cut} bytes was accepted");
         }
         let mut long = bytes.clone();
-        long[REQUEST_HEADER - 8..REQUEST_HEADER - 4].copy_from_slice(&u32::MAX.to_le_bytes());
+        long[REQUEST_HEADER - 12..REQUEST_HEADER - 8].copy_from_slice(&u32::MAX.to_le_bytes());
         assert!(matches!(Request::decode(&long), Err(WireError::TooLong { array: "observation", .. })));
         let mut nan = bytes.clone();
         nan[REQUEST_HEADER + 4..REQUEST_HEADER + 8].copy_from_slice(&f32::NAN.to_le_bytes());

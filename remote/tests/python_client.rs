@@ -27,12 +27,20 @@ fn a_python_zenoh_client_gets_the_local_engines_chunks() {
     let prefix = format!("mars-test/{}/python", std::process::id());
     let host = Host::start(&prefix, &["fr3"]);
     let mut local = engine();
-    let requests: Vec<_> = (1..=4).map(|seq| request(&local, seq)).collect();
+    // The last two carry committed rows (one, then two): the host's call is guided toward them.
+    let d = local.action_dim();
+    let requests: Vec<_> = (1..=4u64)
+        .map(|seq| {
+            let mut r = request(&local, seq);
+            r.committed = r.history[..seq.saturating_sub(2) as usize * d].to_vec();
+            r
+        })
+        .collect();
     let job = serde_json::json!({
         "connect": host.locator, "prefix": prefix, "robot": "fr3",
         "requests": requests.iter().map(|r| serde_json::json!({
             "seq": r.seq, "episode": r.episode, "period": r.period, "budget_ns": r.budget_ns, "seed": r.seed,
-            "observation": r.observation, "history": r.history,
+            "observation": r.observation, "history": r.history, "committed": r.committed,
         })).collect::<Vec<_>>(),
     });
     let mut child = Command::new(&python)
@@ -50,7 +58,7 @@ fn a_python_zenoh_client_gets_the_local_engines_chunks() {
     assert_eq!(lines.len(), requests.len());
     for (r, got) in requests.iter().zip(&lines) {
         local.reseed(r.seed);
-        let want = local.infer(&r.observation, &r.history, Duration::from_secs(2)).unwrap();
+        let want = local.infer_after(&r.observation, &r.history, &r.committed, Duration::from_secs(2)).unwrap();
         let chunk: Vec<f32> = got["chunk"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap() as f32).collect();
         assert_eq!((got["seq"].as_u64(), got["status"].as_u64()), (Some(r.seq), Some(0)), "{got}");
         assert_eq!(chunk, want.chunk, "seq {}", r.seq);

@@ -113,6 +113,25 @@ pub struct PolicyLoopConfig {
     pub lead_ms: f64,
     /// The chunk must be handed over this long before its first action is due (ms).
     pub handoff_margin_ms: f64,
+    /// Each chunk is asked for this many policy periods earlier than `lead_ms` alone would (default 0), for an
+    /// inference host whose round trip is longer than the lead: the chunk's first rows are then the previous
+    /// chunk's (committed), the call is guided toward them and only the rows after them are executed, so chunks
+    /// follow each other every `chunk_len − ask_ahead_periods` periods. At most half a chunk (checked at load).
+    #[serde(default)]
+    pub ask_ahead_periods: usize,
+    /// With `ask_ahead_periods` > 0, how a chunk continues the rows the previous one commits: `guided` (the call is
+    /// guided toward them, the default) or `drop-late` (the chunk computed without them, its first rows dropped).
+    #[serde(default)]
+    pub continuity: Continuity,
+}
+
+/// How an early-asked chunk continues the previous chunk's committed rows (`[policy] continuity`).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Continuity {
+    #[default]
+    Guided,
+    DropLate,
 }
 
 #[derive(Debug, Clone, Deserialize)]

@@ -61,6 +61,10 @@ impl Prepared {
     /// Runs episode `n` of a dataset marsd recorded with the run's chunks instead of the engine's: one episode,
     /// the run's seed (so the same start pose).
     pub fn replaying(mut self, dataset: &Path, n: usize) -> anyhow::Result<Self> {
+        anyhow::ensure!(
+            self.cfg.policy.ask_ahead_periods == 0,
+            "replay: not with policy.ask_ahead_periods > 0 (a recording holds whole chunks)"
+        );
         let r = RecordedActions::load(dataset, n).with_context(|| format!("replaying {}", dataset.display()))?;
         anyhow::ensure!(
             r.action_dim() == self.engine.action_dim(),
@@ -101,6 +105,16 @@ pub fn prepare(cfg: DaemonConfig) -> anyhow::Result<Prepared> {
         "checkpoint {ck}: chunks of {} actions × {} values exceed the handoff's {MAX_CHUNK} × {MAX_ACTION}",
         engine.chunk_len(),
         engine.action_dim()
+    );
+    let ahead = cfg.policy.ask_ahead_periods;
+    anyhow::ensure!(
+        2 * ahead <= engine.chunk_len(),
+        "policy.ask_ahead_periods = {ahead} is over half the checkpoint's chunk of {} actions",
+        engine.chunk_len()
+    );
+    anyhow::ensure!(
+        ahead == 0 || cfg.record.is_none(),
+        "record: not with policy.ask_ahead_periods > 0 yet (a recorded chunk is a whole one, executed from its start)"
     );
     if let Some(path) = &cfg.record {
         anyhow::ensure!(

@@ -2,7 +2,7 @@
 with Zenoh's own Python binding (PyPI eclipse-zenoh).
 
 Reads one JSON object from stdin: {"connect": locator, "prefix": ..., "robot": ..., "requests": [{seq, episode,
-period, budget_ns, seed, observation, history}, ...]}. Waits (at most 10 s) until the host answers its clock
+period, budget_ns, seed, observation, history, committed (optional)}, ...]}. Waits (at most 10 s) until the host answers its clock
 query, then sends each request and prints one JSON line per reply: {"seq", "status", "k_requested", "k_used",
 "capped", "over_budget", "w_inf", "chunk"}. Exits 1 with a message on stderr when a reply does not come or does not
 parse.
@@ -15,23 +15,25 @@ import time
 
 import zenoh
 
-# Request: "MARQ", version, flags; seq, episode, period, capture_ns, sent_ns, budget_ns, seed; the two lengths.
-REQUEST_HEAD = struct.Struct("<4sHH7QII")
+# Request: "MARQ", version, flags; seq, episode, period, capture_ns, sent_ns, budget_ns, seed; the three lengths.
+REQUEST_HEAD = struct.Struct("<4sHH7QIII")
+VERSION = 2
 # Reply: "MARP", version, status; seq, received_ns, sent_ns; k_requested, k_used, flags; encode_ns; w_inf; length.
 REPLY_HEAD = struct.Struct("<4sHH3QIIIQfI")
 
 
 def encode(r):
-    obs, hist = r["observation"], r["history"]
-    head = REQUEST_HEAD.pack(b"MARQ", 1, 0, r["seq"], r["episode"], r["period"], 0, time.monotonic_ns(),
-                             r["budget_ns"], r["seed"], len(obs), len(hist))
-    return head + struct.pack(f"<{len(obs)}f", *obs) + struct.pack(f"<{len(hist)}f", *hist)
+    obs, hist, committed = r["observation"], r["history"], r.get("committed", [])
+    head = REQUEST_HEAD.pack(b"MARQ", VERSION, 0, r["seq"], r["episode"], r["period"], 0, time.monotonic_ns(),
+                             r["budget_ns"], r["seed"], len(obs), len(hist), len(committed))
+    arrays = [struct.pack(f"<{len(a)}f", *a) for a in (obs, hist, committed)]
+    return head + b"".join(arrays)
 
 
 def decode(b):
     magic, version, status, seq, _recv, _sent, k_req, k_used, flags, _enc, w_inf, n = REPLY_HEAD.unpack_from(b)
-    if magic != b"MARP" or version != 1:
-        raise ValueError(f"not a version-1 reply: {magic!r} {version}")
+    if magic != b"MARP" or version != VERSION:
+        raise ValueError(f"not a version-{VERSION} reply: {magic!r} {version}")
     if len(b) != REPLY_HEAD.size + 4 * n:
         raise ValueError(f"a reply of {len(b)} bytes announcing {n} values")
     chunk = list(struct.unpack_from(f"<{n}f", b, REPLY_HEAD.size))

@@ -23,9 +23,13 @@ pub fn messages() -> Arc<dyn Target> {
         seed: 5,
         observation: m.normalizer.obs.mean.clone(),
         history: m.normalizer.action.mean.repeat(engine.chunk_len()),
+        // One row the robot will have executed when the chunk arrives.
+        committed: m.normalizer.action.mean.clone(),
         ..Default::default()
     };
-    let out = engine.infer(&request.observation, &request.history, Duration::from_millis(70)).expect("a call");
+    let out = engine
+        .infer_after(&request.observation, &request.history, &request.committed, Duration::from_millis(70))
+        .expect("a call");
     let reply = Reply {
         seq: 3,
         k_requested: out.k_requested as u32,
@@ -46,6 +50,6 @@ pub fn messages() -> Arc<dyn Target> {
         let mut e = engine.lock().unwrap_or_else(|p| p.into_inner());
         e.reseed(r.seed);
         // The host's budget is its receive time plus the request's: any u64 is a Duration.
-        e.infer(&r.observation, &r.history, Duration::from_nanos(r.budget_ns)).is_ok()
+        e.infer_after(&r.observation, &r.history, &r.committed, Duration::from_nanos(r.budget_ns)).is_ok()
     })
 }

@@ -10,10 +10,16 @@
 //! inference starts at t0 + n·C·Δ, the chunk is needed at that time + lead (when the servo starts moving
 //! toward its first action), and its action i is due at t0 + lead + (n·C + i + 1)·Δ. So the next inference
 //! overlaps the execution of the current chunk, and a chunk one lead late costs nothing but smoothness.
+//!
+//! Asked a periods ahead (`[policy] ask_ahead_periods`, for an inference host whose round trip is over the lead):
+//! chunks are asked every S = C − a periods, at k = n·S; the chunk is needed a periods later than above, its first
+//! a rows are due while the previous chunk is still executing (they are committed: the call is guided toward them,
+//! `Engine::infer_after`), and rows a..C are handed over, due from t0 + lead + (k + a + 1)·Δ on.
 
 pub mod recorded_actions;
 pub mod remote;
 pub mod tally;
+pub mod timeline;
 
 use std::sync::Arc;
 use std::sync::atomic::Ordering;
@@ -27,6 +33,7 @@ use serde::Serialize;
 use crate::config::DaemonConfig;
 use crate::observe::scene_link::SceneLink;
 use crate::policy::remote::Ask;
+use crate::policy::timeline::Timeline;
 use crate::report::latency::{Channel, Recorder};
 use crate::report::plots::EpisodeTrace;
 use crate::report::traces::{TRACE_CAPACITY, TraceRing};
@@ -173,8 +180,15 @@ struct EpisodeRun {
     period_ns: u64,
     /// The engine's observation input, written by each call's observation.
     obs: Vec<f32>,
-    /// The engine's history input: the last chunk published (at the start, the rest pose).
+    /// The engine's history input: the C actions due before the chunk asked (at the start, the rest pose).
     history: Vec<f32>,
+    /// Chunks are asked every `stride` = C − `ahead` periods (`[policy] ask_ahead_periods`).
+    ahead: usize,
+    stride: usize,
+    /// The first `ahead` rows of the chunk asked: the previous chunk's, due before this one is handed over.
+    committed: Vec<f32>,
+    /// Every action handed over, by the period it is due in.
+    timeline: Timeline,
     /// The recording's state column.
     state: Vec<f32>,
     /// A replay's chunk (empty unless replaying).
@@ -370,12 +384,12 @@ impl PolicyLoop {
                     scene.newest_for_recording(&mut self.view_image);
                 }
             }
-            if k % run.c as u64 != 0 {
+            if k % run.stride as u64 != 0 {
                 self.record_period(&run, k, false, &o);
                 continue;
             }
-            // Chunk k / C is due: the lead before its first action, in periods from the episode's start.
-            let need_ns = run.t0 + (cfg.policy.lead_ms * 1e6) as u64 + k * run.period_ns;
+            // A chunk is asked: the lead before its first handed-over action, in periods from the episode's start.
+            let need_ns = run.t0 + (cfg.policy.lead_ms * 1e6) as u64 + (k + run.ahead as u64) * run.period_ns;
             if self.replay.is_some() {
                 self.replay_chunk(&mut run, k, need_ns, &o);
                 continue;
@@ -412,6 +426,7 @@ impl PolicyLoop {
     fn start_episode(&mut self, cfg: &DaemonConfig, episode: u64, rest: &[f32], traces: &mut TraceRing) -> EpisodeRun {
         let (c, d) = (self.engine.chunk_len(), self.engine.action_dim());
         let history: Vec<f32> = rest.iter().copied().cycle().take(c * d).collect();
+        let ahead = cfg.policy.ask_ahead_periods;
         let in_force = InForce {
             actions: history.clone(),
             first_k: 0,
@@ -434,6 +449,10 @@ impl PolicyLoop {
             period_ns: cfg.policy_period_ns(),
             obs: vec![0.0; self.engine.obs_dim()],
             history,
+            ahead,
+            stride: c - ahead,
+            committed: vec![0.0; ahead * d],
+            timeline: Timeline::new(&rest[..d], 2 * c),
             state: vec![0.0; self.state_dim()],
             replayed: vec![0.0; if self.replay.is_some() { c * d } else { 0 }],
             in_force,
@@ -489,7 +508,7 @@ impl PolicyLoop {
             // Computed from no camera frame now: no capture → command to measure.
             let stamp = ChunkStamp { episode, seq, period_ns, first_due_ns, ready_ns, capture_ns: 0 };
             Self::publish(&mut self.ch.chunks, &stamp, &run.replayed, run.d);
-            run.history.copy_from_slice(&run.replayed);
+            run.timeline.write(k as i64 + 1, &run.replayed);
             if self.recording.is_some() {
                 run.in_force.actions.copy_from_slice(&run.replayed);
                 run.in_force.first_k = k;
@@ -516,15 +535,19 @@ impl PolicyLoop {
         let started = monotonic_ns();
         // A seed per call: `marsd replay` reproduces any one call from the recording alone.
         let seed = crate::record::call_seed(cfg.seed, run.episode, k);
+        run.timeline.read(k as i64 + 1 - run.c as i64, &mut run.history);
+        run.timeline.read(k as i64 + 1, &mut run.committed);
+        let guided = cfg.policy.continuity == crate::config::Continuity::Guided;
+        let committed = if guided { &run.committed[..] } else { &[] };
         let (episode, obs, history) = (run.episode, &run.obs[..], &run.history[..]);
-        let ask = Ask { episode, period: k, seed, capture_ns, handoff_ns, observation: obs, history };
+        let ask = Ask { episode, period: k, seed, capture_ns, handoff_ns, observation: obs, history, committed };
         let hosted = self.remote.as_mut().and_then(|r| r.ask(&ask));
         let result = match &hosted {
             Some(reply) => Ok(Inferred::hosted(reply)),
             None => {
                 let budget = Duration::from_nanos(handoff_ns.saturating_sub(monotonic_ns()));
                 self.engine.reseed(seed);
-                self.engine.infer(obs, history, budget).map(Inferred::local)
+                self.engine.infer_after(obs, history, committed, budget).map(Inferred::local)
             }
         };
         let ready = monotonic_ns();
@@ -551,8 +574,10 @@ impl PolicyLoop {
         let (episode, seq, period_ns) = (run.episode, run.seq, run.period_ns);
         let stamp =
             ChunkStamp { episode, seq, period_ns, first_due_ns: need_ns + period_ns, ready_ns: ready, capture_ns };
-        Self::publish(&mut self.ch.chunks, &stamp, out.chunk, run.d);
-        run.history.copy_from_slice(out.chunk);
+        // The committed rows are the previous chunk's to execute: only the rows after them are handed over.
+        let handed = &out.chunk[run.ahead * run.d..];
+        Self::publish(&mut self.ch.chunks, &stamp, handed, run.d);
+        run.timeline.write((k + 1 + run.ahead as u64) as i64, handed);
         if self.recording.is_some() {
             let f = &mut run.in_force;
             f.actions.copy_from_slice(out.chunk);

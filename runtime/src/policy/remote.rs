@@ -91,6 +91,8 @@ pub struct Ask<'a> {
     pub handoff_ns: u64,
     pub observation: &'a [f32],
     pub history: &'a [f32],
+    /// The chunk's first rows as the previous chunk will have executed them (`[policy] ask_ahead_periods` rows).
+    pub committed: &'a [f32],
 }
 
 impl Remote {
@@ -159,6 +161,8 @@ impl Remote {
         r.observation.extend_from_slice(a.observation);
         r.history.clear();
         r.history.extend_from_slice(a.history);
+        r.committed.clear();
+        r.committed.extend_from_slice(a.committed);
         self.report.requests += 1;
         let reply = self.policy.infer(r, Duration::from_nanos(wait_ns));
         let back = mars_ipc::clock::monotonic_ns();
