@@ -109,14 +109,16 @@ fn check_switches(remote: &serde_json::Value, out: &Path) {
     assert!(clock["offset_ns"].as_i64().unwrap().unsigned_abs() <= clock["rtt_min_ns"].as_u64().unwrap(), "{clock}");
 }
 
-/// The host behind a link that holds every byte 50 ms each way (a 100 ms round trip, longer than the 80 ms lead).
-/// Asked no earlier than the lead, no chunk can come back in time: all are the local engine's. Asked two periods
-/// ahead (`ask_ahead_periods = 2`), every chunk is the host's, guided toward the rows the previous chunk commits,
-/// none late, nothing out of limits.
+/// The host behind a link that holds every byte 100 ms each way (a 200 ms round trip: over the 80 ms lead, and over
+/// two policy periods, which the policy loop must keep ticking through). Asked no earlier than the lead, no chunk
+/// can come back in time: all are the local engine's. Asked two periods ahead (`ask_ahead_periods = 2`), the
+/// chunks are the host's, guided toward the rows the previous chunk commits, none late, nothing out of limits;
+/// and when the link is cut for 2 s the local engine takes over at the next chunk, the host's chunks resuming once
+/// the link is back.
 #[test]
-fn over_a_100_ms_round_trip_chunks_asked_two_periods_ahead_are_all_the_hosts() {
+fn over_a_200_ms_round_trip_chunks_asked_two_periods_ahead_are_all_the_hosts() {
     let _rt = rt_rig_lock();
-    at_most_one_rerun("remote host over a 100 ms round trip", delayed_attempt);
+    at_most_one_rerun("remote host over a 200 ms round trip", delayed_attempt);
 }
 
 fn delayed_attempt(attempt: u32) -> Attempt {
@@ -126,7 +128,7 @@ fn delayed_attempt(attempt: u32) -> Attempt {
     // Both runs' robots are `arm` to the host (`[remote] name`).
     let _host = spawn_host("arm", &prefix, &format!("tcp/127.0.0.1:{port}"), "host", &logs);
     let upstream = std::net::SocketAddr::from(([127, 0, 0, 1], port));
-    let link = mars_hil::shaped_link::ShapedLink::start(upstream, Duration::from_millis(50)).unwrap();
+    let link = mars_hil::shaped_link::ShapedLink::start(upstream, Duration::from_millis(100)).unwrap();
     let remote = format!("\n[remote]\nprefix = \"{prefix}\"\nname = \"arm\"\nconnect = [\"tcp/{}\"]\n", link.local);
     let mut runs = Vec::new();
     for (ahead, episodes) in [(0, 1), (2, 4)] {
@@ -136,7 +138,15 @@ fn delayed_attempt(attempt: u32) -> Attempt {
         let config = logs.join(&format!("{name}.toml"));
         std::fs::write(&config, config_text(&edits, "") + &remote).unwrap();
         let (mut hal, rec) = hal_of_with_recorder("configs/fr3.toml", &robot, &[], &logs);
+        let t0 = Instant::now();
         let mut marsd = spawn_marsd_named(&name, &robot, &config, episodes, &[], &logs);
+        if ahead > 0 {
+            // In the second of four episodes (each ~6 s).
+            wait_until(t0, Duration::from_secs(9), &mut marsd);
+            link.shape().set_cut(true);
+            wait_until(t0, Duration::from_secs(11), &mut marsd);
+            link.shape().set_cut(false);
+        }
         let code = marsd.exit_code(Duration::from_secs(120));
         std::thread::sleep(Duration::from_millis(100));
         let r = rec.finish();
@@ -158,9 +168,14 @@ fn delayed_attempt(attempt: u32) -> Attempt {
     }
     let (now, ahead) = (&runs[0]["remote"], &runs[1]["remote"]);
     assert!(u64_at(now, "/host_chunks") == 0 && u64_at(now, "/local_chunks") > 0, "asked at the lead: {now}");
-    assert!(u64_at(ahead, "/local_chunks") == 0 && u64_at(ahead, "/host_chunks") > 20, "asked ahead: {ahead}");
+    assert!(u64_at(ahead, "/host_chunks") > 20, "asked ahead: {ahead}");
+    // The cut: timeouts only (2 s is 3–4 chunks), the local engine's chunks in between, the host's again after.
+    let local = u64_at(ahead, "/local_chunks");
+    assert!((1..=5).contains(&local) && u64_at(ahead, "/timeouts") == local, "the 2 s cut: {ahead}");
+    let to_host: Vec<bool> = ahead["switches"].as_array().unwrap().iter().map(|s| s["to_host"] == true).collect();
+    assert_eq!(to_host, [true, false, true], "switches: {}", ahead["switches"]);
     let rtt = f64_at(ahead, "/round_trip_ms_p50");
-    assert!(rtt >= 100.0, "the round trip did not cross the link: p50 {rtt} ms");
+    assert!(rtt >= 200.0, "the round trip did not cross the link: p50 {rtt} ms");
     assert!(u64_at(&runs[1], "/successes") >= 2, "{}", runs[1]["episode_results"]);
     assert!(link.shape().bytes() > 0);
     Ok(())

@@ -69,37 +69,73 @@ impl RemotePolicy {
 
     /// The host's chunk for `request`, or an error once `wait` has passed (or sooner, when no host answers).
     pub fn infer(&mut self, request: &Request, wait: Duration) -> Result<Reply, RemoteError> {
+        let pending = self.send(request, wait)?;
+        pending.wait_for(wait)?.ok_or(RemoteError::Timeout(wait))
+    }
+
+    /// Sends `request` and returns at once: the reply is collected with [`PendingReply::wait_for`], so the caller
+    /// keeps its own rhythm meanwhile. Zenoh drops the query after `wait`.
+    pub fn send(&mut self, request: &Request, wait: Duration) -> Result<PendingReply, RemoteError> {
         let mut payload = Vec::new();
         request.encode_into(&mut payload);
-        let reply = Reply::decode(&self.ask(&self.key, payload, wait)?)?;
-        if reply.seq != request.seq {
-            return Err(RemoteError::Seq { got: reply.seq, want: request.seq });
-        }
-        match reply.status {
-            Status::Chunk => Ok(reply),
-            other => Err(RemoteError::Status(other, reply.seq)),
-        }
+        let replies = self.query(&self.key, payload, wait)?;
+        Ok(PendingReply { replies, seq: request.seq, key: self.key.clone() })
     }
 
     /// One query and its first reply's bytes, within `wait`.
     fn ask(&self, key: &str, payload: Vec<u8>, wait: Duration) -> Result<Vec<u8>, RemoteError> {
-        let replies = self
-            .session
+        let replies = self.query(key, payload, wait)?;
+        first_reply(&replies, key, wait)?.ok_or(RemoteError::Timeout(wait))
+    }
+
+    fn query(&self, key: &str, payload: Vec<u8>, wait: Duration) -> Result<Replies, RemoteError> {
+        self.session
             .get(key)
             .payload(payload)
             .consolidation(ConsolidationMode::None)
             .express(true)
             .timeout(wait)
             .wait()
-            .map_err(|e| RemoteError::Zenoh(e.to_string()))?;
-        match replies.recv_timeout(wait) {
-            Ok(Some(reply)) => match reply.into_result() {
-                Ok(sample) => Ok(sample.payload().to_bytes().into_owned()),
-                Err(e) => Err(RemoteError::Host(e.payload().try_to_string().map_or_else(|_| "?".into(), |s| s.into()))),
-            },
-            Ok(None) => Err(RemoteError::Timeout(wait)),
-            // The query ended with no reply: nothing matched the key, or the host vanished.
-            Err(_) => Err(RemoteError::NoHost(key.to_owned())),
+            .map_err(|e| RemoteError::Zenoh(e.to_string()))
+    }
+}
+
+type Replies = zenoh::handlers::FifoChannelHandler<zenoh::query::Reply>;
+
+/// A request on its way: its reply, when it comes.
+pub struct PendingReply {
+    replies: Replies,
+    seq: u64,
+    key: String,
+}
+
+impl PendingReply {
+    /// The host's chunk if it comes within `wait` (`Duration::ZERO`: whether it is here now); `Ok(None)` while
+    /// it has not come; an error for a reply that is not a chunk for this request, or when the query ended
+    /// with none (no host, or the host vanished).
+    pub fn wait_for(&self, wait: Duration) -> Result<Option<Reply>, RemoteError> {
+        let Some(bytes) = first_reply(&self.replies, &self.key, wait)? else { return Ok(None) };
+        let reply = Reply::decode(&bytes)?;
+        if reply.seq != self.seq {
+            return Err(RemoteError::Seq { got: reply.seq, want: self.seq });
         }
+        match reply.status {
+            Status::Chunk => Ok(Some(reply)),
+            other => Err(RemoteError::Status(other, reply.seq)),
+        }
+    }
+}
+
+/// The first reply's bytes within `wait`, `None` if none came by then.
+fn first_reply(replies: &Replies, key: &str, wait: Duration) -> Result<Option<Vec<u8>>, RemoteError> {
+    let got = if wait.is_zero() { replies.try_recv() } else { replies.recv_timeout(wait) };
+    match got {
+        Ok(Some(reply)) => match reply.into_result() {
+            Ok(sample) => Ok(Some(sample.payload().to_bytes().into_owned())),
+            Err(e) => Err(RemoteError::Host(e.payload().try_to_string().map_or_else(|_| "?".into(), |s| s.into()))),
+        },
+        Ok(None) => Ok(None),
+        // The query ended with no reply: nothing matched the key, or the host vanished.
+        Err(_) => Err(RemoteError::NoHost(key.to_owned())),
     }
 }

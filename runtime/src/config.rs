@@ -116,7 +116,7 @@ pub struct PolicyLoopConfig {
     /// Each chunk is asked for this many policy periods earlier than `lead_ms` alone would (default 0), for an
     /// inference host whose round trip is longer than the lead: the chunk's first rows are then the previous
     /// chunk's (committed), the call is guided toward them and only the rows after them are executed, so chunks
-    /// follow each other every `chunk_len − ask_ahead_periods` periods. At most half a chunk (checked at load).
+    /// follow each other every `chunk_len − ask_ahead_periods` periods. At most (chunk_len − 1)/2 (checked at load).
     #[serde(default)]
     pub ask_ahead_periods: usize,
     /// With `ask_ahead_periods` > 0, how a chunk continues the rows the previous one commits: `guided` (the call is

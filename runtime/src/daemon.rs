@@ -107,9 +107,12 @@ pub fn prepare(cfg: DaemonConfig) -> anyhow::Result<Prepared> {
         engine.action_dim()
     );
     let ahead = cfg.policy.ask_ahead_periods;
+    // A chunk asked ahead is settled before the next is asked: at most (C − 1)/2 periods ahead.
     anyhow::ensure!(
-        2 * ahead <= engine.chunk_len(),
-        "policy.ask_ahead_periods = {ahead} is over half the checkpoint's chunk of {} actions",
+        2 * ahead < engine.chunk_len(),
+        "policy.ask_ahead_periods = {ahead}: at most {} for the checkpoint's chunk of {} actions (a chunk is settled \
+         before the next is asked)",
+        (engine.chunk_len() - 1) / 2,
         engine.chunk_len()
     );
     anyhow::ensure!(
@@ -268,7 +271,7 @@ fn start_collector(
         },
     });
     let collector = Collector::start_with(&cfg.out, Duration::from_millis(50), Some(live))?;
-    let servo_rec = collector.recorder("servo", &servo_channels(task), 8);
+    let servo_rec = collector.recorder("servo", &servo_channels(), 8);
     let policy_rec = collector.recorder(
         "policy",
         &[Channel::Inference, Channel::KRequested, Channel::KUsed, Channel::Encode, Channel::CameraAge, Channel::WInf],
@@ -509,13 +512,16 @@ fn supervise(
     no_hal
 }
 
-/// The servo thread's histograms: Push-T adds its camera frames' capture → first command.
-fn servo_channels(task: &HilTask) -> Vec<Channel> {
-    let mut c = vec![Channel::WakeJitter, Channel::TickCompute, Channel::StateAge, Channel::StateToCommand];
-    if matches!(task, HilTask::PushT(_)) {
-        c.push(Channel::CaptureToCommand);
-    }
-    c
+/// The servo thread's histograms, with each chunk's observation capture (Push-T's camera frame, a state task's
+/// state frame) → its first command.
+fn servo_channels() -> Vec<Channel> {
+    vec![
+        Channel::WakeJitter,
+        Channel::TickCompute,
+        Channel::StateAge,
+        Channel::StateToCommand,
+        Channel::CaptureToCommand,
+    ]
 }
 
 /// A session id no other controller run uses: the HAL never resumes a session that stopped.

@@ -1,5 +1,5 @@
 //! `[policy] ask_ahead_periods` and `continuity` as marsd reads them: parsed, and refused before anything moves where
-//! they cannot work (over half the checkpoint's chunk; with a recording or a replay, which hold whole chunks).
+//! they cannot work (half the checkpoint's chunk or more; with a recording or a replay, which hold whole chunks).
 
 use std::path::{Path, PathBuf};
 
@@ -40,9 +40,9 @@ fn the_keys_parse_with_their_defaults() {
 }
 
 #[test]
-fn asking_over_half_a_chunk_ahead_is_refused_before_anything_moves() {
-    let err = refusal(config("ask_ahead_periods = 5"));
-    assert!(err.contains("ask_ahead_periods = 5 is over half the checkpoint's chunk of 8"), "{err}");
+fn asking_half_a_chunk_ahead_or_more_is_refused_before_anything_moves() {
+    let err = refusal(config("ask_ahead_periods = 4"));
+    assert!(err.contains("ask_ahead_periods = 4: at most 3 for the checkpoint's chunk of 8 actions"), "{err}");
 }
 
 #[test]

@@ -25,6 +25,7 @@ use mars_runtime::cli::MarsdArgs;
 pub mod backends;
 mod cyclictest;
 mod load;
+pub mod remote;
 mod report;
 
 use cyclictest::run_cyclictest;

@@ -48,6 +48,13 @@ enum Command {
         #[command(flatten)]
         args: mars_hil::bench::BenchArgs,
     },
+    /// The demo with its policy on `marsd serve` behind a link delayed by each of --one-way-ms, next to the demo on
+    /// its local engine: success, whose chunks, round trip, capture → command, link bytes, misses, limits, handover
+    /// jerk; prints a markdown table and writes it to <out>/results.md.
+    BenchRemote {
+        #[command(flatten)]
+        args: mars_hil::bench::remote::RemoteBenchArgs,
+    },
     /// The HAL's backends side by side in one run: the mock plant and the fci backend on franka-sim, on a quiet
     /// machine and under noise (busy cores, the HAL stopped for milliseconds again and again); prints a markdown
     /// table and writes it to <out>/results.md.
@@ -200,6 +207,7 @@ fn main() -> std::process::ExitCode {
             Err(e) => Err(e),
         },
         Command::Bench { args } => mars_hil::bench::run(args),
+        Command::BenchRemote { args } => mars_hil::bench::remote::run(args),
         Command::BenchBackends { args } => mars_hil::bench::backends::run(args),
         Command::Faults { args } => match mars_hil::faults::run(&args) {
             Ok(clean) => return std::process::ExitCode::from(if clean { 0 } else { 1 }),

@@ -16,6 +16,7 @@
 //! a rows are due while the previous chunk is still executing (they are committed: the call is guided toward them,
 //! `Engine::infer_after`), and rows a..C are handed over, due from t0 + lead + (k + a + 1)·Δ on.
 
+pub mod handover;
 pub mod recorded_actions;
 pub mod remote;
 pub mod tally;
@@ -30,9 +31,10 @@ use mars_ipc::clock::monotonic_ns;
 use mars_ipc::{MAX_JOINTS, SceneAction, ScenePhase};
 use serde::Serialize;
 
+use crate::config::Continuity;
 use crate::config::DaemonConfig;
 use crate::observe::scene_link::SceneLink;
-use crate::policy::remote::Ask;
+use crate::policy::remote::{Ask, Settled};
 use crate::policy::timeline::Timeline;
 use crate::report::latency::{Channel, Recorder};
 use crate::report::plots::EpisodeTrace;
@@ -85,6 +87,8 @@ pub struct PolicyReport {
     pub camera: Option<CameraReport>,
     /// `[remote]`: the chunks the inference host computed, those the local engine took over, and why.
     pub remote: Option<crate::policy::remote::RemoteReport>,
+    /// The policy's actions across each chunk handover, before the servo's smoothing.
+    pub handover_jerk: crate::policy::handover::HandoverJerk,
 }
 
 /// The camera as the policy loop saw it.
@@ -189,6 +193,12 @@ struct EpisodeRun {
     committed: Vec<f32>,
     /// Every action handed over, by the period it is due in.
     timeline: Timeline,
+    /// Four rows around a handover, read from the timeline.
+    around_handover: Vec<f32>,
+    /// The last call's chunk (C·D), the engine's or the host's.
+    chunk_out: Vec<f32>,
+    /// The call whose request is with the inference host (its inputs stay in `obs`, `history`, `committed`).
+    in_flight: Option<InFlightCall>,
     /// The recording's state column.
     state: Vec<f32>,
     /// A replay's chunk (empty unless replaying).
@@ -217,8 +227,17 @@ impl EpisodeRun {
     }
 }
 
+/// A call whose chunk is not published yet: what publishing it needs.
+#[derive(Clone, Copy)]
+struct InFlightCall {
+    call: Call,
+    seed: u64,
+    started_ns: u64,
+    handoff_ns: u64,
+}
+
 /// One engine call of an episode: the period it is made in, when it woke, when its chunk is needed, and the
-/// capture time of the camera frame it sees (0 without a camera).
+/// capture time of the observation it sees (its camera frame's, or its state frame's).
 #[derive(Clone, Copy)]
 struct Call {
     k: u64,
@@ -375,6 +394,9 @@ impl PolicyLoop {
             };
             run.trace_position(&o, n);
             if let Progress::Done { success, mode, reason } = progress {
+                if run.in_flight.take().is_some() {
+                    self.remote.as_mut().expect("a call in flight has a host").abandon();
+                }
                 self.end_recorded_episode(episode, k, success, mode, rest);
                 return Some(self.end_episode(run, now, success, mode, reason, traces));
             }
@@ -383,6 +405,10 @@ impl PolicyLoop {
                 if let Some(scene) = self.scene.as_mut() {
                     scene.newest_for_recording(&mut self.view_image);
                 }
+            }
+            if run.in_flight.is_some() {
+                let next_period_ns = run.t0 + (k + 1) * run.period_ns;
+                self.settle_chunk(cfg, &mut run, next_period_ns, &o, faults, report)?;
             }
             if k % run.stride as u64 != 0 {
                 self.record_period(&run, k, false, &o);
@@ -453,6 +479,9 @@ impl PolicyLoop {
             stride: c - ahead,
             committed: vec![0.0; ahead * d],
             timeline: Timeline::new(&rest[..d], 2 * c),
+            around_handover: vec![0.0; 4 * d],
+            chunk_out: vec![0.0; c * d],
+            in_flight: None,
             state: vec![0.0; self.state_dim()],
             replayed: vec![0.0; if self.replay.is_some() { c * d } else { 0 }],
             in_force,
@@ -519,8 +548,9 @@ impl PolicyLoop {
         self.record_period(run, k, published, o);
     }
 
-    /// The engine's call for chunk `call.k / C`, within what is left of its budget, and the chunk published. `None`
-    /// if the loop must stop (a trip was asked for).
+    /// The chunk asked at `call.k`: of the inference host if there is one (sent, and settled now if its reply or
+    /// its decision falls within this period, else at a later period), else of the local engine within what is
+    /// left of its budget; published. `None` if the loop must stop (a trip was asked for).
     fn infer_chunk(
         &mut self,
         cfg: &DaemonConfig,
@@ -530,26 +560,84 @@ impl PolicyLoop {
         faults: &mut ChunkFaults,
         report: &mut PolicyReport,
     ) -> Option<()> {
-        let Call { k, now, need_ns, capture_ns } = call;
-        let handoff_ns = need_ns - (cfg.policy.handoff_margin_ms * 1e6) as u64;
-        let started = monotonic_ns();
+        let k = call.k;
+        let handoff_ns = call.need_ns - (cfg.policy.handoff_margin_ms * 1e6) as u64;
         // A seed per call: `marsd replay` reproduces any one call from the recording alone.
         let seed = crate::record::call_seed(cfg.seed, run.episode, k);
+        let flight = InFlightCall { call, seed, started_ns: monotonic_ns(), handoff_ns };
         run.timeline.read(k as i64 + 1 - run.c as i64, &mut run.history);
         run.timeline.read(k as i64 + 1, &mut run.committed);
-        let guided = cfg.policy.continuity == crate::config::Continuity::Guided;
-        let committed = if guided { &run.committed[..] } else { &[] };
-        let (episode, obs, history) = (run.episode, &run.obs[..], &run.history[..]);
-        let ask = Ask { episode, period: k, seed, capture_ns, handoff_ns, observation: obs, history, committed };
-        let hosted = self.remote.as_mut().and_then(|r| r.ask(&ask));
-        let result = match &hosted {
-            Some(reply) => Ok(Inferred::hosted(reply)),
-            None => {
-                let budget = Duration::from_nanos(handoff_ns.saturating_sub(monotonic_ns()));
-                self.engine.reseed(seed);
-                self.engine.infer_after(obs, history, committed, budget).map(Inferred::local)
+        if let Some(remote) = self.remote.as_mut() {
+            let committed = if cfg.policy.continuity == Continuity::Guided { &run.committed[..] } else { &[] };
+            let (episode, observation, history) = (run.episode, &run.obs[..], &run.history[..]);
+            let capture_ns = call.capture_ns;
+            let ask = Ask { episode, period: k, seed, capture_ns, handoff_ns, observation, history, committed };
+            if remote.send(&ask) {
+                run.in_flight = Some(flight);
+                return self.settle_chunk(cfg, run, run.t0 + (k + 1) * run.period_ns, o, faults, report);
             }
-        };
+        }
+        self.local_chunk(cfg, run, flight, o, faults, report)
+    }
+
+    /// The call in flight: its host's chunk published if it came by `until_ns`, the local engine's if the host's
+    /// time ran out, nothing yet otherwise.
+    fn settle_chunk(
+        &mut self,
+        cfg: &DaemonConfig,
+        run: &mut EpisodeRun,
+        until_ns: u64,
+        o: &Observed,
+        faults: &mut ChunkFaults,
+        report: &mut PolicyReport,
+    ) -> Option<()> {
+        let remote = self.remote.as_mut().expect("a call in flight has a host");
+        match remote.settle(until_ns) {
+            Settled::Waiting => Some(()),
+            Settled::Host(reply) => {
+                let flight = run.in_flight.take().expect("a call in flight");
+                let result = Ok(Inferred::hosted(&reply, &mut run.chunk_out));
+                self.publish_chunk(cfg, run, flight, result, o, faults, report)
+            }
+            Settled::Local => {
+                let flight = run.in_flight.take().expect("a call in flight");
+                self.local_chunk(cfg, run, flight, o, faults, report)
+            }
+        }
+    }
+
+    /// The local engine's chunk for `flight`, within what is left until its handoff.
+    fn local_chunk(
+        &mut self,
+        cfg: &DaemonConfig,
+        run: &mut EpisodeRun,
+        flight: InFlightCall,
+        o: &Observed,
+        faults: &mut ChunkFaults,
+        report: &mut PolicyReport,
+    ) -> Option<()> {
+        let budget = Duration::from_nanos(flight.handoff_ns.saturating_sub(monotonic_ns()));
+        self.engine.reseed(flight.seed);
+        let committed = if cfg.policy.continuity == Continuity::Guided { &run.committed[..] } else { &[] };
+        let result = self.engine.infer_after(&run.obs, &run.history, committed, budget);
+        let result = result.map(|out| Inferred::local(out, &mut run.chunk_out));
+        self.publish_chunk(cfg, run, flight, result, o, faults, report)
+    }
+
+    /// The call's chunk (in `run.chunk_out`) handed to the servo, past its committed rows, and counted.
+    #[allow(clippy::too_many_arguments)]
+    fn publish_chunk(
+        &mut self,
+        cfg: &DaemonConfig,
+        run: &mut EpisodeRun,
+        flight: InFlightCall,
+        result: Result<Inferred, mars_engine::EngineError>,
+        o: &Observed,
+        faults: &mut ChunkFaults,
+        report: &mut PolicyReport,
+    ) -> Option<()> {
+        let InFlightCall { call: Call { k, now, need_ns, capture_ns }, started_ns: started, .. } = flight;
+        let joints = self.engine_joints().min(run.d);
         let ready = monotonic_ns();
         self.rec.record(Channel::Inference, ready - started);
         report.inferences += 1;
@@ -575,12 +663,17 @@ impl PolicyLoop {
         let stamp =
             ChunkStamp { episode, seq, period_ns, first_due_ns: need_ns + period_ns, ready_ns: ready, capture_ns };
         // The committed rows are the previous chunk's to execute: only the rows after them are handed over.
-        let handed = &out.chunk[run.ahead * run.d..];
+        let handed = &run.chunk_out[run.ahead * run.d..];
         Self::publish(&mut self.ch.chunks, &stamp, handed, run.d);
-        run.timeline.write((k + 1 + run.ahead as u64) as i64, handed);
+        let first = (k + 1 + run.ahead as u64) as i64;
+        run.timeline.write(first, handed);
+        if run.chunks > 0 {
+            run.timeline.read(first - 2, &mut run.around_handover);
+            report.handover_jerk.add(&run.around_handover, run.d, joints, cfg.policy.rate_hz);
+        }
         if self.recording.is_some() {
             let f = &mut run.in_force;
-            f.actions.copy_from_slice(out.chunk);
+            f.actions.copy_from_slice(&run.chunk_out);
             f.first_k = k;
             f.w_inf = run.w_inf;
             f.k = [out.k_requested as f32, out.k_used as f32];
@@ -728,7 +821,8 @@ impl PolicyLoop {
     }
 
     /// Writes the policy's observation for state `o` into `obs`: the measured arm, or for Push-T the flange's
-    /// (x, y) and the newest usable camera frame (its capture time is returned; 0 for a task without a camera).
+    /// (x, y) and the newest usable camera frame. Returns the observation's capture time: the camera frame's, or for
+    /// a task without a camera the state frame's.
     /// `Err` when the camera has no usable frame (counted, and its refusal's reason logged the first time).
     fn observe(
         &mut self,
@@ -740,7 +834,7 @@ impl PolicyLoop {
         match &self.task {
             HilTask::Pick(t) => {
                 t.observation(&o.position[..t.joints()], o.gripper, obs);
-                Ok(0)
+                Ok(o.timestamp_ns)
             }
             HilTask::PushT(t) => {
                 let scene = self.scene.as_mut().expect("a Push-T task has its scene opened");
@@ -802,8 +896,7 @@ impl PolicyLoop {
 }
 
 /// One chunk's call, from the local engine or the inference host: what the rest of the loop needs of it.
-struct Inferred<'a> {
-    chunk: &'a [f32],
+struct Inferred {
     w_inf: f32,
     k_requested: usize,
     k_used: usize,
@@ -812,10 +905,11 @@ struct Inferred<'a> {
     encode: Duration,
 }
 
-impl<'a> Inferred<'a> {
-    fn local(out: mars_engine::Output<'a>) -> Self {
+impl Inferred {
+    /// The engine's call, its chunk copied into `chunk`.
+    fn local(out: mars_engine::Output<'_>, chunk: &mut [f32]) -> Self {
+        chunk.copy_from_slice(out.chunk);
         Self {
-            chunk: out.chunk,
             w_inf: out.w.iter().fold(0.0f32, |m, w| m.max(w.abs())),
             k_requested: out.k_requested,
             k_used: out.k_used,
@@ -825,9 +919,10 @@ impl<'a> Inferred<'a> {
         }
     }
 
-    fn hosted(r: &'a mars_remote::wire::Reply) -> Self {
+    /// The host's reply (of the robot's shape, checked by [`remote::Remote::settle`]), its chunk copied into `chunk`.
+    fn hosted(r: &mars_remote::wire::Reply, chunk: &mut [f32]) -> Self {
+        chunk.copy_from_slice(&r.chunk);
         Self {
-            chunk: &r.chunk,
             w_inf: r.w_inf,
             k_requested: r.k_requested as usize,
             k_used: r.k_used as usize,

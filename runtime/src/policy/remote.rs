@@ -1,11 +1,14 @@
 //! The policy loop's inference host (`[remote]`): each chunk is asked of the host first, within the time left less
 //! the local engine's reserve; a chunk not back by then is the local engine's, and the report says when each side
 //! took over and why. The host is asked again at every chunk, so it resumes as soon as it answers.
+//!
+//! A request is sent ([`Remote::send`]) and its reply collected later ([`Remote::settle`]), so that a chunk asked
+//! periods ahead (`[policy] ask_ahead_periods`) does not hold the policy loop up for longer than one period.
 
 use std::time::Duration;
 
 use hdrhistogram::Histogram;
-use mars_remote::client::{RemoteError, RemotePolicy};
+use mars_remote::client::{PendingReply, RemoteError, RemotePolicy};
 use mars_remote::clock::ClockEstimate;
 use mars_remote::wire::{Reply, Request, Status};
 use serde::Serialize;
@@ -23,6 +26,7 @@ pub struct Remote {
     request: Request,
     /// Whether the last chunk came from the host (None before the first).
     on_host: Option<bool>,
+    in_flight: Option<InFlight>,
     round_trip_us: Histogram<u64>,
     pub report: RemoteReport,
 }
@@ -75,6 +79,8 @@ pub struct RemoteReport {
     pub round_trip_ms_p50: f64,
     pub round_trip_ms_p99: f64,
     pub round_trip_ms_max: f64,
+    /// Requests still on their way when their episode ended (neither side's chunk).
+    pub abandoned: u64,
     /// The first [`SWITCHES_KEPT`] changes between host and local engine.
     pub switches: Vec<Switch>,
     /// The first error's words.
@@ -95,13 +101,35 @@ pub struct Ask<'a> {
     pub committed: &'a [f32],
 }
 
+/// A request on its way to the host.
+struct InFlight {
+    pending: PendingReply,
+    sent_ns: u64,
+    /// When the local engine must take over if no reply has come.
+    decide_ns: u64,
+    episode: u64,
+    period: u64,
+    /// The chunk's values (C·D): a reply of another shape is refused.
+    values: usize,
+}
+
+/// Where the chunk of the request in flight comes from, as far as is known now.
+pub enum Settled {
+    /// No reply yet, and still time for one.
+    Waiting,
+    Host(Reply),
+    /// The local engine's to compute now (counted, with the reason).
+    Local,
+}
+
 impl Remote {
     /// Joins the Zenoh network and measures the host's clock (a host not up yet is not an error: the local engine
     /// runs until it answers). From the main thread, before the loops start: zenoh's own threads inherit the
     /// creator's scheduling, and must not inherit a loop's SCHED_FIFO and core.
     pub fn connect(cfg: &DaemonConfig, remote: &RemoteConfig) -> anyhow::Result<Self> {
         let mut policy = RemotePolicy::connect(&remote.link(), &remote.prefix, remote.name(&cfg.robot))?;
-        let clock = policy.probe_clock(20, Duration::from_millis(200));
+        // A ping may take a slow link's whole round trip: up to 1 s each (a host that is not up answers none at once).
+        let clock = policy.probe_clock(10, Duration::from_secs(1));
         match &clock {
             Ok(c) => tracing::info!(
                 key = policy.key(),
@@ -117,24 +145,95 @@ impl Remote {
             reserve_ns: (remote.local_reserve_ms * 1e6) as u64,
             request: Request::default(),
             on_host: None,
+            in_flight: None,
             round_trip_us: Histogram::new_with_bounds(1, 60_000_000, 3).expect("valid histogram bounds"),
             report,
         })
     }
 
-    /// The host's chunk for `a`, or None (counted, with the reason) when the local engine must compute it.
-    pub fn ask(&mut self, a: &Ask<'_>) -> Option<Reply> {
+    /// Sends `a` to the host; false (counted, with the reason) when the local engine must compute it now.
+    pub fn send(&mut self, a: &Ask<'_>) -> bool {
+        debug_assert!(self.in_flight.is_none(), "one request in flight at a time");
         let now = mars_ipc::clock::monotonic_ns();
-        let until = a.handoff_ns.saturating_sub(self.reserve_ns);
-        let result = match until.checked_sub(now).filter(|&w| w > 0) {
-            None => Err(Miss::NoTime),
-            Some(wait_ns) => self.request(a, now, wait_ns),
+        let decide_ns = a.handoff_ns.saturating_sub(self.reserve_ns);
+        let Some(wait_ns) = decide_ns.checked_sub(now).filter(|&w| w > 0) else {
+            self.resolve(a.episode, a.period, Err(Miss::NoTime));
+            return false;
         };
+        let r = &mut self.request;
+        r.seq += 1;
+        (r.episode, r.period, r.seed, r.capture_ns, r.sent_ns) = (a.episode, a.period, a.seed, a.capture_ns, now);
+        // The host must send its reply one round trip before our wait ends.
+        let rtt = self.report.clock.map_or(0, |c| c.rtt_min_ns);
+        r.budget_ns = wait_ns.saturating_sub(rtt);
+        for (to, from) in
+            [(&mut r.observation, a.observation), (&mut r.history, a.history), (&mut r.committed, a.committed)]
+        {
+            to.clear();
+            to.extend_from_slice(from);
+        }
+        self.report.requests += 1;
+        match self.policy.send(r, Duration::from_nanos(wait_ns)) {
+            Ok(pending) => {
+                let (episode, period, values) = (a.episode, a.period, a.history.len());
+                self.in_flight = Some(InFlight { pending, sent_ns: now, decide_ns, episode, period, values });
+                true
+            }
+            Err(e) => {
+                let miss = self.miss(e);
+                self.resolve(a.episode, a.period, Err(miss));
+                false
+            }
+        }
+    }
+
+    /// Whether a request is in flight.
+    pub fn in_flight(&self) -> bool {
+        self.in_flight.is_some()
+    }
+
+    /// The request in flight's outcome, waiting for its reply until `until_ns` at most and never past the moment
+    /// the local engine must take over. `Local` when nothing is in flight.
+    pub fn settle(&mut self, until_ns: u64) -> Settled {
+        let Some(f) = &self.in_flight else { return Settled::Local };
+        let now = mars_ipc::clock::monotonic_ns();
+        let wait = Duration::from_nanos(until_ns.min(f.decide_ns).saturating_sub(now));
+        let result = match f.pending.wait_for(wait) {
+            Ok(None) if mars_ipc::clock::monotonic_ns() < f.decide_ns => return Settled::Waiting,
+            Ok(None) => Err(Miss::Timeout),
+            // A chunk of another shape than ours (another checkpoint on the host) is never executed.
+            Ok(Some(reply)) if reply.chunk.len() != f.values => {
+                let e = format!("a chunk of {} values, this robot's have {}", reply.chunk.len(), f.values);
+                Err(self.miss(RemoteError::Host(e)))
+            }
+            Ok(Some(reply)) => Ok(reply),
+            Err(e) => Err(self.miss(e)),
+        };
+        let f = self.in_flight.take().expect("checked above");
+        if result.is_ok() {
+            let back = mars_ipc::clock::monotonic_ns();
+            let _ = self.round_trip_us.record(((back - f.sent_ns) / 1000).max(1));
+        }
+        match self.resolve(f.episode, f.period, result) {
+            Some(reply) => Settled::Host(reply),
+            None => Settled::Local,
+        }
+    }
+
+    /// Drops the request in flight (its episode ended).
+    pub fn abandon(&mut self) {
+        if self.in_flight.take().is_some() {
+            self.report.abandoned += 1;
+        }
+    }
+
+    /// Counts the outcome and any change of side; the host's reply if it is one.
+    fn resolve(&mut self, episode: u64, period: u64, result: Result<Reply, Miss>) -> Option<Reply> {
         let host = result.is_ok();
         if self.on_host != Some(host) && self.report.switches.len() < SWITCHES_KEPT {
             let miss = result.as_ref().err().copied();
             let at_ns = mars_ipc::clock::monotonic_ns();
-            self.report.switches.push(Switch { episode: a.episode, period: a.period, at_ns, to_host: host, miss });
+            self.report.switches.push(Switch { episode, period, at_ns, to_host: host, miss });
         }
         self.on_host = Some(host);
         match result {
@@ -147,36 +246,6 @@ impl Remote {
                 *self.count(miss) += 1;
                 None
             }
-        }
-    }
-
-    fn request(&mut self, a: &Ask<'_>, now: u64, wait_ns: u64) -> Result<Reply, Miss> {
-        let r = &mut self.request;
-        r.seq += 1;
-        (r.episode, r.period, r.seed, r.capture_ns, r.sent_ns) = (a.episode, a.period, a.seed, a.capture_ns, now);
-        // The host must send its reply one round trip before our wait ends.
-        let rtt = self.report.clock.map_or(0, |c| c.rtt_min_ns);
-        r.budget_ns = wait_ns.saturating_sub(rtt);
-        r.observation.clear();
-        r.observation.extend_from_slice(a.observation);
-        r.history.clear();
-        r.history.extend_from_slice(a.history);
-        r.committed.clear();
-        r.committed.extend_from_slice(a.committed);
-        self.report.requests += 1;
-        let reply = self.policy.infer(r, Duration::from_nanos(wait_ns));
-        let back = mars_ipc::clock::monotonic_ns();
-        match reply {
-            // A chunk of another shape than ours (another checkpoint on the host) is never executed.
-            Ok(reply) if reply.chunk.len() != a.history.len() => {
-                let e = format!("a chunk of {} values, this robot's have {}", reply.chunk.len(), a.history.len());
-                Err(self.miss(RemoteError::Host(e)))
-            }
-            Ok(reply) => {
-                let _ = self.round_trip_us.record(((back - now) / 1000).max(1));
-                Ok(reply)
-            }
-            Err(e) => Err(self.miss(e)),
         }
     }
 

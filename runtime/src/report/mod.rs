@@ -153,6 +153,8 @@ pub struct Summary {
     pub camera: Option<crate::policy::CameraReport>,
     /// `[remote]`: the inference host's chunks, the local engine's takeovers and why.
     pub remote: Option<crate::policy::remote::RemoteReport>,
+    /// The policy's actions across chunk handovers (before the servo's smoothing).
+    pub handover_jerk: crate::policy::handover::HandoverJerk,
     /// A task acting on the table: references the servo's IK clamped or could not reach.
     pub effector: Option<crate::servo::effector::EffectorCounts>,
     /// `--record`: what the dataset got.
@@ -236,6 +238,7 @@ impl Summary {
             traces_dropped: p.traces_dropped,
             camera: p.camera.clone(),
             remote: p.remote.clone(),
+            handover_jerk: p.handover_jerk,
             effector: s.effector,
             record: None,
             trip_seen_ns: None,
@@ -423,6 +426,12 @@ impl Summary {
                 c.first_refusal.as_deref().map(|r| format!("; first refusal: {r}")).unwrap_or_default()
             )?;
         }
+        let h = &self.handover_jerk;
+        writeln!(
+            f,
+            "  chunk handovers: {}, the policy's jerk across them (action units/s³, before smoothing) mean {:.1} max {:.1}",
+            h.handovers, h.mean_rad_s3, h.max_rad_s3
+        )?;
         if let Some(r) = &self.remote {
             write_remote(f, r)?;
         }

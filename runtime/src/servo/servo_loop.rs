@@ -113,15 +113,16 @@ pub struct ServoReport {
     /// Samples sent over the same span: each may take exactly one pooled block (iceoryx2's bookkeeping).
     pub samples_sent_after_warmup: u64,
     pub ticks_counted: u64,
-    /// The first [`CAPTURE_SPANS_KEPT`] adopted chunks of a camera task, timed: what a stall of the machine must
+    /// The first [`CAPTURE_SPANS_KEPT`] adopted chunks, timed: what a stall of the machine must
     /// cover to explain one's capture → command (the histogram has only their lengths).
     pub capture_spans: Vec<CaptureSpan>,
 }
 
-/// Adopted camera chunks whose [`CaptureSpan`] the report keeps: a Push-T episode takes tens of chunks.
+/// Adopted chunks whose [`CaptureSpan`] the report keeps: an episode takes tens of chunks.
 pub const CAPTURE_SPANS_KEPT: usize = 4096;
 
-/// One adopted chunk: its camera frame's capture and the first command sent from it (CLOCK_MONOTONIC ns).
+/// One adopted chunk: its observation's capture (camera or state frame) and the first command sent from it
+/// (CLOCK_MONOTONIC ns).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
 pub struct CaptureSpan {
     pub capture_ns: u64,
