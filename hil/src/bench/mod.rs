@@ -24,6 +24,7 @@ use mars_runtime::cli::MarsdArgs;
 
 pub mod backends;
 mod cyclictest;
+pub mod fleet;
 mod load;
 pub mod remote;
 mod report;

@@ -93,15 +93,25 @@ pub fn run(args: RemoteBenchArgs) -> anyhow::Result<()> {
 
 /// `marsd serve` (this executable) for robot `bench` on a free port; returns once it serves.
 fn spawn_host(checkpoint: &Path, prefix: &str) -> anyhow::Result<(Child, u16)> {
+    spawn_host_of(checkpoint, prefix, &["bench".to_owned()], &[])
+}
+
+/// `marsd serve` for `robots`, each with the checkpoint in `checkpoint`, on a free port (and `extra` arguments);
+/// returns once it serves.
+pub(super) fn spawn_host_of(
+    checkpoint: &Path,
+    prefix: &str,
+    robots: &[String],
+    extra: &[String],
+) -> anyhow::Result<(Child, u16)> {
     let port = std::net::TcpListener::bind("127.0.0.1:0")?.local_addr()?.port();
-    let mut child = Command::new(std::env::current_exe()?)
-        .args(["marsd", "serve", "--robot"])
-        .arg(format!("bench={}", checkpoint.display()))
-        .args(["--prefix", prefix, "--listen", &format!("tcp/127.0.0.1:{port}")])
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .context("starting marsd serve")?;
+    let mut cmd = Command::new(std::env::current_exe()?);
+    cmd.args(["marsd", "serve"]);
+    for r in robots {
+        cmd.arg("--robot").arg(format!("{r}={}", checkpoint.display()));
+    }
+    cmd.args(["--prefix", prefix, "--listen", &format!("tcp/127.0.0.1:{port}")]).args(extra);
+    let mut child = cmd.stdout(Stdio::null()).stderr(Stdio::piped()).spawn().context("starting marsd serve")?;
     let stderr = child.stderr.take().expect("piped");
     let (tx, rx) = std::sync::mpsc::channel();
     std::thread::spawn(move || {

@@ -55,6 +55,12 @@ enum Command {
         #[command(flatten)]
         args: mars_hil::bench::remote::RemoteBenchArgs,
     },
+    /// One `marsd serve` serving N robots (clients of the wire, each asking every period, phase-shifted): per robot
+    /// the chunks in time, misses, round trip, and the host's queue waits; prints a markdown table.
+    BenchFleet {
+        #[command(flatten)]
+        args: mars_hil::bench::fleet::FleetBenchArgs,
+    },
     /// The HAL's backends side by side in one run: the mock plant and the fci backend on franka-sim, on a quiet
     /// machine and under noise (busy cores, the HAL stopped for milliseconds again and again); prints a markdown
     /// table and writes it to <out>/results.md.
@@ -208,6 +214,7 @@ fn main() -> std::process::ExitCode {
         },
         Command::Bench { args } => mars_hil::bench::run(args),
         Command::BenchRemote { args } => mars_hil::bench::remote::run(args),
+        Command::BenchFleet { args } => mars_hil::bench::fleet::run(args),
         Command::BenchBackends { args } => mars_hil::bench::backends::run(args),
         Command::Faults { args } => match mars_hil::faults::run(&args) {
             Ok(clean) => return std::process::ExitCode::from(if clean { 0 } else { 1 }),
