@@ -54,7 +54,7 @@ fn takeover_attempt(attempt: u32) -> Attempt {
     let remote = format!("\n[remote]\nprefix = \"{prefix}\"\nconnect = [\"{locator}\"]\n");
     let config = logs.join("marsd.toml");
     std::fs::write(&config, config_text(&[], "") + &remote).unwrap();
-    let (mut hal, rec) = hal_of_with_recorder("configs/fr3.toml", &robot, &[], &logs);
+    let (hal, rec) = hal_of_with_recorder("configs/fr3.toml", &robot, &[], &logs);
     let t0 = Instant::now();
     let mut marsd = spawn_marsd(&robot, &config, 8, &[], &logs);
     // Eight episodes take 45–55 s: the host dies in the second and is back by the fifth.
@@ -63,22 +63,7 @@ fn takeover_attempt(attempt: u32) -> Attempt {
     host.expect_reaped(Duration::from_secs(5), "SIGKILL");
     wait_until(t0, Duration::from_secs(20), &mut marsd);
     let _host2 = spawn_host(&robot, &prefix, &locator, "host2", &logs);
-    let code = marsd.exit_code(Duration::from_secs(240));
-    std::thread::sleep(Duration::from_millis(100));
-    let r = rec.finish();
-    eprintln!("{}", witness_account(&r));
-    assert!(hal.running(), "the HAL died\n{}", hal.logs());
-    let s = summary(&logs, "marsd");
-    eprintln!("{}", marsd.stdout_text());
-    let late = u64_at(&s, "/deadline_misses/late_chunks");
-    if (code != 0 || late > 0)
-        && let Some(e) = run_excuse(&s, &marsd, &r, u64::MAX)
-    {
-        return Err(e);
-    }
-    assert_eq!(code, 0, "marsd failed\n{}", marsd.logs());
-    assert!(s["trip"].is_null(), "trip {}", s["trip"]);
-    assert_eq!(late, 0, "a chunk was late: {}", s["deadline_misses"]);
+    let s = finished_cleanly(Run { name: "marsd", marsd, hal, rec, logs: &logs }, Duration::from_secs(240))?;
     check_switches(&s["remote"], &logs.join("marsd-out"));
     assert_eq!(u64_at(&s, "/episodes"), 8);
     // The checkpoint succeeds 97–98 % in process: 4 or fewer of 8 happens by chance about 5e-5 of the time (7 of 8
@@ -88,8 +73,40 @@ fn takeover_attempt(attempt: u32) -> Attempt {
         assert_eq!(u64_at(&s, &format!("/limit_violations/{check}")), 0, "{check}");
     }
     assert_eq!(u64_at(&s, "/servo_allocations/system"), 0, "the servo tick allocated");
-    assert_limits(&r, &Limits::of("configs/fr3.toml"), "remote");
     Ok(())
+}
+
+/// A marsd run against the mock HAL with the test's recorder.
+struct Run<'a> {
+    name: &'a str,
+    marsd: Proc,
+    hal: Proc,
+    rec: Recorder,
+    logs: &'a TempDir,
+}
+
+/// Waits for marsd's end and its summary: exit 0, no trip, no late chunk (each excused only by the witness), the
+/// HAL alive, and every command the HAL applied within the FR3's limits by the test's own recorder.
+fn finished_cleanly(run: Run<'_>, within: Duration) -> Result<serde_json::Value, Excuse> {
+    let Run { name, mut marsd, mut hal, rec, logs } = run;
+    let code = marsd.exit_code(within);
+    std::thread::sleep(Duration::from_millis(100));
+    let r = rec.finish();
+    eprintln!("{}", witness_account(&r));
+    assert!(hal.running(), "the HAL died\n{}", hal.logs());
+    let s = summary(logs, name);
+    eprintln!("{name}:\n{}", marsd.stdout_text());
+    let late = u64_at(&s, "/deadline_misses/late_chunks");
+    if (code != 0 || late > 0)
+        && let Some(e) = run_excuse(&s, &marsd, &r, u64::MAX)
+    {
+        return Err(e);
+    }
+    assert_eq!(code, 0, "marsd failed\n{}", marsd.logs());
+    assert!(s["trip"].is_null(), "trip {}", s["trip"]);
+    assert_eq!(late, 0, "a chunk was late: {}", s["deadline_misses"]);
+    assert_limits(&r, &Limits::of("configs/fr3.toml"), name);
+    Ok(s)
 }
 
 /// Host first, then the local engine (the host gone), then the host again; chunks from both.
@@ -137,7 +154,7 @@ fn delayed_attempt(attempt: u32) -> Attempt {
         let edits = [("handoff_margin_ms", &*format!("2.0\nask_ahead_periods = {ahead}"))];
         let config = logs.join(&format!("{name}.toml"));
         std::fs::write(&config, config_text(&edits, "") + &remote).unwrap();
-        let (mut hal, rec) = hal_of_with_recorder("configs/fr3.toml", &robot, &[], &logs);
+        let (hal, rec) = hal_of_with_recorder("configs/fr3.toml", &robot, &[], &logs);
         let t0 = Instant::now();
         let mut marsd = spawn_marsd_named(&name, &robot, &config, episodes, &[], &logs);
         if ahead > 0 {
@@ -147,24 +164,7 @@ fn delayed_attempt(attempt: u32) -> Attempt {
             wait_until(t0, Duration::from_secs(11), &mut marsd);
             link.shape().set_cut(false);
         }
-        let code = marsd.exit_code(Duration::from_secs(120));
-        std::thread::sleep(Duration::from_millis(100));
-        let r = rec.finish();
-        eprintln!("{}", witness_account(&r));
-        assert!(hal.running(), "the HAL died\n{}", hal.logs());
-        let s = summary(&logs, &name);
-        eprintln!("ask ahead {ahead}:\n{}", marsd.stdout_text());
-        let late = u64_at(&s, "/deadline_misses/late_chunks");
-        if (code != 0 || late > 0)
-            && let Some(e) = run_excuse(&s, &marsd, &r, u64::MAX)
-        {
-            return Err(e);
-        }
-        assert_eq!(code, 0, "marsd failed\n{}", marsd.logs());
-        assert!(s["trip"].is_null(), "trip {}", s["trip"]);
-        assert_eq!(late, 0, "a chunk was late: {}", s["deadline_misses"]);
-        assert_limits(&r, &Limits::of("configs/fr3.toml"), &name);
-        runs.push(s);
+        runs.push(finished_cleanly(Run { name: &name, marsd, hal, rec, logs: &logs }, Duration::from_secs(120))?);
     }
     let (now, ahead) = (&runs[0]["remote"], &runs[1]["remote"]);
     assert!(u64_at(now, "/host_chunks") == 0 && u64_at(now, "/local_chunks") > 0, "asked at the lead: {now}");

@@ -214,8 +214,11 @@ impl RemoteConfig {
 fn default_remote_prefix() -> String {
     "mars".into()
 }
+/// `[remote] local_reserve_ms` when the table does not set it.
+pub const DEFAULT_LOCAL_RESERVE_MS: f64 = 10.0;
+
 fn default_local_reserve_ms() -> f64 {
-    10.0
+    DEFAULT_LOCAL_RESERVE_MS
 }
 
 /// Fault injection for HIL tests; all off by default.

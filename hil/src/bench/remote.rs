@@ -58,14 +58,15 @@ pub fn run(args: RemoteBenchArgs) -> anyhow::Result<()> {
     let _rig = mars_runtime::rt::rig_lock::rt_rig_lock().context("taking the real-time rig lock")?;
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
     let prefix = format!("mars-bench/{}", std::process::id());
-    let (mut host, port) = spawn_host(&cfg.checkpoint, &prefix)?;
+    let (mut host, port) = spawn_host_of(&cfg.checkpoint, &prefix, &["bench".to_owned()], &[])?;
     let link = ShapedLink::start(([127, 0, 0, 1], port).into(), Duration::ZERO)?;
     let base = std::fs::read_to_string(&args.config)?;
     let base = base.split("\n[remote]").next().unwrap_or(&base).to_owned();
     let mut rows = vec![run_row(&args, &base, "local engine", None, None, None)];
     for &d in &args.one_way_ms {
         link.shape().set_delay(Duration::from_secs_f64(d / 1e3));
-        let ahead = periods_ahead(&cfg, d, 10.0);
+        // The generated `[remote]` leaves the local reserve at marsd's default.
+        let ahead = periods_ahead(&cfg, d, mars_runtime::config::DEFAULT_LOCAL_RESERVE_MS);
         let label = format!("{d:.0} ms");
         if 2 * ahead >= chunk {
             rows.push(Row {
@@ -89,11 +90,6 @@ pub fn run(args: RemoteBenchArgs) -> anyhow::Result<()> {
     std::fs::write(args.out.join("results.md"), &table)?;
     println!("{table}");
     Ok(())
-}
-
-/// `marsd serve` (this executable) for robot `bench` on a free port; returns once it serves.
-fn spawn_host(checkpoint: &Path, prefix: &str) -> anyhow::Result<(Child, u16)> {
-    spawn_host_of(checkpoint, prefix, &["bench".to_owned()], &[])
 }
 
 /// `marsd serve` for `robots`, each with the checkpoint in `checkpoint`, on a free port (and `extra` arguments);

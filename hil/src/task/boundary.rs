@@ -3,7 +3,10 @@
 //! over joints, at each step where a new chunk took over and, for reference, at every other step.
 //!
 //! At a boundary b (the new chunk's first executed row): acceleration x_b − 2x_{b−1} + x_{b−2}, jerk
-//! x_{b+1} − 3x_b + 3x_{b−1} − x_{b−2}; both straddle the switch from x_{b−1} (old chunk) to x_b (new).
+//! x_{b+1} − 3x_b + 3x_{b−1} − x_{b−2} (marsd's own handover stencil, `mars_runtime::policy::handover`); both
+//! straddle the switch from x_{b−1} (old chunk) to x_b (new).
+
+use mars_runtime::policy::handover::jerk_across;
 
 #[derive(Debug, Clone, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Smoothness {
@@ -25,11 +28,8 @@ pub fn smoothness(actions: &[f32], d: usize, joints: usize, adopted: &[bool], ra
     let (mut b, mut inner) = ((0.0, 0.0, 0usize), (0.0, 0.0, 0usize));
     // Steps with two before and one after: the first chunk's adoption (from rest) is not a boundary between chunks.
     for (s, &boundary) in adopted.iter().enumerate().take(steps.saturating_sub(1)).skip(2) {
-        let (mut acc, mut jerk) = (0.0f64, 0.0f64);
-        for j in 0..joints {
-            acc = acc.max((x(s, j) - 2.0 * x(s - 1, j) + x(s - 2, j)).abs());
-            jerk = jerk.max((x(s + 1, j) - 3.0 * x(s, j) + 3.0 * x(s - 1, j) - x(s - 2, j)).abs());
-        }
+        let acc = (0..joints).map(|j| (x(s, j) - 2.0 * x(s - 1, j) + x(s - 2, j)).abs()).fold(0.0, f64::max);
+        let jerk = jerk_across(&actions[(s - 2) * d..(s + 2) * d], d, joints);
         let sum = if boundary { &mut b } else { &mut inner };
         sum.0 += acc;
         sum.1 += jerk;

@@ -23,9 +23,7 @@ pub struct HandoverJerk {
 impl HandoverJerk {
     /// `rows`: four actions of `d` values due in consecutive periods, the new chunk's first third among them.
     pub fn add(&mut self, rows: &[f32], d: usize, joints: usize, rate_hz: f64) {
-        let x = |r: usize, j: usize| f64::from(rows[r * d + j]);
-        let jerk = (0..joints).map(|j| (x(3, j) - 3.0 * x(2, j) + 3.0 * x(1, j) - x(0, j)).abs()).fold(0.0, f64::max)
-            * rate_hz.powi(3);
+        let jerk = jerk_across(rows, d, joints) * rate_hz.powi(3);
         self.handovers += 1;
         let delta = jerk - self.mean_rad_s3;
         self.mean_rad_s3 += delta / self.handovers as f64;
@@ -33,6 +31,12 @@ impl HandoverJerk {
         self.std_rad_s3 = if self.handovers > 1 { (self.m2 / (self.handovers - 1) as f64).sqrt() } else { 0.0 };
         self.max_rad_s3 = self.max_rad_s3.max(jerk);
     }
+}
+
+/// The largest |x₃ − 3x₂ + 3x₁ − x₀| over the first `joints` of four consecutive rows of `d` values (per period³).
+pub fn jerk_across(rows: &[f32], d: usize, joints: usize) -> f64 {
+    let x = |r: usize, j: usize| f64::from(rows[r * d + j]);
+    (0..joints).map(|j| (x(3, j) - 3.0 * x(2, j) + 3.0 * x(1, j) - x(0, j)).abs()).fold(0.0, f64::max)
 }
 
 #[cfg(test)]

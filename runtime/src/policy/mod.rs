@@ -216,6 +216,14 @@ struct EpisodeRun {
 }
 
 impl EpisodeRun {
+    /// The committed rows a call is guided toward: none when the chunk drops them instead.
+    fn committed_for(&self, continuity: Continuity) -> &[f32] {
+        match continuity {
+            Continuity::Guided => &self.committed,
+            Continuity::DropLate => &[],
+        }
+    }
+
     /// The arm's measured position (and the last call's max |w|) into the plots' trace, while it has room.
     fn trace_position(&mut self, o: &Observed, n: usize) {
         if self.trace.q.len() < TRACE_CAPACITY {
@@ -568,7 +576,7 @@ impl PolicyLoop {
         run.timeline.read(k as i64 + 1 - run.c as i64, &mut run.history);
         run.timeline.read(k as i64 + 1, &mut run.committed);
         if let Some(remote) = self.remote.as_mut() {
-            let committed = if cfg.policy.continuity == Continuity::Guided { &run.committed[..] } else { &[] };
+            let committed = run.committed_for(cfg.policy.continuity);
             let (episode, observation, history) = (run.episode, &run.obs[..], &run.history[..]);
             let capture_ns = call.capture_ns;
             let ask = Ask { episode, period: k, seed, capture_ns, handoff_ns, observation, history, committed };
@@ -618,7 +626,7 @@ impl PolicyLoop {
     ) -> Option<()> {
         let budget = Duration::from_nanos(flight.handoff_ns.saturating_sub(monotonic_ns()));
         self.engine.reseed(flight.seed);
-        let committed = if cfg.policy.continuity == Continuity::Guided { &run.committed[..] } else { &[] };
+        let committed = run.committed_for(cfg.policy.continuity);
         let result = self.engine.infer_after(&run.obs, &run.history, committed, budget);
         let result = result.map(|out| Inferred::local(out, &mut run.chunk_out));
         self.publish_chunk(cfg, run, flight, result, o, faults, report)

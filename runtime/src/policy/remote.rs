@@ -187,11 +187,6 @@ impl Remote {
         }
     }
 
-    /// Whether a request is in flight.
-    pub fn in_flight(&self) -> bool {
-        self.in_flight.is_some()
-    }
-
     /// The request in flight's outcome, waiting for its reply until `until_ns` at most and never past the moment
     /// the local engine must take over. `Local` when nothing is in flight.
     pub fn settle(&mut self, until_ns: u64) -> Settled {
