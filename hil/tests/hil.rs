@@ -471,6 +471,49 @@ fn slow_engine_attempt(attempt: u32) -> Attempt {
     Ok(())
 }
 
+/// Test 4b: The policy loop's thread stalls 350 ms once (3.5 of its 100 ms periods, across the period a chunk is
+/// asked in), as a machine that takes its core away would: the loop skips the periods it slept through, asks that
+/// chunk at its first wake after them, and every later chunk's deadline still comes from the clock, so none is late
+/// and nothing trips. (Before 2026-11-30 the loop counted wakes: after such a stall each deadline came two periods
+/// early, every chunk was late, and marsd tripped on late chunks.)
+#[test]
+fn a_policy_loop_that_stalled_keeps_its_deadlines_by_the_clock() {
+    let _rt = rt_rig_lock();
+    at_most_one_rerun("policy stall", policy_stall_attempt);
+}
+
+/// One run of test 4b; its excuse if it failed while the stall witness saw the machine stall then.
+fn policy_stall_attempt(attempt: u32) -> Attempt {
+    let logs = TempDir::new(&format!("pstall{attempt}"));
+    let robot = robot(&format!("pstall{attempt}"));
+    // Periods 8, 16, … ask a chunk (8 actions a chunk): the stall from period 7 sleeps through period 8 and 9.
+    let stall = "[faults]\npolicy_stall_ms = 350.0\npolicy_stall_period = 7";
+    let config = write_config(&logs, "marsd.toml", &[], stall);
+    let (_hal, rec) = hal_with_recorder(&robot, &[], &logs);
+    let mut marsd = spawn_marsd(&robot, &config, 2, &[], &logs);
+    let code = marsd.exit_code(Duration::from_secs(120));
+    let r = rec.finish();
+    eprintln!("{}", witness_account(&r));
+    let s = summary(&logs, "marsd");
+    eprintln!("{}", marsd.stdout_text());
+    let failed = code != 0 || u64_at(&s, "/deadline_misses/late_chunks") > 0;
+    if failed && let Some(e) = run_excuse(&s, &marsd, &r, 0) {
+        return Err(e);
+    }
+    assert_eq!(code, 0, "{}", marsd.logs());
+    assert_eq!(s["stop"], "finished");
+    assert!(s["trip"].is_null(), "trip {}", s["trip"]);
+    assert_eq!(u64_at(&s, "/episodes"), 2);
+    // The stall happened: the loop woke 3.5 periods after period 7's deadline (period 10's), two skipped.
+    let skipped = u64_at(&s, "/deadline_misses/policy_missed_periods");
+    assert!(skipped >= 2, "the policy loop skipped {skipped} periods");
+    assert_eq!(u64_at(&s, "/deadline_misses/late_chunks"), 0);
+    assert_eq!(u64_at(&s, "/limit_violations/final_check"), 0);
+    assert_eq!(u64_at(&s, "/limit_violations/hal_clamped"), 0);
+    assert_limits(&r, &Limits::fr3(), "policy stall");
+    Ok(())
+}
+
 /// Test 5a: A NaN sensor: marsd refuses the frames, trips on the missing usable state and brakes; no NaN ever
 /// reaches the command stream, which stays within limits.
 #[test]

@@ -231,6 +231,12 @@ pub struct FaultConfig {
     /// The recording's writer sleeps this long per frame, as a disk or encoder that cannot keep up would (ms).
     #[serde(default)]
     pub record_writer_delay_ms: f64,
+    /// The policy loop sleeps this long once, in period `policy_stall_period` of episode 1 (the first), as a machine
+    /// that takes its core away would (ms; 0: never).
+    #[serde(default)]
+    pub policy_stall_ms: f64,
+    #[serde(default)]
+    pub policy_stall_period: u64,
 }
 
 fn default_handshake_timeout_s() -> f64 {
@@ -370,6 +376,7 @@ impl DaemonConfig {
             }
         }
         in_range("faults.record_writer_delay_ms", self.faults.record_writer_delay_ms, true, MAX_LOOP_MS, "ms")?;
+        in_range("faults.policy_stall_ms", self.faults.policy_stall_ms, true, MAX_LOOP_MS, "ms")?;
         Ok(())
     }
 
@@ -391,6 +398,11 @@ impl DaemonConfig {
     /// The injected sleep of the recording's writer per frame (validated).
     pub fn record_writer_delay(&self) -> Duration {
         Duration::from_secs_f64(self.faults.record_writer_delay_ms * 1e-3)
+    }
+
+    /// The injected stall of the policy loop (validated), and the period of episode 1 it happens in.
+    pub fn policy_stall(&self) -> (Duration, u64) {
+        (Duration::from_secs_f64(self.faults.policy_stall_ms * 1e-3), self.faults.policy_stall_period)
     }
 
     pub fn policy_period_ns(&self) -> u64 {
@@ -442,6 +454,7 @@ mod tests {
             ("faults.record_writer_delay_ms", faults("record_writer_delay_ms = -1.0")),
             ("faults.record_writer_delay_ms", faults("record_writer_delay_ms = inf")),
             ("faults.engine_step_delay_ms", faults("engine_step_delay_ms = 1e300")),
+            ("faults.policy_stall_ms", faults("policy_stall_ms = -5")),
             ("servo.stale_state_ms", with("stale_state_ms", "stale_state_ms = 1e300")),
             ("watchdog.max_state_gap_ms", with("max_state_gap_ms", "max_state_gap_ms = 1e20")),
             ("traces_kept", with("traces_kept", "traces_kept = 1000000000000")),

@@ -22,6 +22,7 @@ pub mod remote;
 pub mod tally;
 pub mod timeline;
 
+use std::ops::RangeInclusive;
 use std::sync::Arc;
 use std::sync::atomic::Ordering;
 use std::time::Duration;
@@ -77,6 +78,8 @@ pub struct PolicyReport {
     pub capped: u64,
     /// Chunks ready after the servo needed them.
     pub late_chunks: u64,
+    /// Policy periods the loop slept through (a stall of its thread or of the machine): skipped, not caught up.
+    pub policy_missed_periods: u64,
     /// The first [`LATE_CHUNKS_KEPT`] of them, timed: what a stall of the machine must cover to explain each.
     pub late_chunk_times: Vec<LateChunk>,
     /// Calls that could not fit even K = 1; their chunks were dropped.
@@ -186,9 +189,11 @@ struct EpisodeRun {
     obs: Vec<f32>,
     /// The engine's history input: the C actions due before the chunk asked (at the start, the rest pose).
     history: Vec<f32>,
-    /// Chunks are asked every `stride` = C − `ahead` periods (`[policy] ask_ahead_periods`).
+    /// Chunks are asked every `stride` = C − `ahead` periods (`[policy] ask_ahead_periods`); the next at
+    /// `next_ask`.
     ahead: usize,
     stride: usize,
+    next_ask: u64,
     /// The first `ahead` rows of the chunk asked: the previous chunk's, due before this one is handed over.
     committed: Vec<f32>,
     /// Every action handed over, by the period it is due in.
@@ -216,6 +221,11 @@ struct EpisodeRun {
 }
 
 impl EpisodeRun {
+    /// When the chunk asked in period `k` must be ready: the lead before its first handed-over action.
+    fn need_ns(&self, cfg: &DaemonConfig, k: u64) -> u64 {
+        self.t0 + (cfg.policy.lead_ms * 1e6) as u64 + (k + self.ahead as u64) * self.period_ns
+    }
+
     /// The committed rows a call is guided toward: none when the chunk drops them instead.
     fn committed_for(&self, continuity: Continuity) -> &[f32] {
         match continuity {
@@ -385,12 +395,17 @@ impl PolicyLoop {
         let n = self.engine_joints();
         let mut run = self.start_episode(cfg, episode, rest, traces);
         let mut ticker = Ticker::starting_at(run.t0, Duration::from_nanos(run.period_ns));
-        for k in 0u64.. {
+        loop {
             let wake = ticker.wait();
             self.ch.status.policy_beats.fetch_add(1, Ordering::Relaxed);
             if self.must_stop() {
                 return None;
             }
+            // The period by the clock, not by wakes counted: after a stall the Ticker skipped periods, and a count
+            // would put every later deadline that many periods early (each chunk late, a LateChunks trip).
+            let k = (wake.deadline_ns - run.t0) / run.period_ns;
+            report.policy_missed_periods += wake.missed;
+            self.inject_stall(cfg, episode, k);
             let now = wake.now_ns();
             let o = *self.ch.observed.read();
             let t_s = (now - run.t0) as f64 * 1e-9;
@@ -418,16 +433,17 @@ impl PolicyLoop {
                 let next_period_ns = run.t0 + (k + 1) * run.period_ns;
                 self.settle_chunk(cfg, &mut run, next_period_ns, &o, faults, report)?;
             }
-            if k % run.stride as u64 != 0 {
+            if self.replay.is_some() {
+                self.replay_periods(cfg, &mut run, k - wake.missed..=k, &o);
+                continue;
+            }
+            // A chunk is asked every `stride` periods, or at the first wake after a stall that slept through that.
+            if k < run.next_ask {
                 self.record_period(&run, k, false, &o);
                 continue;
             }
-            // A chunk is asked: the lead before its first handed-over action, in periods from the episode's start.
-            let need_ns = run.t0 + (cfg.policy.lead_ms * 1e6) as u64 + (k + run.ahead as u64) * run.period_ns;
-            if self.replay.is_some() {
-                self.replay_chunk(&mut run, k, need_ns, &o);
-                continue;
-            }
+            run.next_ask = k + run.stride as u64;
+            let need_ns = run.need_ns(cfg, k);
             let capture_ns = match self.observe(&o, &mut run.obs, &mut run.trace, report) {
                 Ok(c) => {
                     faults.no_frame.good();
@@ -443,7 +459,14 @@ impl PolicyLoop {
             let call = Call { k, now, need_ns, capture_ns };
             self.infer_chunk(cfg, &mut run, call, &o, faults, report)?;
         }
-        unreachable!("the episode loop only ends by returning")
+    }
+
+    /// `[faults] policy_stall_ms`: the loop sleeps once, in the configured period of episode 1 (marsd's first).
+    fn inject_stall(&self, cfg: &DaemonConfig, episode: u64, k: u64) {
+        let (stall, at) = cfg.policy_stall();
+        if episode == 1 && k == at && !stall.is_zero() {
+            std::thread::sleep(stall);
+        }
     }
 
     /// How this task's episodes end.
@@ -485,6 +508,7 @@ impl PolicyLoop {
             history,
             ahead,
             stride: c - ahead,
+            next_ask: 0,
             committed: vec![0.0; ahead * d],
             timeline: Timeline::new(&rest[..d], 2 * c),
             around_handover: vec![0.0; 4 * d],
@@ -534,26 +558,39 @@ impl PolicyLoop {
         }
     }
 
-    /// A replay: the run's own chunk for period `k`, or none where the run made none.
-    fn replay_chunk(&mut self, run: &mut EpisodeRun, k: u64, need_ns: u64, o: &Observed) {
-        let published = self.replay.as_ref().is_some_and(|r| r.chunk_at(k, &mut run.replayed));
-        if published {
-            run.seq += 1;
-            let ready_ns = monotonic_ns();
-            let (episode, seq, period_ns) = (run.episode, run.seq, run.period_ns);
-            let first_due_ns = need_ns + period_ns;
-            // Computed from no camera frame now: no capture → command to measure.
-            let stamp = ChunkStamp { episode, seq, period_ns, first_due_ns, ready_ns, capture_ns: 0 };
-            Self::publish(&mut self.ch.chunks, &stamp, &run.replayed, run.d);
-            run.timeline.write(k as i64 + 1, &run.replayed);
-            if self.recording.is_some() {
-                run.in_force.actions.copy_from_slice(&run.replayed);
-                run.in_force.first_k = k;
-                run.in_force.image.copy_from_slice(&self.view_image);
+    /// A replay through the `periods` a wake covers (a stall's skipped ones too, published late): the run's own
+    /// chunk where it made a call, none where it made none; past the recording's end its last action, every
+    /// `stride` periods. Only the wake's own period is recorded (skipped ones leave a gap, as in a run).
+    fn replay_periods(&mut self, cfg: &DaemonConfig, run: &mut EpisodeRun, periods: RangeInclusive<u64>, o: &Observed) {
+        let k = *periods.end();
+        let mut published = false;
+        for j in periods {
+            let replay = self.replay.as_ref().expect("a replay");
+            let due = replay.made_call(j) || (replay.past_end(j) && j % run.stride as u64 == 0);
+            if due && replay.chunk_at(j, &mut run.replayed) {
+                self.publish_replayed(run, j, run.need_ns(cfg, j));
+                published = true;
             }
-            run.chunks += 1;
         }
         self.record_period(run, k, published, o);
+    }
+
+    /// The replayed chunk (in `run.replayed`) for a call in period `k`, handed to the servo.
+    fn publish_replayed(&mut self, run: &mut EpisodeRun, k: u64, need_ns: u64) {
+        run.seq += 1;
+        let ready_ns = monotonic_ns();
+        let (episode, seq, period_ns) = (run.episode, run.seq, run.period_ns);
+        let first_due_ns = need_ns + period_ns;
+        // Computed from no camera frame now: no capture → command to measure.
+        let stamp = ChunkStamp { episode, seq, period_ns, first_due_ns, ready_ns, capture_ns: 0 };
+        Self::publish(&mut self.ch.chunks, &stamp, &run.replayed, run.d);
+        run.timeline.write(k as i64 + 1, &run.replayed);
+        if self.recording.is_some() {
+            run.in_force.actions.copy_from_slice(&run.replayed);
+            run.in_force.first_k = k;
+            run.in_force.image.copy_from_slice(&self.view_image);
+        }
+        run.chunks += 1;
     }
 
     /// The chunk asked at `call.k`: of the inference host if there is one (sent, and settled now if its reply or

@@ -92,6 +92,16 @@ impl RecordedActions {
         self.action_dim
     }
 
+    /// The run published a chunk in period `k`.
+    pub fn made_call(&self, k: u64) -> bool {
+        self.calls.get(k as usize).is_some_and(|c| *c)
+    }
+
+    /// Period `k` is past the recording's end.
+    pub fn past_end(&self, k: u64) -> bool {
+        k as usize >= self.calls.len()
+    }
+
     /// The chunk of `out.len() / action_dim` actions the run published in period `k`, into `out`; false if it
     /// published none then (the chunk in force goes on). Past the recording's end (the run's episode had ended
     /// there; the replay's may not have) the last action is held. Allocation-free.

@@ -39,6 +39,9 @@ pub struct KStats {
 pub struct DeadlineMisses {
     /// Servo periods skipped because a tick ran a whole period late.
     pub servo_missed_periods: u64,
+    /// Policy periods skipped because the policy loop woke a whole period late (its thread or the machine
+    /// stalled): each chunk's deadline still comes from the clock.
+    pub policy_missed_periods: u64,
     pub late_chunks: u64,
     /// The first late chunks' inference windows (all of them when `late_chunks` is at most
     /// [`crate::policy::LATE_CHUNKS_KEPT`]).
@@ -199,6 +202,7 @@ impl Summary {
             },
             deadline_misses: DeadlineMisses {
                 servo_missed_periods: s.missed_periods,
+                policy_missed_periods: p.policy_missed_periods,
                 late_chunks: p.late_chunks,
                 late_chunk_times: p.late_chunk_times.clone(),
                 over_budget: p.over_budget,
@@ -346,8 +350,13 @@ impl Summary {
         let d = &self.deadline_misses;
         writeln!(
             f,
-            "  deadline misses: servo periods missed {}, late chunks {}, over budget {} (actions dropped {}, starved ticks {})",
-            d.servo_missed_periods, d.late_chunks, d.over_budget, d.actions_dropped, d.starved_ticks
+            "  deadline misses: servo periods missed {}, policy periods missed {}, late chunks {}, over budget {} (actions dropped {}, starved ticks {})",
+            d.servo_missed_periods,
+            d.policy_missed_periods,
+            d.late_chunks,
+            d.over_budget,
+            d.actions_dropped,
+            d.starved_ticks
         )?;
         let l = &self.limit_violations;
         writeln!(
