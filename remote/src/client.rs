@@ -79,13 +79,13 @@ impl RemotePolicy {
         let mut payload = Vec::new();
         request.encode_into(&mut payload);
         let replies = self.query(&self.key, payload, wait)?;
-        Ok(PendingReply { replies, seq: request.seq, key: self.key.clone() })
+        Ok(PendingReply { replies, seq: request.seq, key: self.key.clone(), wait })
     }
 
     /// One query and its first reply's bytes, within `wait`.
     fn ask(&self, key: &str, payload: Vec<u8>, wait: Duration) -> Result<Vec<u8>, RemoteError> {
         let replies = self.query(key, payload, wait)?;
-        first_reply(&replies, key, wait)?.ok_or(RemoteError::Timeout(wait))
+        first_reply(&replies, key, wait, wait)?.ok_or(RemoteError::Timeout(wait))
     }
 
     fn query(&self, key: &str, payload: Vec<u8>, wait: Duration) -> Result<Replies, RemoteError> {
@@ -102,11 +102,18 @@ impl RemotePolicy {
 
 type Replies = zenoh::handlers::FifoChannelHandler<zenoh::query::Reply>;
 
+/// The error reply Zenoh itself gives a query whose timeout passed unanswered (the querier's own session, or a
+/// router on the way): the query timed out, no host said anything. (Our host answers in its payload's `Status`,
+/// never with a Zenoh error.)
+const ZENOH_TIMEOUT: &str = "Timeout";
+
 /// A request on its way: its reply, when it comes.
 pub struct PendingReply {
     replies: Replies,
     seq: u64,
     key: String,
+    /// The query's own timeout, after which Zenoh ends it.
+    wait: Duration,
 }
 
 impl PendingReply {
@@ -114,7 +121,7 @@ impl PendingReply {
     /// it has not come; an error for a reply that is not a chunk for this request, or when the query ended
     /// with none (no host, or the host vanished).
     pub fn wait_for(&self, wait: Duration) -> Result<Option<Reply>, RemoteError> {
-        let Some(bytes) = first_reply(&self.replies, &self.key, wait)? else { return Ok(None) };
+        let Some(bytes) = first_reply(&self.replies, &self.key, wait, self.wait)? else { return Ok(None) };
         let reply = Reply::decode(&bytes)?;
         if reply.seq != self.seq {
             return Err(RemoteError::Seq { got: reply.seq, want: self.seq });
@@ -126,13 +133,23 @@ impl PendingReply {
     }
 }
 
-/// The first reply's bytes within `wait`, `None` if none came by then.
-fn first_reply(replies: &Replies, key: &str, wait: Duration) -> Result<Option<Vec<u8>>, RemoteError> {
+/// The first reply's bytes within `wait`, `None` if none came by then; a timeout once the query's own timeout
+/// (`query_wait`) has ended it, even when the caller reads that only later (it woke late).
+fn first_reply(
+    replies: &Replies,
+    key: &str,
+    wait: Duration,
+    query_wait: Duration,
+) -> Result<Option<Vec<u8>>, RemoteError> {
     let got = if wait.is_zero() { replies.try_recv() } else { replies.recv_timeout(wait) };
     match got {
         Ok(Some(reply)) => match reply.into_result() {
             Ok(sample) => Ok(Some(sample.payload().to_bytes().into_owned())),
-            Err(e) => Err(RemoteError::Host(e.payload().try_to_string().map_or_else(|_| "?".into(), |s| s.into()))),
+            Err(e) => match e.payload().try_to_string() {
+                Ok(text) if text == ZENOH_TIMEOUT => Err(RemoteError::Timeout(query_wait)),
+                Ok(text) => Err(RemoteError::Host(text.into_owned())),
+                Err(_) => Err(RemoteError::Host("?".into())),
+            },
         },
         Ok(None) => Ok(None),
         // The query ended with no reply: nothing matched the key, or the host vanished.

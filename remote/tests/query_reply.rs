@@ -5,7 +5,8 @@ mod support;
 
 use std::time::{Duration, Instant};
 
-use mars_remote::client::RemoteError;
+use mars_remote::client::{RemoteError, RemotePolicy};
+use mars_remote::link::{self, LinkConfig};
 use mars_remote::wire::Status;
 use support::*;
 
@@ -55,4 +56,29 @@ fn an_unknown_robot_an_expired_query_and_a_vanished_host_are_errors_in_time() {
     let gone = remote.infer(&request(&e, 3), wait);
     assert!(matches!(gone, Err(RemoteError::NoHost(_) | RemoteError::Timeout(_))), "{gone:?}");
     assert!(t0.elapsed() < wait + Duration::from_millis(200), "took {:?}", t0.elapsed());
+}
+
+/// Zenoh ends a query whose timeout passed unanswered with an error reply of its own ("Timeout"). Read after that
+/// (a robot whose loop woke late), it is a timeout, as it would have been read in time — not the host's error.
+#[test]
+fn a_reply_read_after_the_querys_timeout_is_a_timeout_not_a_host_error() {
+    use zenoh::Wait;
+    let prefix = format!("mars-test/{}/silent", std::process::id());
+    let locator = format!("tcp/127.0.0.1:{}", free_port());
+    let host = LinkConfig::listening(&locator).open().unwrap();
+    // A host that never answers (stalled, or its link cut): its queryable keeps every query unread.
+    let queries = host.declare_queryable(link::infer_key(&prefix, "fr3").unwrap()).wait().unwrap();
+    let mut robot = RemotePolicy::connect(&LinkConfig::connecting(&locator), &prefix, "fr3").unwrap();
+    let (e, wait, t0) = (engine(), Duration::from_millis(100), Instant::now());
+    let read_late = loop {
+        let pending = robot.send(&request(&e, 1), wait).unwrap();
+        std::thread::sleep(3 * wait);
+        match pending.wait_for(Duration::ZERO) {
+            // The queryable's declaration had not reached the robot's session yet.
+            Err(RemoteError::NoHost(_)) if t0.elapsed() < Duration::from_secs(10) => continue,
+            other => break other,
+        }
+    };
+    assert!(matches!(read_late, Err(RemoteError::Timeout(w)) if w == wait), "{read_late:?}");
+    assert!(queries.try_recv().unwrap().is_some(), "the query never reached the host");
 }
