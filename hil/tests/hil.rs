@@ -475,7 +475,7 @@ fn slow_engine_attempt(attempt: u32) -> Attempt {
 /// asked in), as a machine that takes its core away would: the loop skips the periods it slept through, asks that
 /// chunk at its first wake after them, and every later chunk's deadline still comes from the clock, so none is late
 /// and nothing trips. (Before 2026-11-30 the loop counted wakes: after such a stall each deadline came two periods
-/// early, every chunk was late, and marsd tripped on late chunks.)
+/// early, so calls had no time left, and marsd tripped: "inference could not fit one ODE step in its deadline".)
 #[test]
 fn a_policy_loop_that_stalled_keeps_its_deadlines_by_the_clock() {
     let _rt = rt_rig_lock();

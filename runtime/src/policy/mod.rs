@@ -402,7 +402,7 @@ impl PolicyLoop {
                 return None;
             }
             // The period by the clock, not by wakes counted: after a stall the Ticker skipped periods, and a count
-            // would put every later deadline that many periods early (each chunk late, a LateChunks trip).
+            // would put every later deadline that many periods early (calls over budget or late, then a trip).
             let k = (wake.deadline_ns - run.t0) / run.period_ns;
             report.policy_missed_periods += wake.missed;
             self.inject_stall(cfg, episode, k);
