@@ -88,6 +88,11 @@ struct Run<'a> {
 /// Waits for marsd's end and its summary: exit 0, no trip, no late chunk (each excused only by the witness), the
 /// HAL alive, and every command the HAL applied within the FR3's limits by the test's own recorder.
 fn finished_cleanly(run: Run<'_>, within: Duration) -> Result<serde_json::Value, Excuse> {
+    finished_with_stream(run, within).map(|(s, _)| s)
+}
+
+/// [`finished_cleanly`], and the stream the test's recorder read.
+fn finished_with_stream(run: Run<'_>, within: Duration) -> Result<(serde_json::Value, Recorded), Excuse> {
     let Run { name, mut marsd, mut hal, rec, logs } = run;
     let code = marsd.exit_code(within);
     std::thread::sleep(Duration::from_millis(100));
@@ -106,14 +111,20 @@ fn finished_cleanly(run: Run<'_>, within: Duration) -> Result<serde_json::Value,
     assert!(s["trip"].is_null(), "trip {}", s["trip"]);
     assert_eq!(late, 0, "a chunk was late: {}", s["deadline_misses"]);
     assert_limits(&r, &Limits::of("configs/fr3.toml"), name);
-    Ok(s)
+    Ok((s, r))
+}
+
+/// Who gave the chunks, switch by switch ("host", "local" or "rest").
+fn sides(remote: &serde_json::Value) -> Vec<String> {
+    let switches = remote["switches"].as_array().unwrap_or_else(|| panic!("no switches in {remote}"));
+    switches.iter().map(|s| s["to"].as_str().unwrap().to_owned()).collect()
 }
 
 /// Host first, then the local engine (the host gone), then the host again; chunks from both.
 fn check_switches(remote: &serde_json::Value, out: &Path) {
     let switches = remote["switches"].as_array().unwrap_or_else(|| panic!("no remote report in {}", out.display()));
-    let to_host: Vec<bool> = switches.iter().map(|s| s["to_host"].as_bool().unwrap()).collect();
-    assert!(to_host.len() >= 3 && to_host[..3] == [true, false, true], "switches {switches:?}");
+    let to = sides(remote);
+    assert!(to.len() >= 3 && to[..3] == ["host", "local", "host"], "switches {switches:?}");
     let first = &switches[0];
     assert_eq!((first["episode"].as_u64(), first["period"].as_u64()), (Some(1), Some(0)), "{first}");
     let miss = switches[1]["miss"].as_str().unwrap();
@@ -172,11 +183,77 @@ fn delayed_attempt(attempt: u32) -> Attempt {
     // The cut: timeouts only (2 s is 3–4 chunks), the local engine's chunks in between, the host's again after.
     let local = u64_at(ahead, "/local_chunks");
     assert!((1..=5).contains(&local) && u64_at(ahead, "/timeouts") == local, "the 2 s cut: {ahead}");
-    let to_host: Vec<bool> = ahead["switches"].as_array().unwrap().iter().map(|s| s["to_host"] == true).collect();
-    assert_eq!(to_host, [true, false, true], "switches: {}", ahead["switches"]);
+    assert_eq!(sides(ahead), ["host", "local", "host"], "switches: {}", ahead["switches"]);
     let rtt = f64_at(ahead, "/round_trip_ms_p50");
     assert!(rtt >= 200.0, "the round trip did not cross the link: p50 {rtt} ms");
     assert!(u64_at(&runs[1], "/successes") >= 2, "{}", runs[1]["episode_results"]);
     assert!(link.shape().bytes() > 0);
     Ok(())
+}
+
+/// `[remote] on_miss = "rest"`: the link to the host cut for 2 s in the second of three episodes. No chunk is the
+/// local engine's: the calls of the cut get none (timeouts, the switches host → rest → host), the servo runs out
+/// its chunk and holds the last action, so the arm stands still for a stretch of the cut; nothing trips, no chunk
+/// is late, nothing is out of limits, and the host's chunks resume when the link is back.
+#[test]
+fn with_on_miss_rest_the_arm_rests_while_the_link_is_cut_and_moves_again_on_the_hosts_chunks() {
+    let _rt = rt_rig_lock();
+    at_most_one_rerun("remote link cut, the arm at rest", rest_attempt);
+}
+
+fn rest_attempt(attempt: u32) -> Attempt {
+    let logs = TempDir::new(&format!("remote-rest{attempt}"));
+    let prefix = format!("mars-test/{}/rest{attempt}", std::process::id());
+    let port = free_port();
+    let _host = spawn_host("arm", &prefix, &format!("tcp/127.0.0.1:{port}"), "host", &logs);
+    let upstream = std::net::SocketAddr::from(([127, 0, 0, 1], port));
+    let link = mars_hil::shaped_link::ShapedLink::start(upstream, Duration::ZERO).unwrap();
+    let remote = format!(
+        "\n[remote]\nprefix = \"{prefix}\"\nname = \"arm\"\nconnect = [\"tcp/{}\"]\non_miss = \"rest\"\n",
+        link.local
+    );
+    let robot = robot(&format!("rrest{attempt}"));
+    let config = logs.join("marsd.toml");
+    std::fs::write(&config, config_text(&[], "") + &remote).unwrap();
+    let (hal, rec) = hal_of_with_recorder("configs/fr3.toml", &robot, &[], &logs);
+    let t0 = Instant::now();
+    let mut marsd = spawn_marsd(&robot, &config, 3, &[], &logs);
+    // In the second of three episodes (each ~6 s).
+    wait_until(t0, Duration::from_secs(8), &mut marsd);
+    let cut = monotonic_ns();
+    link.shape().set_cut(true);
+    wait_until(t0, Duration::from_secs(10), &mut marsd);
+    link.shape().set_cut(false);
+    let mended = monotonic_ns();
+    let (s, stream) = finished_with_stream(Run { name: "marsd", marsd, hal, rec, logs: &logs }, Duration::from_secs(120))?;
+    let remote = &s["remote"];
+    // 2 s is 2–3 calls at one per 0.8 s; each got no chunk, for want of a reply (the link holds the query).
+    let rested = u64_at(remote, "/rested");
+    assert!((1..=4).contains(&rested) && u64_at(remote, "/timeouts") == rested, "the 2 s cut: {remote}");
+    assert_eq!(u64_at(remote, "/local_chunks"), 0, "{remote}");
+    assert_eq!(sides(remote), ["host", "rest", "host"], "switches: {}", remote["switches"]);
+    assert!(u64_at(remote, "/host_chunks") > 10, "{remote}");
+    // The servo ran out of its chunk and held: over 0.5 s of its 1 kHz ticks (the cut holds ≥ 1.1 s of them, less
+    // the chunk's rows after the last reply and the stop).
+    let starved = u64_at(&s, "/deadline_misses/starved_ticks");
+    assert!(starved > 500, "starved ticks {starved}");
+    let still = longest_still_ms(&stream.commands, cut, mended);
+    assert!(still >= 300.0, "the arm never stood still during the cut (longest {still:.0} ms)");
+    Ok(())
+}
+
+/// The longest stretch (ms) of commands received between `from` and `to` (CLOCK_MONOTONIC ns) whose velocity is
+/// 0 on every joint, up to ruckig's rounding at rest.
+fn longest_still_ms(commands: &[(mars_ipc::JointCommand, u64)], from: u64, to: u64) -> f64 {
+    let (mut longest, mut start) = (0u64, None);
+    for (c, at) in commands.iter().filter(|(_, at)| (from..=to).contains(at)) {
+        let n = c.num_joints as usize;
+        if c.velocity[..n].iter().all(|v| v.abs() <= 1e-9) {
+            let s = *start.get_or_insert(*at);
+            longest = longest.max(at - s);
+        } else {
+            start = None;
+        }
+    }
+    longest as f64 * 1e-6
 }

@@ -194,6 +194,22 @@ pub struct RemoteConfig {
     /// before the handoff margin. At least one local call at full K (the FR3 demo's: ~2 ms).
     #[serde(default = "default_local_reserve_ms")]
     pub local_reserve_ms: f64,
+    /// What replaces a chunk the host did not give in time: `local` (the local engine computes it, the default)
+    /// or `rest` (none: the servo finishes the chunk it has and holds its last action, so the arm comes to rest
+    /// there until the host answers again).
+    #[serde(default)]
+    pub on_miss: OnMiss,
+}
+
+/// `[remote] on_miss`: what the robot does while the inference host's chunks are missing.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum OnMiss {
+    /// The local engine computes the chunk in the reserve.
+    #[default]
+    Local,
+    /// No chunk: the arm comes to rest at the last action it was given.
+    Rest,
 }
 
 impl RemoteConfig {
@@ -470,6 +486,17 @@ mod tests {
         cfg.faults.record_writer_delay_ms = -1.0;
         let e = cfg.validate("marsd.toml").unwrap_err().to_string();
         assert!(e.contains("faults.record_writer_delay_ms") && e.contains("got -1"), "{e}");
+    }
+
+    /// `[remote] on_miss`: `local` unless set, `rest` when asked, anything else refused at load with the words.
+    #[test]
+    fn on_miss_defaults_to_the_local_engine_and_refuses_an_unknown_choice() {
+        let remote = |line: &str| format!("{}\n[remote]\nconnect = [\"tcp/127.0.0.1:7447\"]\n{line}\n", shipped());
+        let on_miss = |line: &str| DaemonConfig::parse(&remote(line), "t").map(|c| c.remote.unwrap().on_miss);
+        assert_eq!(on_miss("").unwrap(), OnMiss::Local);
+        assert_eq!(on_miss("on_miss = \"rest\"").unwrap(), OnMiss::Rest);
+        let e = on_miss("on_miss = \"halt\"").unwrap_err().to_string();
+        assert!(e.contains("on_miss") && e.contains("local") && e.contains("rest"), "{e}");
     }
 
     /// Every duration of an accepted configuration converts (what the daemon does with them).

@@ -621,12 +621,15 @@ impl PolicyLoop {
                 run.in_flight = Some(flight);
                 return self.settle_chunk(cfg, run, run.t0 + (k + 1) * run.period_ns, o, faults, report);
             }
+            if remote.rests_on_miss() {
+                return self.rest(run, k, o);
+            }
         }
         self.local_chunk(cfg, run, flight, o, faults, report)
     }
 
-    /// The call in flight: its host's chunk published if it came by `until_ns`, the local engine's if the host's
-    /// time ran out, nothing yet otherwise.
+    /// The call in flight: its host's chunk published if it came by `until_ns`, the local engine's (or none, the arm
+    /// resting) if the host's time ran out, nothing yet otherwise.
     fn settle_chunk(
         &mut self,
         cfg: &DaemonConfig,
@@ -637,6 +640,7 @@ impl PolicyLoop {
         report: &mut PolicyReport,
     ) -> Option<()> {
         let remote = self.remote.as_mut().expect("a call in flight has a host");
+        let rests = remote.rests_on_miss();
         match remote.settle(until_ns) {
             Settled::Waiting => Some(()),
             Settled::Host(reply) => {
@@ -644,11 +648,23 @@ impl PolicyLoop {
                 let result = Ok(Inferred::hosted(&reply, &mut run.chunk_out));
                 self.publish_chunk(cfg, run, flight, result, o, faults, report)
             }
-            Settled::Local => {
+            Settled::Missed => {
                 let flight = run.in_flight.take().expect("a call in flight");
+                if rests {
+                    return self.rest(run, flight.call.k, o);
+                }
                 self.local_chunk(cfg, run, flight, o, faults, report)
             }
         }
+    }
+
+    /// `[remote] on_miss = "rest"`: no chunk for the call of period `k`. The servo finishes the chunk it has and
+    /// holds its last action (the smoother brings the arm to rest there, within the jerk limits); the timeline
+    /// holds it too, so the next call's history is the held pose. Not a fault: nothing is counted toward a trip,
+    /// and the host's chunks resume at the first call it answers.
+    fn rest(&mut self, run: &EpisodeRun, k: u64, o: &Observed) -> Option<()> {
+        self.record_period(run, k, false, o);
+        Some(())
     }
 
     /// The local engine's chunk for `flight`, within what is left until its handoff.

@@ -1,6 +1,7 @@
 //! The policy loop's inference host (`[remote]`): each chunk is asked of the host first, within the time left less
-//! the local engine's reserve; a chunk not back by then is the local engine's, and the report says when each side
-//! took over and why. The host is asked again at every chunk, so it resumes as soon as it answers.
+//! the local engine's reserve; a chunk not back by then is the local engine's (or, with `on_miss = "rest"`, none:
+//! the arm comes to rest), and the report says when each side took over and why. The host is asked again at every
+//! chunk, so it resumes as soon as it answers.
 //!
 //! A request is sent ([`Remote::send`]) and its reply collected later ([`Remote::settle`]), so that a chunk asked
 //! periods ahead (`[policy] ask_ahead_periods`) does not hold the policy loop up for longer than one period.
@@ -13,7 +14,7 @@ use mars_remote::clock::ClockEstimate;
 use mars_remote::wire::{Reply, Request, Status};
 use serde::Serialize;
 
-use crate::config::{DaemonConfig, RemoteConfig};
+use crate::config::{DaemonConfig, OnMiss, RemoteConfig};
 
 /// Switches between host and local engine kept for the report.
 pub const SWITCHES_KEPT: usize = 32;
@@ -24,8 +25,9 @@ pub struct Remote {
     reserve_ns: u64,
     /// Reused for every request (its vectors keep their capacity).
     request: Request,
-    /// Whether the last chunk came from the host (None before the first).
-    on_host: Option<bool>,
+    on_miss: OnMiss,
+    /// Who gave the last chunk (None before the first).
+    last: Option<Side>,
     in_flight: Option<InFlight>,
     round_trip_us: Histogram<u64>,
     pub report: RemoteReport,
@@ -47,15 +49,27 @@ pub enum Miss {
     NoTime,
 }
 
+/// Who gives the servo a chunk.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Side {
+    /// The inference host.
+    Host,
+    /// The robot's own engine (`[remote] on_miss = "local"`).
+    Local,
+    /// Nobody: the servo finishes its chunk and holds the last action (`on_miss = "rest"`).
+    Rest,
+}
+
 /// One change of who computes the chunks.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct Switch {
     pub episode: u64,
-    /// The policy period of the first chunk computed by the new side.
+    /// The policy period of the first chunk asked of the new side.
     pub period: u64,
     /// Robot clock (ns).
     pub at_ns: u64,
-    pub to_host: bool,
+    pub to: Side,
     /// Why the host's chunk was missing (None when switching back to the host).
     pub miss: Option<Miss>,
 }
@@ -67,9 +81,11 @@ pub struct RemoteReport {
     /// The host's clock against ours at start (None: no host answered then).
     pub clock: Option<ClockEstimate>,
     pub requests: u64,
-    /// Chunks the host computed, and those the local engine computed instead, by reason.
+    /// Chunks the host computed, those the local engine computed instead, and those nobody did (the arm rested);
+    /// the misses by reason.
     pub host_chunks: u64,
     pub local_chunks: u64,
+    pub rested: u64,
     pub timeouts: u64,
     pub no_host: u64,
     pub expired: u64,
@@ -118,8 +134,9 @@ pub enum Settled {
     /// No reply yet, and still time for one.
     Waiting,
     Host(Reply),
-    /// The local engine's to compute now (counted, with the reason).
-    Local,
+    /// No chunk from the host (counted, with the reason): the local engine's to compute now, or none
+    /// ([`Remote::rests_on_miss`]).
+    Missed,
 }
 
 impl Remote {
@@ -144,14 +161,20 @@ impl Remote {
             policy,
             reserve_ns: (remote.local_reserve_ms * 1e6) as u64,
             request: Request::default(),
-            on_host: None,
+            on_miss: remote.on_miss,
+            last: None,
             in_flight: None,
             round_trip_us: Histogram::new_with_bounds(1, 60_000_000, 3).expect("valid histogram bounds"),
             report,
         })
     }
 
-    /// Sends `a` to the host; false (counted, with the reason) when the local engine must compute it now.
+    /// Whether a missing chunk is left missing (the arm rests) rather than the local engine's.
+    pub fn rests_on_miss(&self) -> bool {
+        self.on_miss == OnMiss::Rest
+    }
+
+    /// Sends `a` to the host; false (counted, with the reason) when its chunk is missed already.
     pub fn send(&mut self, a: &Ask<'_>) -> bool {
         debug_assert!(self.in_flight.is_none(), "one request in flight at a time");
         let now = mars_ipc::clock::monotonic_ns();
@@ -188,9 +211,9 @@ impl Remote {
     }
 
     /// The request in flight's outcome, waiting for its reply until `until_ns` at most and never past the moment
-    /// the local engine must take over. `Local` when nothing is in flight.
+    /// the local engine must take over. `Missed` when nothing is in flight.
     pub fn settle(&mut self, until_ns: u64) -> Settled {
-        let Some(f) = &self.in_flight else { return Settled::Local };
+        let Some(f) = &self.in_flight else { return Settled::Missed };
         let now = mars_ipc::clock::monotonic_ns();
         let wait = Duration::from_nanos(until_ns.min(f.decide_ns).saturating_sub(now));
         let result = match f.pending.wait_for(wait) {
@@ -211,7 +234,7 @@ impl Remote {
         }
         match self.resolve(f.episode, f.period, result) {
             Some(reply) => Settled::Host(reply),
-            None => Settled::Local,
+            None => Settled::Missed,
         }
     }
 
@@ -224,20 +247,26 @@ impl Remote {
 
     /// Counts the outcome and any change of side; the host's reply if it is one.
     fn resolve(&mut self, episode: u64, period: u64, result: Result<Reply, Miss>) -> Option<Reply> {
-        let host = result.is_ok();
-        if self.on_host != Some(host) && self.report.switches.len() < SWITCHES_KEPT {
+        let to = match (&result, self.on_miss) {
+            (Ok(_), _) => Side::Host,
+            (Err(_), OnMiss::Local) => Side::Local,
+            (Err(_), OnMiss::Rest) => Side::Rest,
+        };
+        if self.last != Some(to) && self.report.switches.len() < SWITCHES_KEPT {
             let miss = result.as_ref().err().copied();
             let at_ns = mars_ipc::clock::monotonic_ns();
-            self.report.switches.push(Switch { episode, period, at_ns, to_host: host, miss });
+            self.report.switches.push(Switch { episode, period, at_ns, to, miss });
         }
-        self.on_host = Some(host);
+        self.last = Some(to);
+        let r = &mut self.report;
+        *match to {
+            Side::Host => &mut r.host_chunks,
+            Side::Local => &mut r.local_chunks,
+            Side::Rest => &mut r.rested,
+        } += 1;
         match result {
-            Ok(reply) => {
-                self.report.host_chunks += 1;
-                Some(reply)
-            }
+            Ok(reply) => Some(reply),
             Err(miss) => {
-                self.report.local_chunks += 1;
                 *self.count(miss) += 1;
                 None
             }

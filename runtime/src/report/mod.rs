@@ -17,6 +17,7 @@ use anyhow::Context;
 use serde::Serialize;
 
 use crate::config::DaemonConfig;
+use crate::policy::remote::Side;
 use crate::policy::{EpisodeResult, PolicyReport};
 use crate::report::latency::{Channel, Totals};
 use crate::rt::RtStatus;
@@ -467,12 +468,14 @@ impl Summary {
     }
 }
 
-/// `[remote]`'s lines: whose chunks, why the local engine took over, the round trip and the host's clock.
+/// `[remote]`'s lines: whose chunks, why the host's were missed, the round trip and the host's clock.
 fn write_remote(f: &mut std::fmt::Formatter<'_>, r: &crate::policy::remote::RemoteReport) -> std::fmt::Result {
+    // `on_miss = "rest"`: the calls that got no chunk, the arm resting.
+    let rested = if r.rested > 0 { format!(", {} with none (the arm at rest)", r.rested) } else { String::new() };
     writeln!(
         f,
-        "  inference host {}: {} chunks from the host, {} from the local engine (timeout {}, no host {}, expired {}, \
-         error {}, no time {}); round trip p50 {:.2} ms, p99 {:.2} ms, max {:.2} ms",
+        "  inference host {}: {} chunks from the host, {} from the local engine{rested} (timeout {}, no host {}, \
+         expired {}, error {}, no time {}); round trip p50 {:.2} ms, p99 {:.2} ms, max {:.2} ms",
         r.key,
         r.host_chunks,
         r.local_chunks,
@@ -497,9 +500,14 @@ fn write_remote(f: &mut std::fmt::Formatter<'_>, r: &crate::policy::remote::Remo
         None => writeln!(f, "  host clock: no host answered at start")?,
     }
     for s in &r.switches {
-        // A switch to the local engine always has its reason; one back to the host has none.
-        let to = s.miss.map_or_else(|| "host".to_owned(), |m| format!("local engine ({m:?})"));
-        writeln!(f, "    episode {} period {}: chunks from the {to}", s.episode, s.period)?;
+        // A switch away from the host always has its reason; one back to the host has none.
+        let why = s.miss.map_or_else(String::new, |m| format!(" ({m:?})"));
+        let to = match s.to {
+            Side::Host => "chunks from the host",
+            Side::Local => "chunks from the local engine",
+            Side::Rest => "no chunks, the arm at rest",
+        };
+        writeln!(f, "    episode {} period {}: {to}{why}", s.episode, s.period)?;
     }
     Ok(())
 }
