@@ -225,7 +225,8 @@ fn rest_attempt(attempt: u32) -> Attempt {
     wait_until(t0, Duration::from_secs(10), &mut marsd);
     link.shape().set_cut(false);
     let mended = monotonic_ns();
-    let (s, stream) = finished_with_stream(Run { name: "marsd", marsd, hal, rec, logs: &logs }, Duration::from_secs(120))?;
+    let (s, stream) =
+        finished_with_stream(Run { name: "marsd", marsd, hal, rec, logs: &logs }, Duration::from_secs(120))?;
     let remote = &s["remote"];
     // 2 s is 2–3 calls at one per 0.8 s; each got no chunk, for want of a reply (the link holds the query).
     let rested = u64_at(remote, "/rested");
@@ -233,12 +234,17 @@ fn rest_attempt(attempt: u32) -> Attempt {
     assert_eq!(u64_at(remote, "/local_chunks"), 0, "{remote}");
     assert_eq!(sides(remote), ["host", "rest", "host"], "switches: {}", remote["switches"]);
     assert!(u64_at(remote, "/host_chunks") > 10, "{remote}");
-    // The servo ran out of its chunk and held: over 0.5 s of its 1 kHz ticks (the cut holds ≥ 1.1 s of them, less
-    // the chunk's rows after the last reply and the stop).
+    // The servo ran out of its chunk and held. The last chunk before the cut runs at most its 8 rows (0.8 s) and the
+    // lead past it, and the stop takes ~0.2 s: at least ~0.9 s of the 2 s cut is held still (1.06–1.13 s measured),
+    // so 0.5 s of held ticks and of commands at zero velocity is asked, with room for a slow machine.
     let starved = u64_at(&s, "/deadline_misses/starved_ticks");
     assert!(starved > 500, "starved ticks {starved}");
     let still = longest_still_ms(&stream.commands, cut, mended);
-    assert!(still >= 300.0, "the arm never stood still during the cut (longest {still:.0} ms)");
+    eprintln!(
+        "starved ticks {starved}; the arm still for {still:.0} ms of the {:.0} ms cut",
+        (mended - cut) as f64 * 1e-6
+    );
+    assert!(still >= 500.0, "the arm never stood still during the cut (longest {still:.0} ms)");
     Ok(())
 }
 
