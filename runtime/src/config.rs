@@ -191,7 +191,8 @@ pub struct RemoteConfig {
     #[serde(default)]
     pub multicast_scouting: bool,
     /// Time kept for the local engine when the host's chunk is not back (ms): the host's wait ends this long
-    /// before the handoff margin. At least one local call at full K (the FR3 demo's: ~2 ms).
+    /// before the handoff margin. At least one local call at full K (the FR3 demo's: ~2 ms); with `on_miss = "rest"`
+    /// nothing runs in it, and it may be small.
     #[serde(default = "default_local_reserve_ms")]
     pub local_reserve_ms: f64,
     /// What replaces a chunk the host did not give in time: `local` (the local engine computes it, the default)
