@@ -5,8 +5,9 @@
 //! inference host, [`server::serve`] takes the queries of every robot it serves, runs the earliest deadline first
 //! through that robot's engine, and answers each with a [`wire::Reply`] (the chunk, tagged with the request's seq).
 //! A reply that does not come back in time is the robot's to replace: marsd then runs its local engine, or brings
-//! the arm to rest (`[remote] on_miss`; see `mars_runtime::policy`). [`link`] opens the Zenoh session and names the keys; [`clock`] measures the two
-//! machines' clock offset and round trip by ping-pong, so ages in the reports are on the robot's clock.
+//! the arm to rest (`[remote] on_miss`; see `mars_runtime::policy`). [`link`] opens the Zenoh session and names the
+//! keys; [`clock`] measures the two machines' clock offset and round trip by ping-pong, so ages in the reports are
+//! on the robot's clock.
 //!
 //! Why Zenoh and not iceoryx2's own tunnel: `iceoryx2-tunnel-zenoh` is published for iceoryx2 0.8 only (0.8.1 on
 //! crates.io), and marsd uses iceoryx2 0.10; a query/reply over Zenoh also gives a fleet one host with discovery,
