@@ -32,6 +32,15 @@ fn spawn_host(robot: &str, prefix: &str, locator: &str, name: &str, logs: &TempD
     host
 }
 
+/// `marsd serve` for the robot `arm`, reached through a TCP relay that holds every byte `one_way` (the relay is
+/// what a test cuts).
+fn host_behind_link(prefix: &str, one_way: Duration, logs: &TempDir) -> (Proc, mars_hil::shaped_link::ShapedLink) {
+    let port = free_port();
+    let host = spawn_host("arm", prefix, &format!("tcp/127.0.0.1:{port}"), "host", logs);
+    let upstream = std::net::SocketAddr::from(([127, 0, 0, 1], port));
+    (host, mars_hil::shaped_link::ShapedLink::start(upstream, one_way).unwrap())
+}
+
 fn wait_until(t0: Instant, at: Duration, marsd: &mut Proc) {
     while t0.elapsed() < at {
         assert!(marsd.running(), "marsd ended early\n{}", marsd.logs());
@@ -152,11 +161,8 @@ fn over_a_200_ms_round_trip_chunks_asked_two_periods_ahead_are_all_the_hosts() {
 fn delayed_attempt(attempt: u32) -> Attempt {
     let logs = TempDir::new(&format!("remote-delay{attempt}"));
     let prefix = format!("mars-test/{}/delay{attempt}", std::process::id());
-    let port = free_port();
     // Both runs' robots are `arm` to the host (`[remote] name`).
-    let _host = spawn_host("arm", &prefix, &format!("tcp/127.0.0.1:{port}"), "host", &logs);
-    let upstream = std::net::SocketAddr::from(([127, 0, 0, 1], port));
-    let link = mars_hil::shaped_link::ShapedLink::start(upstream, Duration::from_millis(100)).unwrap();
+    let (_host, link) = host_behind_link(&prefix, Duration::from_millis(100), &logs);
     let remote = format!("\n[remote]\nprefix = \"{prefix}\"\nname = \"arm\"\nconnect = [\"tcp/{}\"]\n", link.local);
     let mut runs = Vec::new();
     for (ahead, episodes) in [(0, 1), (2, 4)] {
@@ -204,10 +210,7 @@ fn with_on_miss_rest_the_arm_rests_while_the_link_is_cut_and_moves_again_on_the_
 fn rest_attempt(attempt: u32) -> Attempt {
     let logs = TempDir::new(&format!("remote-rest{attempt}"));
     let prefix = format!("mars-test/{}/rest{attempt}", std::process::id());
-    let port = free_port();
-    let _host = spawn_host("arm", &prefix, &format!("tcp/127.0.0.1:{port}"), "host", &logs);
-    let upstream = std::net::SocketAddr::from(([127, 0, 0, 1], port));
-    let link = mars_hil::shaped_link::ShapedLink::start(upstream, Duration::ZERO).unwrap();
+    let (_host, link) = host_behind_link(&prefix, Duration::ZERO, &logs);
     let remote = format!(
         "\n[remote]\nprefix = \"{prefix}\"\nname = \"arm\"\nconnect = [\"tcp/{}\"]\non_miss = \"rest\"\n",
         link.local
