@@ -17,8 +17,19 @@ fn free_port() -> u16 {
 
 /// `marsd serve` for `robot` with the demo's checkpoint, listening on `locator`; returns once it serves.
 fn spawn_host(robot: &str, prefix: &str, locator: &str, name: &str, logs: &TempDir) -> Proc {
+    spawn_host_with(marsd_command(), robot, prefix, locator, name, logs)
+}
+
+/// [`spawn_host`] with `marsd` started by `cmd` (e.g. inside a network namespace).
+fn spawn_host_with(
+    mut cmd: std::process::Command,
+    robot: &str,
+    prefix: &str,
+    locator: &str,
+    name: &str,
+    logs: &TempDir,
+) -> Proc {
     let checkpoint = root().join("assets/checkpoints/fr3_pick_cup/mars");
-    let mut cmd = marsd_command();
     cmd.arg("serve")
         .arg("--robot")
         .arg(format!("{robot}={}", checkpoint.display()))
@@ -161,20 +172,25 @@ fn over_a_200_ms_round_trip_chunks_asked_two_periods_ahead_are_all_the_hosts() {
 fn delayed_attempt(attempt: u32) -> Attempt {
     let logs = TempDir::new(&format!("remote-delay{attempt}"));
     let prefix = format!("mars-test/{}/delay{attempt}", std::process::id());
-    // Both runs' robots are `arm` to the host (`[remote] name`).
+    // Every run's robot is `arm` to the host (`[remote] name`).
     let (_host, link) = host_behind_link(&prefix, Duration::from_millis(100), &logs);
     let remote = format!("\n[remote]\nprefix = \"{prefix}\"\nname = \"arm\"\nconnect = [\"tcp/{}\"]\n", link.local);
     let mut runs = Vec::new();
-    for (ahead, episodes) in [(0, 1), (2, 4)] {
-        let name = format!("marsd-ahead{ahead}");
-        let robot = robot(&format!("rdelay{attempt}-{ahead}"));
-        let edits = [("handoff_margin_ms", &*format!("2.0\nask_ahead_periods = {ahead}"))];
+    // Asked at the lead, two periods ahead, and as many as `auto_ask_ahead` chooses from the round trip (None).
+    for (ahead, episodes) in [(Some(0), 1), (Some(2), 4), (None, 1)] {
+        let label = ahead.map_or("auto".to_string(), |a| a.to_string());
+        let name = format!("marsd-ahead{label}");
+        let robot = robot(&format!("rdelay{attempt}-{label}"));
+        let (policy, remote) = match ahead {
+            Some(a) => (format!("2.0\nask_ahead_periods = {a}"), remote.clone()),
+            None => ("2.0".to_string(), format!("{remote}auto_ask_ahead = true\n")),
+        };
         let config = logs.join(&format!("{name}.toml"));
-        std::fs::write(&config, config_text(&edits, "") + &remote).unwrap();
+        std::fs::write(&config, config_text(&[("handoff_margin_ms", policy.as_str())], "") + &remote).unwrap();
         let (hal, rec) = hal_of_with_recorder("configs/fr3.toml", &robot, &[], &logs);
         let t0 = Instant::now();
         let mut marsd = spawn_marsd_named(&name, &robot, &config, episodes, &[], &logs);
-        if ahead > 0 {
+        if ahead == Some(2) {
             // In the second of four episodes (each ~6 s).
             wait_until(t0, Duration::from_secs(9), &mut marsd);
             link.shape().set_cut(true);
@@ -193,6 +209,10 @@ fn delayed_attempt(attempt: u32) -> Attempt {
     let rtt = f64_at(ahead, "/round_trip_ms_p50");
     assert!(rtt >= 200.0, "the round trip did not cross the link: p50 {rtt} ms");
     assert!(u64_at(&runs[1], "/successes") >= 2, "{}", runs[1]["episode_results"]);
+    // auto_ask_ahead over the ~200 ms round trip: two periods, as the run above was told, and every chunk the host's.
+    let auto = &runs[2]["remote"];
+    assert_eq!(auto["auto_ask_ahead"]["periods"], 2, "{auto}");
+    assert!(u64_at(auto, "/host_chunks") > 5 && u64_at(auto, "/local_chunks") == 0, "auto: {auto}");
     assert!(link.shape().bytes() > 0);
     Ok(())
 }
@@ -265,4 +285,127 @@ fn longest_still_ms(commands: &[(mars_ipc::JointCommand, u64)], from: u64, to: u
         }
     }
     longest as f64 * 1e-6
+}
+
+/// `marsd top --connect` at the host, on the machine of neither robot: a marsd with `[remote]` and a robot in Python
+/// (tests/peers/live_peer.py, written from README's description of the live frame) both behind one `marsd serve`;
+/// top's table has a line for each, marsd's with its servo ticking, and marsd's run is as clean as without a watcher.
+#[test]
+fn top_connected_to_the_host_shows_every_robot_on_the_network() {
+    let _rt = rt_rig_lock();
+    at_most_one_rerun("marsd top through the host", top_attempt);
+}
+
+fn top_attempt(attempt: u32) -> Attempt {
+    let logs = TempDir::new(&format!("remote-top{attempt}"));
+    let prefix = format!("mars-test/{}/top{attempt}", std::process::id());
+    let locator = format!("tcp/127.0.0.1:{}", free_port());
+    let _host = spawn_host("arm", &prefix, &locator, "host", &logs);
+    let remote = format!("\n[remote]\nprefix = \"{prefix}\"\nname = \"arm\"\nconnect = [\"{locator}\"]\n");
+    let robot = robot(&format!("rtop{attempt}"));
+    let config = logs.join("marsd.toml");
+    std::fs::write(&config, config_text(&[], "") + &remote).unwrap();
+    let (hal, rec) = hal_of_with_recorder("configs/fr3.toml", &robot, &[], &logs);
+    let mut python = python_robot(&locator, &prefix, "py-arm", &logs);
+    let t0 = Instant::now();
+    let mut marsd = spawn_marsd(&robot, &config, 2, &[], &logs);
+    // In the first of two episodes (each ~6 s).
+    wait_until(t0, Duration::from_secs(4), &mut marsd);
+    let mut cmd = marsd_command();
+    let (locator, prefix) = (locator.as_str(), prefix.as_str());
+    cmd.args(["top", "--connect", locator, "--prefix", prefix, "--plain", "--count", "6", "--timeout-s", "20"]);
+    let mut top = Proc::spawn(cmd, "top", logs.path());
+    assert_eq!(top.exit_code(Duration::from_secs(60)), 0, "top failed\n{}", top.logs());
+    let table = top.stdout_text();
+    let last = table.rsplit("marsd top: ").next().unwrap_or_default();
+    eprintln!("top's last table:\nmarsd top: {last}");
+    assert!(last.starts_with("2 robot(s)"), "{table}");
+    let cells = |name: &str| -> Vec<String> {
+        let line = last
+            .lines()
+            .find(|l| l.starts_with(&format!("| {name} |")))
+            .unwrap_or_else(|| panic!("no {name}: {table}"));
+        line.split('|').map(|c| c.trim().to_owned()).filter(|c| !c.is_empty()).collect()
+    };
+    let (arm, py) = (cells("arm"), cells("py-arm"));
+    assert_eq!((py[1].as_str(), py[2].as_str(), py[3].as_str()), ("Running", "1", "123"), "{py:?}");
+    let ticks: u64 = arm[3].parse().unwrap_or_else(|_| panic!("{arm:?}"));
+    assert!(arm[4] == "none" && ticks > 1_000, "marsd's line: {arm:?}");
+    finished_cleanly(Run { name: "marsd", marsd, hal, rec, logs: &logs }, Duration::from_secs(120))?;
+    assert_eq!(python.exit_code(Duration::from_secs(30)), 0, "the Python robot failed\n{}", python.logs());
+    Ok(())
+}
+
+/// A robot in Python putting one live frame (episode 1, 123 ticks, running) every 20 ms for 20 s, a client of the
+/// host at `locator`.
+fn python_robot(locator: &str, prefix: &str, name: &str, logs: &TempDir) -> Proc {
+    let venv = std::process::Command::new(root().join(".ci/zenoh-venv")).current_dir(root()).status().unwrap();
+    assert!(venv.success(), ".ci/zenoh-venv failed");
+    let frame = serde_json::json!({
+        "seq": 1, "timestamp_ns": 0, "period_ns": 1_000_000, "inference_budget_ns": 8_000_000,
+        "channels": vec![[0u64; 7]; 12], "phase": 4, "trip": 0, "episode": 1, "ticks": 123, "policy_beats": 0,
+        "starved": 0, "servo": vec![0u64; 7], "hal": vec![0u64; 6], "camera": "",
+    });
+    let job = serde_json::json!({"connect": locator, "prefix": prefix, "watch": null, "robot": name,
+                                 "frame": frame, "seconds": 20.0});
+    let job_file = logs.join("live_peer.json");
+    std::fs::write(&job_file, job.to_string()).unwrap();
+    let mut cmd = std::process::Command::new(root().join(".venv-zenoh/bin/python"));
+    cmd.arg(root().join("tests/peers/live_peer.py")).arg(&job_file);
+    Proc::spawn(cmd, "py-arm", logs.path())
+}
+
+/// The host in a network namespace of its own, reached over a veth link through the kernel (`hil/src/netns.rs`,
+/// nftables): 3 % of the packets dropped each way for the whole run, and the link partitioned for 2 s in the second
+/// of four episodes. A lost segment waits for TCP's retransmission (200 ms or more), longer than the host's share of
+/// a period: those calls, and the partition's, are the local engine's. Through all of it no chunk is late, nothing
+/// trips, nothing is out of limits, every local chunk is a counted miss, and the host's chunks come back after the
+/// partition.
+#[test]
+fn over_a_lossy_link_in_a_namespace_and_a_partition_every_missed_chunk_is_the_local_engines() {
+    let _rt = rt_rig_lock();
+    at_most_one_rerun("remote host in a namespace, lossy and partitioned", netns_attempt);
+}
+
+fn netns_attempt(attempt: u32) -> Attempt {
+    let logs = TempDir::new(&format!("remote-netns{attempt}"));
+    let net = mars_hil::netns::NetNs::create(std::process::id() * 2 + attempt).expect("the test's own network");
+    let prefix = format!("mars-test/{}/netns{attempt}", std::process::id());
+    // The namespace is the host's alone: any port is free there.
+    let locator = format!("tcp/{}:7447", net.there_ip);
+    let mut cmd = net.command(Path::new(env!("CARGO_BIN_EXE_mars-hil")));
+    cmd.arg("marsd");
+    let _host = spawn_host_with(cmd, "arm", &prefix, &locator, "host", &logs);
+    net.apply(3, false).unwrap();
+    let remote = format!("\n[remote]\nprefix = \"{prefix}\"\nname = \"arm\"\nconnect = [\"{locator}\"]\n");
+    let robot = robot(&format!("rnetns{attempt}"));
+    let config = logs.join("marsd.toml");
+    std::fs::write(&config, config_text(&[], "") + &remote).unwrap();
+    let (hal, rec) = hal_of_with_recorder("configs/fr3.toml", &robot, &[], &logs);
+    let t0 = Instant::now();
+    let mut marsd = spawn_marsd(&robot, &config, 4, &[], &logs);
+    // In the second of four episodes (each ~6 s).
+    wait_until(t0, Duration::from_secs(9), &mut marsd);
+    net.apply(3, true).unwrap();
+    wait_until(t0, Duration::from_secs(11), &mut marsd);
+    net.apply(3, false).unwrap();
+    let s = finished_cleanly(Run { name: "marsd", marsd, hal, rec, logs: &logs }, Duration::from_secs(120))?;
+    let r = &s["remote"];
+    let local = u64_at(r, "/local_chunks");
+    let misses: u64 =
+        ["timeouts", "no_host", "expired", "errors", "no_time"].iter().map(|k| u64_at(r, &format!("/{k}"))).sum();
+    eprintln!(
+        "over 3 % loss and a 2 s partition: {} host chunks, {local} local; switches {:?}",
+        u64_at(r, "/host_chunks"),
+        sides(r)
+    );
+    assert!(local >= 1 && local == misses, "every local chunk a counted miss, the partition's among them: {r}");
+    assert!(u64_at(r, "/host_chunks") > 15, "{r}");
+    let sides = sides(r);
+    assert!(
+        sides.iter().any(|s| s == "local") && sides.last().map(String::as_str) == Some("host"),
+        "switches {sides:?}"
+    );
+    assert_eq!(u64_at(&s, "/servo_allocations/system"), 0, "the servo tick allocated");
+    Ok(())
 }

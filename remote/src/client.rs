@@ -46,6 +46,11 @@ impl RemotePolicy {
         Ok(Self { session: link.open()?, key, clock_key })
     }
 
+    /// The Zenoh session this robot joined (its live frames go out on it too, `crate::live::LivePublisher`).
+    pub fn session(&self) -> &zenoh::Session {
+        &self.session
+    }
+
     /// The key this robot's queries go to.
     pub fn key(&self) -> &str {
         &self.key

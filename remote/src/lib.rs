@@ -7,7 +7,8 @@
 //! A reply that does not come back in time is the robot's to replace: marsd then runs its local engine, or brings
 //! the arm to rest (`[remote] on_miss`; see `mars_runtime::policy`). [`link`] opens the Zenoh session and names the
 //! keys; [`clock`] measures the two machines' clock offset and round trip by ping-pong, so ages in the reports are
-//! on the robot's clock.
+//! on the robot's clock. [`live`] carries each robot's live view (what `marsd top` shows) through the host to a
+//! `marsd top` on any machine.
 //!
 //! Why Zenoh and not iceoryx2's own tunnel: `iceoryx2-tunnel-zenoh` is published for iceoryx2 0.8 only (0.8.1 on
 //! crates.io), and marsd uses iceoryx2 0.10; a query/reply over Zenoh also gives a fleet one host with discovery,
@@ -16,6 +17,7 @@
 pub mod client;
 pub mod clock;
 pub mod link;
+pub mod live;
 pub mod server;
 pub mod wire;
 

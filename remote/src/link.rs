@@ -42,12 +42,17 @@ impl LinkConfig {
 
     /// Opens a session in peer mode: blocks until the listeners are up (connecting retries in the background).
     pub fn open(&self) -> Result<zenoh::Session, LinkError> {
+        self.open_as(Role::Peer)
+    }
+
+    /// Opens a session in the given role (see [`Role`]).
+    pub fn open_as(&self, role: Role) -> Result<zenoh::Session, LinkError> {
         use zenoh::Wait;
         let mut c = zenoh::Config::default();
         let set = |c: &mut zenoh::Config, key: &str, value: String| {
             c.insert_json5(key, &value).map_err(|e| LinkError::Locator(value.clone(), e.to_string()))
         };
-        set(&mut c, "mode", "\"peer\"".into())?;
+        set(&mut c, "mode", format!("\"{}\"", role.mode()))?;
         for (key, list) in [("connect/endpoints", &self.connect), ("listen/endpoints", &self.listen)] {
             for l in list {
                 l.parse::<zenoh::config::EndPoint>().map_err(|e| LinkError::Locator(l.clone(), e.to_string()))?;
@@ -59,12 +64,33 @@ impl LinkConfig {
     }
 }
 
+/// What a session is to the network. Zenoh's peers talk to the peers they are connected to and forward nothing;
+/// a router also forwards between the sessions connected to it, and a client reaches everything through the one
+/// router it is connected to.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Role {
+    /// A robot (marsd with `[remote]`): its queries and live frames go to the host it is connected to.
+    Peer,
+    /// The inference host (`marsd serve`): it also forwards the robots' live frames to the watchers connected to it.
+    Router,
+    /// A watcher (`marsd top --connect`): it reaches every robot through the host.
+    Client,
+}
+
+impl Role {
+    fn mode(self) -> &'static str {
+        match self {
+            Role::Peer => "peer",
+            Role::Router => "router",
+            Role::Client => "client",
+        }
+    }
+}
+
 /// The key a robot's inference queries go to: `<prefix>/<robot>/infer`.
 pub fn infer_key(prefix: &str, robot: &str) -> Result<String, LinkError> {
     check_prefix(prefix)?;
-    if robot.is_empty() || robot.contains(['/', '*', '$', '?', '#']) {
-        return Err(LinkError::Robot(robot.to_owned()));
-    }
+    check_robot(robot)?;
     Ok(format!("{prefix}/{robot}/infer"))
 }
 
@@ -85,9 +111,14 @@ pub fn robot_of<'a>(prefix: &str, key: &'a str) -> Option<&'a str> {
     key.strip_prefix(prefix)?.strip_prefix('/')?.strip_suffix("/infer").filter(|r| !r.contains('/'))
 }
 
-fn check_prefix(prefix: &str) -> Result<(), LinkError> {
+pub(crate) fn check_prefix(prefix: &str) -> Result<(), LinkError> {
     let bad = prefix.is_empty() || prefix.contains(['*', '$', '?', '#']) || prefix.split('/').any(str::is_empty);
     if bad { Err(LinkError::Prefix(prefix.to_owned())) } else { Ok(()) }
+}
+
+pub(crate) fn check_robot(robot: &str) -> Result<(), LinkError> {
+    let bad = robot.is_empty() || robot.contains(['/', '*', '$', '?', '#']);
+    if bad { Err(LinkError::Robot(robot.to_owned())) } else { Ok(()) }
 }
 
 #[cfg(test)]

@@ -4,22 +4,10 @@
 mod support;
 
 use std::io::Write;
-use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
 use support::*;
-
-fn repo() -> &'static Path {
-    Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/.."))
-}
-
-/// `.ci/zenoh-venv`'s Python (installed first if missing; idempotent, and one install at a time machine-wide).
-fn python() -> std::path::PathBuf {
-    let status = Command::new(repo().join(".ci/zenoh-venv")).current_dir(repo()).status().expect(".ci/zenoh-venv");
-    assert!(status.success(), ".ci/zenoh-venv failed ({status}): the Python peer is not installed");
-    repo().join(".venv-zenoh/bin/python")
-}
 
 #[test]
 fn a_python_zenoh_client_gets_the_local_engines_chunks() {

@@ -200,6 +200,12 @@ pub struct RemoteConfig {
     /// there until the host answers again).
     #[serde(default)]
     pub on_miss: OnMiss,
+    /// Choose `[policy] ask_ahead_periods` from the round trip measured at start (the median of the clock's pings):
+    /// the fewest periods that leave the host that round trip and its answer before the local reserve; 0 when no
+    /// host answered then, or when the round trip needs more periods than the chunk allows. Not with
+    /// `ask_ahead_periods` set too.
+    #[serde(default)]
+    pub auto_ask_ahead: bool,
 }
 
 /// `[remote] on_miss`: what the robot does while the inference host's chunks are missing.
@@ -388,6 +394,9 @@ impl DaemonConfig {
                 room,
                 "ms (policy.lead_ms less the margin)",
             )?;
+            if r.auto_ask_ahead && self.policy.ask_ahead_periods > 0 {
+                return bad("remote.auto_ask_ahead", "policy.ask_ahead_periods is set too: give one of the two".into());
+            }
             if r.connect.is_empty() && r.listen.is_empty() && !r.multicast_scouting {
                 return bad("remote", "names no way to the host: give connect, listen or multicast_scouting".into());
             }

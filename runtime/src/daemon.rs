@@ -81,7 +81,7 @@ impl Prepared {
 }
 
 /// Loads and cross-checks the profile, task and checkpoint. Any error here means nothing moved.
-pub fn prepare(cfg: DaemonConfig) -> anyhow::Result<Prepared> {
+pub fn prepare(mut cfg: DaemonConfig) -> anyhow::Result<Prepared> {
     // Again: the command line may have changed what the file said.
     cfg.validate(&cfg.source.display().to_string())?;
     let profile = Profile::load(&cfg.profile)?;
@@ -115,9 +115,11 @@ pub fn prepare(cfg: DaemonConfig) -> anyhow::Result<Prepared> {
         (engine.chunk_len() - 1) / 2,
         engine.chunk_len()
     );
+    let auto_ahead = cfg.remote.as_ref().is_some_and(|r| r.auto_ask_ahead);
     anyhow::ensure!(
-        ahead == 0 || cfg.record.is_none(),
-        "record: not with policy.ask_ahead_periods > 0 yet (a recorded chunk is a whole one, executed from its start)"
+        (ahead == 0 && !auto_ahead) || cfg.record.is_none(),
+        "record: not with policy.ask_ahead_periods > 0 or [remote] auto_ask_ahead yet (a recorded chunk is a whole \
+         one, executed from its start)"
     );
     if let Some(path) = &cfg.record {
         anyhow::ensure!(
@@ -138,10 +140,14 @@ pub fn prepare(cfg: DaemonConfig) -> anyhow::Result<Prepared> {
         "policy.rate_hz = {} but the task's demos were recorded at {rate} Hz",
         cfg.policy.rate_hz
     );
-    let remote = match &cfg.remote {
+    let mut remote = match &cfg.remote {
         Some(r) => Some(crate::policy::remote::Remote::connect(&cfg, r).context("[remote]")?),
         None => None,
     };
+    if let Some(r) = remote.as_mut().filter(|_| auto_ahead) {
+        // At most (C − 1)/2, as checked above for a value the file gives.
+        cfg.policy.ask_ahead_periods = r.choose_ask_ahead(&cfg.policy, engine.chunk_len().saturating_sub(1) / 2);
+    }
     Ok(Prepared { cfg, profile, task, engine, replay: None, remote })
 }
 
@@ -158,7 +164,8 @@ pub fn run(p: Prepared) -> anyhow::Result<Outcome> {
     let task_view = task.clone();
     std::fs::create_dir_all(&cfg.out).with_context(|| format!("creating {}", cfg.out.display()))?;
     let status = Arc::new(Status::default());
-    let (collector, servo_rec, policy_rec) = start_collector(&cfg, &profile, &task, &status)?;
+    let network = live_on_network(&cfg, remote.as_ref());
+    let (collector, servo_rec, policy_rec) = start_collector(&cfg, &profile, &task, &status, network)?;
 
     // Policy thread → servo thread (see `shared`).
     let (requests_in, requests_out) = rtrb::RingBuffer::new(16);
@@ -259,6 +266,7 @@ fn start_collector(
     profile: &Profile,
     task: &HilTask,
     status: &Arc<Status>,
+    network: Option<mars_remote::live::LivePublisher>,
 ) -> anyhow::Result<(Collector, crate::report::latency::Recorder, crate::report::latency::Recorder)> {
     let live = crate::report::live::publisher(crate::report::live::LiveSetup {
         robot: cfg.robot.clone(),
@@ -269,6 +277,7 @@ fn start_collector(
             HilTask::PushT(t) => Some(t.cfg.camera.name.clone()),
             HilTask::Pick(_) => None,
         },
+        network,
     });
     let collector = Collector::start_with(&cfg.out, Duration::from_millis(50), Some(live))?;
     let servo_rec = collector.recorder("servo", &servo_channels(), 8);
@@ -278,6 +287,15 @@ fn start_collector(
         8,
     );
     Ok((collector, servo_rec, policy_rec))
+}
+
+/// With `[remote]`, the live frames' publisher on the Zenoh network; a run without it (said once) loses only that.
+fn live_on_network(
+    cfg: &DaemonConfig,
+    remote: Option<&crate::policy::remote::Remote>,
+) -> Option<mars_remote::live::LivePublisher> {
+    let (remote, rc) = (remote?, cfg.remote.as_ref()?);
+    remote.live_publisher(rc, &cfg.robot).map_err(|e| tracing::warn!("live frames not on the network: {e:#}")).ok()
 }
 
 /// The liveness heartbeat, beating only while the servo's tick counter advances: a syscall the servo thread does

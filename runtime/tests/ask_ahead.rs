@@ -52,3 +52,22 @@ fn asking_ahead_with_a_recording_is_refused() {
     let err = refusal(cfg);
     assert!(err.contains("not with policy.ask_ahead_periods > 0"), "{err}");
 }
+
+/// `[remote] auto_ask_ahead` chooses `ask_ahead_periods`: not both in one file, and not with a recording (refused
+/// before the host is asked anything).
+#[test]
+fn auto_ask_ahead_is_refused_beside_a_count_or_a_recording() {
+    let text = std::fs::read_to_string(root().join("configs/marsd.toml")).unwrap();
+    let remote = "\n[remote]\nconnect = [\"tcp/127.0.0.1:9\"]\nauto_ask_ahead = true\n";
+    let both = text.replace("handoff_margin_ms = 2.0", "handoff_margin_ms = 2.0\nask_ahead_periods = 1") + remote;
+    let err = format!("{:#}", DaemonConfig::parse(&both, "marsd.toml").unwrap_err());
+    assert!(err.contains("remote.auto_ask_ahead") && err.contains("give one of the two"), "{err}");
+    let mut cfg = DaemonConfig::parse(&(text + remote), "marsd.toml").unwrap();
+    assert!(cfg.remote.as_ref().unwrap().auto_ask_ahead);
+    for p in [&mut cfg.profile, &mut cfg.task, &mut cfg.checkpoint] {
+        *p = root().join(&p);
+    }
+    cfg.record = Some(std::env::temp_dir().join(format!("mars-auto-ahead-{}", std::process::id())));
+    let err = refusal(cfg);
+    assert!(err.contains("[remote] auto_ask_ahead"), "{err}");
+}

@@ -32,6 +32,7 @@ pub fn all() -> Vec<Arc<dyn Target>> {
         configs::hal_profile(),
         wire::frames(),
         remote::messages(),
+        remote::live_frames(),
         ros2::cdr(),
         ros2::jpeg(),
     ]

@@ -16,6 +16,7 @@ use crate::demo::DemoArgs;
 use crate::shaped_link::ShapedLink;
 use mars_runtime::cli::MarsdArgs;
 use mars_runtime::config::DaemonConfig;
+use mars_runtime::policy::remote::periods_ahead;
 
 #[derive(clap::Args, Debug, Clone)]
 pub struct RemoteBenchArgs {
@@ -29,17 +30,6 @@ pub struct RemoteBenchArgs {
     pub episodes: usize,
     #[arg(long, default_value = "runs/bench_remote")]
     pub out: PathBuf,
-}
-
-/// What the host needs beyond the round trip to answer (a state policy's call is ~1 ms here), with room.
-const HOST_ANSWER_MS: f64 = 5.0;
-
-/// The fewest periods ahead that leave the host a round trip and its answer before the local engine's reserve.
-pub fn periods_ahead(cfg: &DaemonConfig, one_way_ms: f64, reserve_ms: f64) -> usize {
-    let period_ms = 1e3 / cfg.policy.rate_hz;
-    let available = cfg.policy.lead_ms - cfg.policy.handoff_margin_ms - reserve_ms;
-    let short = 2.0 * one_way_ms + HOST_ANSWER_MS - available;
-    if short <= 0.0 { 0 } else { (short / period_ms).ceil() as usize }
 }
 
 struct Row {
@@ -66,7 +56,8 @@ pub fn run(args: RemoteBenchArgs) -> anyhow::Result<()> {
     for &d in &args.one_way_ms {
         link.shape().set_delay(Duration::from_secs_f64(d / 1e3));
         // The generated `[remote]` leaves the local reserve at marsd's default.
-        let ahead = periods_ahead(&cfg, d, mars_runtime::config::DEFAULT_LOCAL_RESERVE_MS);
+        // The fewest periods ahead that leave the host the round trip and its answer (as `auto_ask_ahead` chooses).
+        let ahead = periods_ahead(&cfg.policy, 2.0 * d, mars_runtime::config::DEFAULT_LOCAL_RESERVE_MS);
         let label = format!("{d:.0} ms");
         if 2 * ahead >= chunk {
             rows.push(Row {
@@ -239,19 +230,4 @@ fn table(rows: &[Row], episodes: usize) -> String {
         );
     }
     out
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// The shipped config (10 Hz, lead 80 ms, margin 2 ms) with a 10 ms local reserve leaves the host 68 ms at the
-    /// lead: a 100 ms round trip needs one period more, 200 ms two, 400 ms four.
-    #[test]
-    fn the_periods_ahead_cover_the_round_trip() {
-        let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
-        let cfg = DaemonConfig::load(&root.join("configs/marsd.toml")).unwrap();
-        let ahead: Vec<usize> = [0.0, 30.0, 50.0, 100.0, 200.0].iter().map(|&d| periods_ahead(&cfg, d, 10.0)).collect();
-        assert_eq!(ahead, [0, 0, 1, 2, 4]);
-    }
 }

@@ -73,3 +73,16 @@ pub fn request(e: &Engine, seq: u64) -> Request {
         ..Default::default()
     }
 }
+
+/// The repository's root.
+pub fn repo() -> &'static std::path::Path {
+    std::path::Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/.."))
+}
+
+/// `.ci/zenoh-venv`'s Python (installed first if missing; idempotent, and one install at a time machine-wide).
+pub fn python() -> PathBuf {
+    let status =
+        std::process::Command::new(repo().join(".ci/zenoh-venv")).current_dir(repo()).status().expect(".ci/zenoh-venv");
+    assert!(status.success(), ".ci/zenoh-venv failed ({status}): the Python peer is not installed");
+    repo().join(".venv-zenoh/bin/python")
+}

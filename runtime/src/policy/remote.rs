@@ -11,10 +11,11 @@ use std::time::Duration;
 use hdrhistogram::Histogram;
 use mars_remote::client::{PendingReply, RemoteError, RemotePolicy};
 use mars_remote::clock::ClockEstimate;
+use mars_remote::live::LivePublisher;
 use mars_remote::wire::{Reply, Request, Status};
 use serde::Serialize;
 
-use crate::config::{DaemonConfig, OnMiss, RemoteConfig};
+use crate::config::{DaemonConfig, OnMiss, PolicyLoopConfig, RemoteConfig};
 
 /// Switches between host and local engine kept for the report.
 pub const SWITCHES_KEPT: usize = 32;
@@ -101,6 +102,30 @@ pub struct RemoteReport {
     pub switches: Vec<Switch>,
     /// The first error's words.
     pub first_error: Option<String>,
+    /// `[remote] auto_ask_ahead`: what was chosen, and from what.
+    pub auto_ask_ahead: Option<AutoAskAhead>,
+}
+
+/// The periods ahead `[remote] auto_ask_ahead` chose at start.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct AutoAskAhead {
+    /// `[policy] ask_ahead_periods` for this run.
+    pub periods: usize,
+    /// The round trip it was chosen for (the median ping at start; None: no host answered then).
+    pub round_trip_ms: Option<f64>,
+    /// The periods that round trip needs (more than `periods` when the chunk allows fewer: then 0 is used).
+    pub needed: Option<usize>,
+}
+
+/// What the host needs beyond the round trip to answer (a state policy's call is ~1 ms on a 2-core VM), with room.
+pub const HOST_ANSWER_MS: f64 = 5.0;
+
+/// The fewest periods ahead that leave the host `round_trip_ms` and its answer before the local engine's reserve.
+pub fn periods_ahead(policy: &PolicyLoopConfig, round_trip_ms: f64, reserve_ms: f64) -> usize {
+    let period_ms = 1e3 / policy.rate_hz;
+    let available = policy.lead_ms - policy.handoff_margin_ms - reserve_ms;
+    let short = round_trip_ms + HOST_ANSWER_MS - available;
+    if short <= 0.0 { 0 } else { (short / period_ms).ceil() as usize }
 }
 
 /// One chunk's request, as the policy loop knows it.
@@ -167,6 +192,31 @@ impl Remote {
             round_trip_us: Histogram::new_with_bounds(1, 60_000_000, 3).expect("valid histogram bounds"),
             report,
         })
+    }
+
+    /// This robot's live frames on the session it joined (`<prefix>/<name>/live`), for a `marsd top --connect` on
+    /// any machine. Declared from the main thread, as the session was.
+    pub fn live_publisher(&self, remote: &RemoteConfig, robot: &str) -> anyhow::Result<LivePublisher> {
+        Ok(LivePublisher::declare(self.policy.session(), &remote.prefix, remote.name(robot))?)
+    }
+
+    /// `[remote] auto_ask_ahead`: the periods ahead the round trip measured at start needs (the median ping), at
+    /// most `max`; 0 (asked at the lead, the local engine computing what the host cannot) when no host answered
+    /// then or when more than `max` are needed. Said in the log and the report.
+    pub fn choose_ask_ahead(&mut self, policy: &PolicyLoopConfig, max: usize) -> usize {
+        let round_trip_ms = self.report.clock.as_ref().map(|c| c.rtt_median_ns as f64 * 1e-6);
+        let needed = round_trip_ms.map(|rtt| periods_ahead(policy, rtt, self.reserve_ns as f64 * 1e-6));
+        let periods = needed.filter(|n| *n <= max).unwrap_or(0);
+        match (round_trip_ms, needed) {
+            (Some(rtt), Some(n)) if n > max => tracing::warn!(
+                "auto_ask_ahead: a round trip of {rtt:.1} ms needs {n} periods ahead, more than the chunk allows \
+                 ({max}): chunks asked at the lead"
+            ),
+            (Some(rtt), _) => tracing::info!(periods, round_trip_ms = rtt, "auto_ask_ahead"),
+            (None, _) => tracing::warn!("auto_ask_ahead: no host answered at start; chunks asked at the lead"),
+        }
+        self.report.auto_ask_ahead = Some(AutoAskAhead { periods, round_trip_ms, needed });
+        periods
     }
 
     /// Whether a missing chunk is left missing (the arm rests) rather than the local engine's.
@@ -308,5 +358,21 @@ impl Remote {
             self.report.round_trip_ms_max = ms(h.max());
         }
         self.report
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The shipped config (10 Hz, lead 80 ms, margin 2 ms) with a 10 ms local reserve leaves the host 68 ms at the
+    /// lead (less 5 ms for its answer): a 100 ms round trip needs one period more, 200 ms two, 400 ms four.
+    #[test]
+    fn the_periods_ahead_cover_the_round_trip() {
+        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+        let cfg = DaemonConfig::load(&root.join("configs/marsd.toml")).unwrap();
+        let rtts = [0.0, 60.0, 63.0, 63.1, 100.0, 200.0, 400.0];
+        let ahead: Vec<usize> = rtts.iter().map(|&rtt| periods_ahead(&cfg.policy, rtt, 10.0)).collect();
+        assert_eq!(ahead, [0, 0, 0, 1, 1, 2, 4]);
     }
 }

@@ -1,5 +1,6 @@
 //! The daemon's live view for `marsd top`: on the latency collector's thread, every interval a loop hands over
-//! becomes a [`LiveStats`] frame on `mars/<robot>/live`, with the servo loop's status read from its atomics.
+//! becomes a [`LiveStats`] frame on `mars/<robot>/live`, with the servo loop's status read from its atomics; with
+//! `[remote]`, the same frame goes on the Zenoh network as well (`mars_remote::live`).
 //!
 //! Nothing here runs on a real-time thread. The loops already hand their interval histograms to the collector
 //! (to write the interval log); this reads those histograms, the status atomics the daemon's notifier already
@@ -25,6 +26,9 @@ pub struct LiveSetup {
     pub inference_budget_ns: u64,
     /// The camera the policy reads, if any (its frames' ages are the `camera_age` channel).
     pub camera: Option<String>,
+    /// With `[remote]`: the same frames on the Zenoh network too (`<prefix>/<name>/live`), for a `marsd top
+    /// --connect` on another machine.
+    pub network: Option<mars_remote::live::LivePublisher>,
 }
 
 /// The collector hook that publishes the live view. The port is opened on the collector's thread at the first
@@ -39,20 +43,19 @@ fn on_interval(setup: LiveSetup) -> OnInterval {
         LiveStats { period_ns: setup.period_ns, inference_budget_ns: setup.inference_budget_ns, ..Default::default() };
     frame.set_camera_name(setup.camera.as_deref().unwrap_or(""));
     let mut port = None;
-    let mut failed = false;
+    let (mut failed, mut network_failed) = (false, false);
     Box::new(move |view: &IntervalView<'_>, starved: u64| {
-        if failed {
-            return;
-        }
-        if port.is_none() {
+        if port.is_none() && !failed {
             match open(&setup.robot) {
                 Ok(p) => port = Some(p),
                 Err(e) => {
-                    warn!("live view (marsd top) not available: {e:#}");
+                    warn!("live view (marsd top) not available on this machine: {e:#}");
                     failed = true;
-                    return;
                 }
             }
+        }
+        if failed && setup.network.is_none() {
+            return;
         }
         let (start_ns, end_ns) = view.span_ns();
         for c in Channel::ALL {
@@ -92,6 +95,13 @@ fn on_interval(setup: LiveSetup) -> OnInterval {
         if let Some((_, writer)) = port.as_ref() {
             // Nobody watching is the normal case; a failed send only means this frame is not seen.
             let _ = writer.send(&frame);
+        }
+        if let Some(network) = setup.network.as_ref()
+            && let Err(e) = network.put(&frame)
+            && !network_failed
+        {
+            warn!("a live frame was not put on the network (said once): {e}");
+            network_failed = true;
         }
     })
 }

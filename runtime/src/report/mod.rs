@@ -499,6 +499,16 @@ fn write_remote(f: &mut std::fmt::Formatter<'_>, r: &crate::policy::remote::Remo
         )?,
         None => writeln!(f, "  host clock: no host answered at start")?,
     }
+    if let Some(a) = &r.auto_ask_ahead {
+        let why = match (a.round_trip_ms, a.needed) {
+            (None, _) => "no host answered at start".to_string(),
+            (Some(rtt), Some(n)) if n > a.periods => {
+                format!("the round trip of {rtt:.1} ms at start needs {n}, more than the chunk allows")
+            }
+            (Some(rtt), _) => format!("for the round trip of {rtt:.1} ms at start"),
+        };
+        writeln!(f, "  ask ahead (auto_ask_ahead): {} periods, {why}", a.periods)?;
+    }
     for s in &r.switches {
         // A switch away from the host always has its reason; one back to the host has none.
         let why = s.miss.map_or_else(String::new, |m| format!(" ({m:?})"));

@@ -1,6 +1,7 @@
 //! `marsd serve`: this machine as the inference host of one or more robots (each robot's marsd with `[remote]`):
 //! loads a checkpoint per robot, answers their queries earliest deadline first until SIGTERM/SIGINT or
-//! `--duration-s`, then prints what it did per robot (and writes it as JSON with `--out`).
+//! `--duration-s`, then prints what it did per robot (and writes it as JSON with `--out`). Its session is a Zenoh
+//! router: it forwards the robots' live frames to a `marsd top --connect` attached to it.
 
 use std::fmt;
 use std::path::PathBuf;
@@ -10,7 +11,7 @@ use std::time::Duration;
 
 use anyhow::Context;
 use mars_engine::{Engine, EngineConfig};
-use mars_remote::link::LinkConfig;
+use mars_remote::link::{LinkConfig, Role};
 use mars_remote::server::{ServeReport, ServedRobot, serve};
 
 #[derive(clap::Args, Debug, Clone)]
@@ -73,7 +74,8 @@ pub fn run(a: &ServeArgs) -> anyhow::Result<Served> {
     }
     let link =
         LinkConfig { connect: a.connect.clone(), listen: a.listen.clone(), multicast_scouting: a.multicast_scouting };
-    let session = link.open()?;
+    // A router, so that a `marsd top --connect` here sees the live frames of every robot connected here.
+    let session = link.open_as(Role::Router)?;
     let stop = Arc::new(AtomicBool::new(false));
     for sig in [signal_hook::consts::SIGTERM, signal_hook::consts::SIGINT] {
         signal_hook::flag::register(sig, stop.clone())?;

@@ -1,7 +1,8 @@
 //! `marsd top`: a running daemon's loops as they run, refreshed with every interval its latency collector
 //! receives (`histograms.interval_s`, 0.25 s in the shipped config): latency percentiles, the servo's counters and
 //! the HAL's safety counters, phase and trip. It attaches to `mars/<robot>/live` like any
-//! subscriber: no server, no request to the daemon, nothing added to its real-time loops (see `live`).
+//! subscriber: no server, no request to the daemon, nothing added to its real-time loops (see `live`). With
+//! `--connect`, a fleet's robots through their inference host instead, from any machine (`top_network`).
 
 use std::fmt;
 use std::io::{IsTerminal, Write as _};
@@ -18,9 +19,17 @@ use crate::shared::Phase;
 
 #[derive(clap::Args, Debug, Clone)]
 pub struct TopArgs {
-    /// The robot whose daemon to watch (the service is mars/<robot>/live).
+    /// The robot whose daemon to watch (the service is mars/<robot>/live). Needed on the robot's machine; with
+    /// `--connect`, only this robot of the fleet.
     #[arg(long)]
-    pub robot: String,
+    pub robot: Option<String>,
+    /// Watch every robot whose marsd has `[remote]` through the inference host at these Zenoh locators (e.g.
+    /// `tcp/192.168.1.20:7447`, where `marsd serve` listens), from any machine: a line per robot.
+    #[arg(long)]
+    pub connect: Vec<String>,
+    /// With `--connect`: the robots' `[remote] prefix`.
+    #[arg(long, default_value = "mars")]
+    pub prefix: String,
     /// Show this many views, then exit (default: until the daemon stops publishing, or Ctrl-C).
     #[arg(long)]
     pub count: Option<u64>,
@@ -49,9 +58,14 @@ pub fn run(args: &TopArgs) -> anyhow::Result<TopEnd> {
         .ok()
         .filter(|t| !t.is_zero() && t.as_secs() <= 86_400)
         .with_context(|| format!("--timeout-s must be a number of seconds in (0, 86400], got {}", args.timeout_s))?;
-    let ns = RobotNamespace::new(&args.robot)?;
-    let (node, _) = create_node(&format!("marsd-top-{}-{}", args.robot, std::process::id()))?;
-    let reader = LiveReader::new(&node, &ns).with_context(|| format!("subscribing to mars/{}/live", args.robot))?;
+    if !args.connect.is_empty() {
+        return crate::tools::top_network::run(args, timeout);
+    }
+    let robot =
+        args.robot.as_deref().context("--robot NAME (this machine's daemon), or --connect LOCATOR (a fleet)")?;
+    let ns = RobotNamespace::new(robot)?;
+    let (node, _) = create_node(&format!("marsd-top-{robot}-{}", std::process::id()))?;
+    let reader = LiveReader::new(&node, &ns).with_context(|| format!("subscribing to mars/{robot}/live"))?;
     let redraw = !args.plain && std::io::stdout().is_terminal();
     let (mut views, mut last_frame) = (0u64, Instant::now());
     loop {
@@ -69,17 +83,15 @@ pub fn run(args: &TopArgs) -> anyhow::Result<TopEnd> {
             }
             if views == 0 {
                 anyhow::bail!(
-                    "no live frame on mars/{}/live within {:.1} s: is marsd running for robot {:?}?",
-                    args.robot,
+                    "no live frame on mars/{robot}/live within {:.1} s: is marsd running for robot {robot:?}?",
                     args.timeout_s,
-                    args.robot
                 );
             }
-            println!("marsd on {} stopped publishing ({:.1} s without a frame)", args.robot, args.timeout_s);
+            println!("marsd on {robot} stopped publishing ({:.1} s without a frame)", args.timeout_s);
             return Ok(TopEnd::DaemonGone { views });
         };
         last_frame = Instant::now();
-        let text = View { robot: &args.robot, frame: &frame, now_ns: monotonic_ns() }.to_string();
+        let text = View { robot, frame: &frame, now_ns: monotonic_ns() }.to_string();
         let mut out = std::io::stdout().lock();
         if redraw {
             // Home, clear: one screen that updates in place.
