@@ -91,18 +91,30 @@ pub fn run(args: &TopArgs) -> anyhow::Result<TopEnd> {
             return Ok(TopEnd::DaemonGone { views });
         };
         last_frame = Instant::now();
-        let text = View { robot, frame: &frame, now_ns: monotonic_ns() }.to_string();
-        let mut out = std::io::stdout().lock();
-        if redraw {
-            // Home, clear: one screen that updates in place.
-            write!(out, "\x1b[H\x1b[2J")?;
-        }
-        write!(out, "{text}")?;
-        out.flush()?;
+        show(&View { robot, frame: &frame, now_ns: monotonic_ns() }.to_string(), redraw)?;
         views += 1;
         if args.count.is_some_and(|n| views >= n) {
             return Ok(TopEnd::Counted);
         }
+    }
+}
+
+/// Prints one view: in place of the last (`redraw`, a terminal) or below it.
+pub(crate) fn show(text: &str, redraw: bool) -> std::io::Result<()> {
+    let mut out = std::io::stdout().lock();
+    if redraw {
+        // Home, clear: one screen that updates in place.
+        write!(out, "\x1b[H\x1b[2J")?;
+    }
+    write!(out, "{text}")?;
+    out.flush()
+}
+
+/// A trip code as a frame carries it, by name ("none" for 0; a code this build does not know as the number).
+pub(crate) fn trip_name(code: u32) -> String {
+    match code {
+        0 => "none".to_string(),
+        c => Trip::from_code(c).map_or(format!("code {c}"), |t| t.to_string()),
     }
 }
 
@@ -116,10 +128,7 @@ pub struct View<'a> {
 impl fmt::Display for View<'_> {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         let fr = self.frame;
-        let trip = match fr.trip {
-            0 => "none".to_string(),
-            code => Trip::from_code(code).map_or(format!("code {code}"), |t| t.to_string()),
-        };
+        let trip = trip_name(fr.trip);
         writeln!(
             f,
             "marsd on {} — {:?}, episode {}, servo ticks {}, trip: {trip}",

@@ -8,7 +8,7 @@
 
 use std::collections::BTreeMap;
 use std::fmt;
-use std::io::{IsTerminal, Write as _};
+use std::io::IsTerminal;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
@@ -19,9 +19,8 @@ use mars_remote::link::{LinkConfig, Role};
 use mars_remote::live::{LiveError, LiveWatch};
 
 use crate::report::latency::Channel;
-use crate::servo::watchdog::Trip;
 use crate::shared::Phase;
-use crate::tools::top::{TopArgs, TopEnd};
+use crate::tools::top::{TopArgs, TopEnd, show, trip_name};
 
 /// A new table at most this often (frames come every `histograms.interval_s` from each robot).
 const REFRESH: Duration = Duration::from_millis(500);
@@ -58,14 +57,8 @@ pub fn run(args: &TopArgs, timeout: Duration) -> anyhow::Result<TopEnd> {
         if !due || !fleet.changed {
             continue;
         }
-        let text = FleetView { prefix: &args.prefix, fleet: &fleet, now: Instant::now() }.to_string();
+        show(&FleetView { prefix: &args.prefix, fleet: &fleet, now: Instant::now() }.to_string(), redraw)?;
         fleet.changed = false;
-        let mut out = std::io::stdout().lock();
-        if redraw {
-            write!(out, "\x1b[H\x1b[2J")?;
-        }
-        write!(out, "{text}")?;
-        out.flush()?;
         (views, last_view) = (views + 1, Some(Instant::now()));
         if args.count.is_some_and(|n| views >= n) {
             return Ok(TopEnd::Counted);
@@ -150,7 +143,7 @@ impl fmt::Display for FleetView<'_> {
                 phase(fr.phase),
                 fr.episode,
                 fr.ticks,
-                trip(fr.trip),
+                trip_name(fr.trip),
                 wake.p99 as f64 / 1e3,
                 fr.servo.starved_ticks,
                 fr.servo.limit_violations,
@@ -167,13 +160,6 @@ fn phase(code: u32) -> String {
     match u8::try_from(code) {
         Ok(v @ 0..=6) => format!("{:?}", Phase::from_u8(v)),
         _ => format!("phase {code}"),
-    }
-}
-
-fn trip(code: u32) -> String {
-    match code {
-        0 => "none".into(),
-        c => Trip::from_code(c).map_or(format!("code {c}"), |t| t.to_string()),
     }
 }
 
