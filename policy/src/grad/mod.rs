@@ -12,6 +12,7 @@
 
 mod attention;
 mod dit;
+mod exp;
 mod layers;
 mod linear;
 mod params;

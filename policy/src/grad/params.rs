@@ -3,6 +3,8 @@
 //! them, as candle-nn's `AdamW` steps them (the two groups `crate::train` makes: weight matrices decayed, the
 //! rest not).
 
+use multiversion::multiversion;
+
 use super::linear::Lin;
 use candle_core::Tensor;
 use candle_nn::VarMap;
@@ -119,13 +121,35 @@ impl AdamW {
             let range = s.at..s.at + s.shape.iter().product::<usize>();
             let (theta, g) = (&mut params.value[range.clone()], &params.grad[range.clone()]);
             let (m, v) = (&mut self.m[range.clone()], &mut self.v[range]);
-            for i in 0..theta.len() {
-                m[i] = m[i] * b1 + g[i] * one_b1;
-                v[i] = v[i] * b2 + (g[i] * g[i]) * one_b2;
-                let adjusted = (m[i] * scale_m) / ((v[i] * scale_v).sqrt() + eps);
-                theta[i] = theta[i] * keep - adjusted * lr;
-            }
+            let c = Constants { b1, b2, one_b1, one_b2, scale_m, scale_v, lr, eps, keep };
+            update(&c, theta, g, m, v);
         }
+    }
+}
+
+/// One step's scalars, as f32.
+struct Constants {
+    b1: f32,
+    b2: f32,
+    one_b1: f32,
+    one_b2: f32,
+    scale_m: f32,
+    scale_v: f32,
+    lr: f32,
+    eps: f32,
+    keep: f32,
+}
+
+/// The element-wise update of one parameter, compiled for the CPU's widest vectors (as `super::layers`).
+#[multiversion(targets = "simd")]
+fn update(c: &Constants, theta: &mut [f32], g: &[f32], m: &mut [f32], v: &mut [f32]) {
+    let n = theta.len();
+    let (g, m, v) = (&g[..n], &mut m[..n], &mut v[..n]);
+    for i in 0..n {
+        m[i] = m[i] * c.b1 + g[i] * c.one_b1;
+        v[i] = v[i] * c.b2 + (g[i] * g[i]) * c.one_b2;
+        let adjusted = (m[i] * c.scale_m) / ((v[i] * c.scale_v).sqrt() + c.eps);
+        theta[i] = theta[i] * c.keep - adjusted * c.lr;
     }
 }
 
