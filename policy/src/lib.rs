@@ -19,6 +19,7 @@ pub mod dataset;
 pub mod dataset_features;
 pub mod demo_file;
 pub mod diagnose;
+pub mod diagnose_family;
 pub mod encoder;
 pub mod evaluation;
 pub mod family;

@@ -159,6 +159,23 @@ fn family_writes_a_table_per_layout_and_the_verdicts() {
     let out = family("3", "6", &["--k-full-w", "1.5"]);
     assert!(!out.status.success() && String::from_utf8_lossy(&out.stderr).contains("--k-full-w"));
 
+    // diagnose-family: every layout, policy and seed at the fork, beside its rollouts, with the verdicts.
+    let out = mars(&["diagnose-family", dir.to_str().unwrap(), "--layouts", layouts.to_str().unwrap(), "--draws", "2"]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let md = std::fs::read_to_string(dir.join("diagnose_family.md")).unwrap();
+    for want in ["| three_passages (", "| four_uneven_passages (", "| fm |", "rollouts − fork", "MARS − FM = "] {
+        assert!(md.contains(want), "diagnose_family.md lacks {want:?}:\n{md}");
+    }
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("diagnose_family.json")).unwrap()).unwrap();
+    for layout in json.as_array().unwrap() {
+        for policy in layout["policies"].as_array().unwrap() {
+            assert_eq!(policy["fork_tv"].as_array().map(Vec::len), Some(3), "every seed: {policy}");
+        }
+    }
+    let out = mars(&["diagnose-family", layouts.to_str().unwrap()]);
+    assert!(!out.status.success() && String::from_utf8_lossy(&out.stderr).contains("family.json"));
+
     let layout = layouts.join("three_passages.toml");
     let (ckpt, layout) = (run.join("mars"), layout.to_str().unwrap().to_string());
     let out = mars(&[

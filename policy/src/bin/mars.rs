@@ -70,6 +70,18 @@ enum Command {
         #[arg(long, default_value_t = 0)]
         seed: u64,
     },
+    /// Where a `mars family` run's checkpoints lose their demos' modes, judged over its seeds: each seed's first
+    /// chunk past the entry gate against its rollouts, MARS against FM; writes diagnose_family.md and .json in RUN.
+    DiagnoseFamily {
+        /// The folder `mars family --out` wrote.
+        run: PathBuf,
+        /// The layout files the family ran on.
+        #[arg(long, default_value = "configs/nav2d_family")]
+        layouts: PathBuf,
+        /// Chunks sampled from each demo's state past the entry gate.
+        #[arg(long, default_value_t = 10)]
+        draws: usize,
+    },
     /// Draw the PNG plots of a run directory (demos, rollouts coloured by ‖w‖∞, K per step, losses).
     Plot {
         #[arg(long, default_value = "runs/nav2d")]
@@ -138,6 +150,7 @@ fn main() -> std::process::ExitCode {
             cli::eval_with_steps(&checkpoint, &layout, rollouts, seed, exec_horizon, batch, ablation).map(|_| ())
         }
         Command::Diagnose { checkpoint, demos, layout, seed } => cli::diagnose(&checkpoint, &demos, &layout, seed),
+        Command::DiagnoseFamily { run, layouts, draws } => mars_policy::diagnose_family::run(&run, &layouts, draws),
         Command::Plot { run, layout } => cli::plot(&run, &layout),
         Command::Benchmark(args) => args.run(jobs),
         Command::Ablate(args) => args.run(jobs),
