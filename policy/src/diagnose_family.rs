@@ -8,11 +8,11 @@
 
 use crate::config::PolicyKind;
 use crate::diagnose::fork_choices;
-use crate::family::LayoutResult;
+use crate::family::{LayoutResult, over_seeds};
 use crate::inference::MarsPolicy;
 use anyhow::Context;
 use mars_tasks::nav2d::layout::Layout;
-use mars_tasks::stats::{Estimate, Verdict, mean_over_seeds, tv_distance};
+use mars_tasks::stats::{Estimate, Verdict, tv_distance};
 use serde::Serialize;
 use std::fmt::Write;
 use std::path::Path;
@@ -36,10 +36,6 @@ pub struct LayoutAtFork {
     pub demo_proportions: Vec<f32>,
     pub policies: Vec<PolicyAtFork>,
     pub verdicts: Vec<(String, Verdict)>,
-}
-
-fn over_seeds(v: &[f64]) -> Estimate {
-    mean_over_seeds(v).unwrap_or(Estimate::new(f64::NAN, f64::NAN, f64::NAN))
 }
 
 fn paired(a: &[f64], b: &[f64]) -> Estimate {

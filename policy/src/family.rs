@@ -89,7 +89,7 @@ pub struct LayoutResult {
 
 /// The mean over seeds with its interval; no value (no seed, or a non-finite figure) gives NaN throughout,
 /// which every [`Verdict`] reads as undecided (NaN compares false both ways) and the tables print as NaN.
-fn over_seeds(values: &[f64]) -> Estimate {
+pub(crate) fn over_seeds(values: &[f64]) -> Estimate {
     mean_over_seeds(values).unwrap_or(Estimate::new(f64::NAN, f64::NAN, f64::NAN))
 }
 
